@@ -1,0 +1,157 @@
+"""espeak-ng speech synthesis with phone timing, through ctypes and the ``espeakng-loader`` wheel.
+
+The wheel ships ``libespeak-ng.so`` and its data folder, so no system package is needed. The
+library is initialised once in the parent process; every utterance is synthesised in a forked
+child (``maxtasksperchild=1``), because inside one process only the first synthesis is
+reproducible. This also spreads the work over all cores.
+
+Phone events carry the sample position of each phoneme; their mnemonics are mapped to the 44
+classes by :data:`ESPEAK_TO_CLASS`.
+"""
+from __future__ import annotations
+
+import ctypes
+import multiprocessing as mp
+import os
+
+import numpy as np
+
+from data_synth.speech import RawPhone, SpeechBackend, SynthRequest, SynthResult
+from face_model.errors import ParameterError
+
+# espeak-ng constants (speak_lib.h)
+_AUDIO_OUTPUT_SYNCHRONOUS = 2
+_INIT_PHONEME_EVENTS = 0x0001
+_INIT_DONT_EXIT = 0x8000
+_POS_CHARACTER = 1
+_CHARS_UTF8 = 1
+_EV_LIST_TERMINATED, _EV_WORD, _EV_PHONEME = 0, 1, 7
+_P_RATE, _P_PITCH, _P_RANGE, _P_WORDGAP = 1, 3, 4, 7
+
+# en-us mnemonics (stress marks stripped) → the 44 classes.
+ESPEAK_TO_CLASS = {
+    "p": "p", "b": "b", "t": "t", "d": "d", "k": "k", "g": "g", "m": "m", "n": "n", "N": "ng",
+    "f": "f", "v": "v", "T": "th", "D": "dh", "s": "s", "z": "z", "S": "sh", "Z": "zh",
+    "tS": "ch", "dZ": "jh", "h": "hh", "l": "l", "r": "r", "r-": "r", "w": "w", "j": "y",
+    "t#": "dx", "d#": "dx", "*": "dx", "@L": "el", "n-": "en", "m-": "m", "l-": "el",
+    "i": "iy", "i:": "iy", "I": "ih", "I2": "ih", "I#": "ih", "e": "eh", "E": "eh", "eI": "ey",
+    "a": "ae", "aa": "ae", "A:": "aa", "A": "aa", "0": "aa", "V": "ah", "O:": "ao", "O": "ao",
+    "U": "uh", "u:": "uw", "u": "uw", "aU": "aw", "OI": "oy", "aI": "ay", "oU": "ow",
+    "3": "er", "3:": "er", "@": "ax", "@2": "ax", "@5": "ax", "a#": "ax", "@-": "ax",
+    "A@": "aa", "e@": "eh", "i@": "ih", "i@3": "ih", "U@": "uh", "O@": "ao", "o@": "ao", "O2": "ao", "t2": "t", ";": "y",
+    "aI@": "ay", "aI3": "ay", "aU@": "aw", "IR": "ih", "VR": "ah", "ER": "eh",
+    "_": "sil", "_:": "sil", "_!": "sil", "_^_": "sil", "?": "sil", "_;_": "sil", "||": "sil",
+}
+
+
+class _Event(ctypes.Structure):
+    class _Id(ctypes.Union):
+        _fields_ = [("number", ctypes.c_int), ("name", ctypes.c_char_p),
+                    ("string", ctypes.c_char * 8)]
+
+    _fields_ = [("type", ctypes.c_int), ("unique_identifier", ctypes.c_uint),
+                ("text_position", ctypes.c_int), ("length", ctypes.c_int),
+                ("audio_position", ctypes.c_int), ("sample", ctypes.c_int),
+                ("user_data", ctypes.c_void_p), ("id", _Id)]
+
+
+_CALLBACK = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.POINTER(ctypes.c_short), ctypes.c_int,
+                             ctypes.POINTER(_Event))
+
+# Per-process state: the library handle and the buffers the callback fills. A forked child
+# inherits the initialised library and starts with empty buffers.
+_LIB = None
+_SR = 0
+_CHUNKS: list = []
+_EVENTS: list = []
+
+
+@_CALLBACK
+def _on_synth(wav, n, events):
+    if n > 0:
+        _CHUNKS.append(np.ctypeslib.as_array(wav, shape=(n,)).copy())
+    i = 0
+    while events[i].type != _EV_LIST_TERMINATED:
+        ev = events[i]
+        if ev.type == _EV_PHONEME:
+            _EVENTS.append((ev.sample, ev.id.string.decode("ascii", "replace")))
+        i += 1
+    return 0
+
+
+def _initialise() -> int:
+    global _LIB, _SR
+    if _LIB is not None:
+        return _SR
+    import espeakng_loader
+
+    lib = ctypes.CDLL(espeakng_loader.get_library_path())
+    lib.espeak_Initialize.restype = ctypes.c_int
+    lib.espeak_Initialize.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_char_p, ctypes.c_int]
+    sr = lib.espeak_Initialize(_AUDIO_OUTPUT_SYNCHRONOUS, 0,
+                               espeakng_loader.get_data_path().encode(),
+                               _INIT_PHONEME_EVENTS | _INIT_DONT_EXIT)
+    if sr <= 0:
+        raise RuntimeError(f"espeak_Initialize failed (returned {sr})")
+    lib.espeak_SetSynthCallback(_on_synth)
+    lib.espeak_SetVoiceByName.argtypes = [ctypes.c_char_p]
+    lib.espeak_SetParameter.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_int]
+    lib.espeak_Synth.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_uint, ctypes.c_int,
+                                 ctypes.c_uint, ctypes.c_uint, ctypes.c_void_p, ctypes.c_void_p]
+    _LIB, _SR = lib, sr
+    return sr
+
+
+def _strip_stress(mnemonic: str) -> str:
+    return mnemonic.replace("'", "").replace(",", "").strip()
+
+
+def _synth_in_child(req: SynthRequest) -> SynthResult:
+    """Runs in a forked child: synthesise one request with the inherited library."""
+    lib = _LIB
+    _CHUNKS.clear()
+    _EVENTS.clear()
+    if lib.espeak_SetVoiceByName(req.voice.encode()) != 0:
+        raise ParameterError(f"espeak-ng has no voice {req.voice!r} (e.g. 'en-us+m3')")
+    lib.espeak_SetParameter(_P_RATE, int(req.rate_wpm), 0)
+    lib.espeak_SetParameter(_P_PITCH, int(req.pitch), 0)
+    lib.espeak_SetParameter(_P_RANGE, int(req.pitch_range), 0)
+    lib.espeak_SetParameter(_P_WORDGAP, int(req.word_gap), 0)
+    text = req.text.encode("utf-8") + b"\0"
+    lib.espeak_Synth(text, len(text), 0, _POS_CHARACTER, 0, _CHARS_UTF8, None, None)
+    lib.espeak_Synchronize()
+    audio = np.concatenate(_CHUNKS) if _CHUNKS else np.zeros(0, np.int16)
+    phones = [RawPhone(int(s), _strip_stress(m)) for s, m in _EVENTS]
+    return SynthResult(audio=audio.astype(np.int16), sample_rate=_SR, phones=phones)
+
+
+class EspeakBackend(SpeechBackend):
+    """espeak-ng from the ``espeakng-loader`` wheel (always available)."""
+
+    name = "espeak-ng"
+    phone_map = ESPEAK_TO_CLASS
+
+    def __init__(self):
+        self.sample_rate = _initialise()
+
+    def version(self) -> str:
+        import espeakng_loader
+
+        return f"espeak-ng (espeakng-loader {_package_version('espeakng-loader')}, " \
+               f"{os.path.basename(espeakng_loader.get_library_path())})"
+
+    def synthesize_many(self, requests, *, workers, progress=None):
+        ctx = mp.get_context("fork")
+        results = [None] * len(requests)
+        with ctx.Pool(processes=workers, maxtasksperchild=1) as pool:
+            for i, res in enumerate(pool.imap(_synth_in_child, requests, chunksize=1)):
+                results[i] = res
+                if progress is not None:
+                    progress(1)
+        return results
+
+
+def _package_version(name: str) -> str:
+    from importlib.metadata import version
+
+    return version(name)

@@ -1,0 +1,182 @@
+"""Generate the synthetic audio-visual corpus (``talkingface synth``).
+
+For every speaker × expression × sentence: synthesise speech with phone timing, pad it with
+silence to a whole number of 30 fps frames, coarticulate the phones into articulatory trajectories,
+drive the parametric face with them (and with the expression's envelope), add head motion and
+marker noise, and write the corpus contract of DESIGN.md. Every random draw comes from a generator
+seeded by ``(seed, speaker, expression, sentence)``, so the corpus does not depend on the order or
+the number of worker processes, and the same seed gives byte-identical files.
+"""
+from __future__ import annotations
+
+import json
+import os
+import platform
+import shutil
+from dataclasses import asdict, dataclass
+from importlib.metadata import version
+from pathlib import Path
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from data_synth.articulation import coarticulate
+from data_synth.face import Speaker, articulate, expression_envelope, make_speaker
+from data_synth.nuisance import add_marker_noise, apply_head_motion, brow_track, head_motion
+from data_synth.speech import SynthRequest, get_backend, phone_segments
+from data_synth.text import select_sentences
+from face_model.corpus import EXPRESSIONS, FPS, write_manifest, write_utterance
+from face_model.errors import ParameterError
+from face_model.layout import LAYOUT_VERSION
+
+
+@dataclass(frozen=True)
+class UtterancePlan:
+    utt_id: str
+    speaker: int
+    expression: str
+    sentence_index: int
+    text: str
+    request: SynthRequest
+
+
+def _check(cfg) -> None:
+    bad = [e for e in cfg.expressions if e not in EXPRESSIONS]
+    if bad or not cfg.expressions:
+        raise ParameterError(f"synth.expressions {list(cfg.expressions)}: allowed values are "
+                             f"{', '.join(EXPRESSIONS)}")
+    if cfg.speakers < 1:
+        raise ParameterError(f"synth.speakers must be >= 1, got {cfg.speakers}")
+    if cfg.marker_noise_px < 0 or cfg.head_rotation_deg < 0 or cfg.head_translation_px < 0:
+        raise ParameterError("synth nuisance magnitudes must be >= 0")
+
+
+def plan_corpus(cfg, seed: int) -> tuple[list[Speaker], list[UtterancePlan]]:
+    """The speakers and the utterances to generate, in manifest order."""
+    _check(cfg)
+    sentences = select_sentences(cfg.n_sentences, cfg.text_file)
+    speakers = [make_speaker(i, cfg, seed) for i in range(cfg.speakers)]
+    prosody = {"neutral": (0, 0), "smile": (cfg.smile_pitch_delta, cfg.smile_rate_delta),
+               "sad": (cfg.sad_pitch_delta, cfg.sad_rate_delta)}
+    plans = []
+    for spk in speakers:
+        for expr in cfg.expressions:
+            dp, dr = prosody[expr]
+            for i, text in enumerate(sentences):
+                req = SynthRequest(text=text, voice=spk.voice, rate_wpm=spk.rate_wpm + dr,
+                                   pitch=int(np.clip(spk.pitch + dp, 0, 100)),
+                                   pitch_range=cfg.pitch_range)
+                plans.append(UtterancePlan(f"s{spk.index:02d}_{expr}_{i:03d}", spk.index, expr,
+                                           i, text, req))
+    return speakers, plans
+
+
+def build_utterance(plan: UtterancePlan, speaker: Speaker, result, backend, cfg, seed: int):
+    """Audio (float, padded), phone segments, and markers (n_frames, 79, 2) for one utterance."""
+    rng = np.random.default_rng([seed, plan.speaker, EXPRESSIONS.index(plan.expression),
+                                 plan.sentence_index])
+    sr = result.sample_rate
+    if sr % FPS:
+        raise ParameterError(f"{backend.name} produced {sr} Hz audio, which has no integer hop "
+                             f"at {FPS} fps")
+    hop = sr // FPS
+    speech = result.audio.astype(np.float64) / 32768.0
+    lead = int(round(cfg.lead_silence_s * sr))
+    n_frames = int(np.ceil((lead + len(speech) + cfg.trail_silence_s * sr) / hop))
+    audio = np.zeros(n_frames * hop)
+    audio[lead:lead + len(speech)] = speech
+    audio += 10.0 ** (cfg.audio_noise_dbfs / 20.0) * rng.standard_normal(len(audio))
+    segs = phone_segments(result, backend, text=plan.text, lead_samples=lead,
+                          total_samples=len(audio))
+    times = np.arange(n_frames) / FPS
+    artic = coarticulate(segs, times, theta_anticipation=cfg.theta_anticipation,
+                         theta_carryover=cfg.theta_carryover, power=cfg.dominance_power)
+    if plan.expression == "neutral":
+        env = np.zeros(n_frames)
+    else:
+        env = expression_envelope(n_frames, FPS, onset_s=rng.uniform(*cfg.expression_onset_s),
+                                  offset_s=rng.uniform(*cfg.expression_offset_s),
+                                  intensity=rng.uniform(*cfg.expression_intensity),
+                                  delay_s=rng.uniform(0.0, 0.1))
+    brow = brow_track(audio, n_frames, hop) * rng.uniform(0.5, 1.0)
+    face = articulate(speaker, artic, brow, expression=plan.expression, envelope=env, cfg=cfg)
+    motion = head_motion(rng, n_frames, FPS, rotation_deg=cfg.head_rotation_deg,
+                         scale=cfg.head_scale, translation_px=cfg.head_translation_px)
+    markers = add_marker_noise(rng, apply_head_motion(face, motion), cfg.marker_noise_px)
+    return audio, segs, markers.astype(np.float32)
+
+
+def _prepare_out(out: Path, overwrite: bool) -> None:
+    if out.exists() and any(out.iterdir()):
+        if not overwrite:
+            raise ParameterError(f"corpus folder {out} already exists and is not empty; "
+                                 "choose another folder or pass --overwrite")
+        if not (out / "manifest.csv").is_file():
+            raise ParameterError(f"{out} is not empty and holds no manifest.csv: refusing to "
+                                 "overwrite a folder that is not a corpus")
+        for sub in ("audio", "markers", "phones"):
+            shutil.rmtree(out / sub, ignore_errors=True)
+        for name in ("manifest.csv", "corpus.json"):
+            (out / name).unlink(missing_ok=True)
+    out.mkdir(parents=True, exist_ok=True)
+
+
+def package_versions() -> dict:
+    names = ("numpy", "scipy", "espeakng-loader", "scikit-learn", "torch", "librosa", "mlflow")
+    out = {"python": platform.python_version()}
+    for n in names:
+        try:
+            out[n] = version(n)
+        except Exception:  # noqa: BLE001 - a missing optional package is simply not listed
+            continue
+    return out
+
+
+def synthesize_corpus(out, cfg, seed: int, *, overwrite: bool = False,
+                      progress: bool = True) -> Path:
+    """Generate the corpus into folder ``out`` and return its path.
+
+    Parameters
+    ----------
+    out : path-like
+        Target folder; refused if it exists and is not empty, unless ``overwrite`` (and then only
+        if it is a corpus folder).
+    cfg : talkingface.config.SynthConfig
+    seed : int
+    """
+    out = Path(out)
+    speakers, plans = plan_corpus(cfg, seed)
+    _prepare_out(out, overwrite)
+    backend = get_backend(cfg.backend)
+    workers = cfg.workers if cfg.workers > 0 else (os.cpu_count() or 1)
+    with tqdm(total=len(plans), desc="speech", unit="utt", disable=not progress) as bar:
+        results = backend.synthesize_many([p.request for p in plans], workers=workers,
+                                          progress=bar.update)
+    rows = []
+    for plan, res in tqdm(list(zip(plans, results)), desc="faces", unit="utt",
+                          disable=not progress):
+        audio, segs, markers = build_utterance(plan, speakers[plan.speaker], res, backend, cfg,
+                                               seed)
+        rel = write_utterance(out, utt_id=plan.utt_id, audio=audio, sr=res.sample_rate,
+                              markers=markers, phones=segs)
+        rows.append({"utt_id": plan.utt_id, "speaker": f"s{plan.speaker:02d}",
+                     "expression": plan.expression, "text": plan.text,
+                     "n_frames": markers.shape[0], "fps": FPS, "sample_rate": res.sample_rate,
+                     **rel})
+    write_manifest(out, rows)
+    info = {
+        "generator": "talkingface.data_synth",
+        "seed": seed,
+        "layout_version": LAYOUT_VERSION,
+        "backend": backend.version(),
+        "settings": {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(cfg).items()},
+        "sentences": list(dict.fromkeys(p.text for p in plans)),
+        "speakers": [{"id": f"s{s.index:02d}", "voice": s.voice, "rate_wpm": s.rate_wpm,
+                      "pitch": s.pitch, "neutral": np.round(s.neutral, 4).tolist()}
+                     for s in speakers],
+        "n_utterances": len(rows),
+        "n_frames": int(sum(r["n_frames"] for r in rows)),
+        "versions": package_versions(),
+    }
+    (out / "corpus.json").write_text(json.dumps(info, indent=1))
+    return out

@@ -1,0 +1,273 @@
+"""Reading, validating and writing a corpus folder (the contract in DESIGN.md).
+
+::
+
+    corpus/
+      corpus.json            generator settings, seed, layout version, package versions
+      manifest.csv           utt_id, speaker, expression, text, n_frames, fps, sample_rate,
+                             audio, markers, phones   (paths relative to corpus/)
+      audio/<utt_id>.wav     mono PCM16
+      markers/<utt_id>.npy   float32 (n_frames, 79, 2), pixels, head motion included
+      phones/<utt_id>.csv    start_s, end_s, phone   (44-class set)
+
+:func:`load_corpus` validates every file before returning: a corpus either loads whole or fails
+with a :class:`CorpusError` naming the file and the problem.
+"""
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from face_model.audio import read_wav, resample, write_wav
+from face_model.errors import CorpusError, ParameterError
+from face_model.layout import N_MARKERS
+from face_model.phones import PHONE_INDEX, PHONES
+
+EXPRESSIONS = ("neutral", "smile", "sad")
+MANIFEST_COLUMNS = ("utt_id", "speaker", "expression", "text", "n_frames", "fps",
+                    "sample_rate", "audio", "markers", "phones")
+FPS = 30
+# Rates with an integer hop at 30 fps; anything else is refused or resampled to DEFAULT_SR.
+SUPPORTED_SR = (22050, 44100, 48000, 24000, 32000, 96000)
+DEFAULT_SR = 22050
+
+
+@dataclass(frozen=True)
+class PhoneSegment:
+    start_s: float
+    end_s: float
+    phone: str
+
+
+@dataclass
+class Utterance:
+    """One validated utterance; arrays are loaded and checked."""
+
+    utt_id: str
+    speaker: str
+    expression: str
+    text: str
+    fps: int
+    sample_rate: int
+    audio: np.ndarray = field(repr=False)  # (n_samples,) float32
+    markers: np.ndarray = field(repr=False)  # (n_frames, 79, 2) float32
+    phones: list = field(repr=False)  # list[PhoneSegment]
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.markers.shape[0])
+
+    def phone_per_frame(self) -> np.ndarray:
+        """Phone-class index (into :data:`PHONES`) of each video frame, shape (n_frames,).
+
+        Frame k is at k / fps seconds; a frame outside every segment is ``sil``.
+        """
+        t = np.arange(self.n_frames) / self.fps
+        out = np.full(self.n_frames, PHONE_INDEX["sil"], dtype=np.int64)
+        for seg in self.phones:
+            out[(t >= seg.start_s) & (t < seg.end_s)] = PHONE_INDEX[seg.phone]
+        return out
+
+
+@dataclass
+class Corpus:
+    root: Path
+    info: dict
+    utterances: list  # list[Utterance]
+
+    def __len__(self) -> int:
+        return len(self.utterances)
+
+    def __getitem__(self, utt_id: str) -> Utterance:
+        for u in self.utterances:
+            if u.utt_id == utt_id:
+                return u
+        raise KeyError(f"{utt_id!r} is not in the corpus at {self.root}")
+
+    @property
+    def n_frames(self) -> int:
+        return sum(u.n_frames for u in self.utterances)
+
+    def by_expression(self, expression: str) -> list:
+        return [u for u in self.utterances if u.expression == expression]
+
+
+def _read_phones(path: Path, duration_s: float, fps: int) -> list[PhoneSegment]:
+    if not path.is_file():
+        raise CorpusError(f"{path}: phone file not found")
+    segs: list[PhoneSegment] = []
+    with open(path, newline="") as f:
+        reader = csv.DictReader(f)
+        if reader.fieldnames is None or list(reader.fieldnames)[:3] != ["start_s", "end_s", "phone"]:
+            raise CorpusError(f"{path}: header must be 'start_s,end_s,phone', got {reader.fieldnames}")
+        for line, row in enumerate(reader, start=2):
+            phone = row["phone"]
+            if phone not in PHONE_INDEX:
+                raise CorpusError(f"{path}, line {line}: unknown phone {phone!r}; allowed are the "
+                                  f"44 classes: {' '.join(PHONES)}")
+            try:
+                s, e = float(row["start_s"]), float(row["end_s"])
+            except (TypeError, ValueError) as exc:
+                raise CorpusError(f"{path}, line {line}: times must be numbers, got "
+                                  f"{row['start_s']!r}, {row['end_s']!r}") from exc
+            if not (np.isfinite(s) and np.isfinite(e)) or s < 0 or e <= s:
+                raise CorpusError(f"{path}, line {line}: need 0 <= start_s < end_s, got {s}, {e}")
+            if segs and s < segs[-1].end_s - 1e-6:
+                raise CorpusError(f"{path}, line {line}: segment starts at {s} s, before the "
+                                  f"previous one ends ({segs[-1].end_s} s)")
+            segs.append(PhoneSegment(s, e, phone))
+    if not segs:
+        raise CorpusError(f"{path}: no phone segments")
+    if segs[-1].end_s > duration_s + 1.0 / fps:
+        raise CorpusError(f"{path}: last phone ends at {segs[-1].end_s:.3f} s, after the audio "
+                          f"({duration_s:.3f} s)")
+    return segs
+
+
+def _read_markers(path: Path) -> np.ndarray:
+    if not path.is_file():
+        raise CorpusError(f"{path}: marker file not found")
+    try:
+        m = np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as exc:
+        raise CorpusError(f"{path}: not a readable .npy array ({exc})") from exc
+    if m.ndim != 3 or m.shape[1:] != (N_MARKERS, 2):
+        raise CorpusError(f"{path}: markers must have shape (n_frames, {N_MARKERS}, 2), "
+                          f"got {m.shape}")
+    if m.dtype not in (np.float32, np.float64):
+        raise CorpusError(f"{path}: markers must be float32 (or float64), got dtype {m.dtype}")
+    if m.shape[0] == 0:
+        raise CorpusError(f"{path}: markers hold no frames")
+    bad = ~np.isfinite(m)
+    if bad.any():
+        frame, marker, _ = np.argwhere(bad)[0]
+        raise CorpusError(f"{path}: {int(bad.sum())} non-finite values (NaN/inf), the first at "
+                          f"frame {frame}, marker {marker}")
+    return m.astype(np.float32, copy=False)
+
+
+def _load_utterance(root: Path, row: dict, line: int, resample_to: int | None) -> Utterance:
+    where = f"{root / 'manifest.csv'}, line {line}"
+    if row["expression"] not in EXPRESSIONS:
+        raise CorpusError(f"{where}: expression {row['expression']!r}; allowed: "
+                          f"{', '.join(EXPRESSIONS)}")
+    try:
+        fps, n_frames, sr_declared = int(row["fps"]), int(row["n_frames"]), int(row["sample_rate"])
+    except (TypeError, ValueError) as exc:
+        raise CorpusError(f"{where}: fps, n_frames and sample_rate must be integers") from exc
+    if fps != FPS:
+        raise CorpusError(f"{where}: fps {fps}; the corpus format requires {FPS}")
+    paths = {k: root / row[k] for k in ("audio", "markers", "phones")}
+    for k, p in paths.items():
+        if not p.is_file():
+            raise CorpusError(f"{where}: {k} file {p} not found")
+    y, sr = read_wav(paths["audio"])
+    if sr != sr_declared:
+        raise CorpusError(f"{paths['audio']}: sample rate {sr} Hz, the manifest says {sr_declared}")
+    if sr not in SUPPORTED_SR:
+        if resample_to is None:
+            raise CorpusError(
+                f"{paths['audio']}: sample rate {sr} Hz gives no integer hop at {FPS} fps; "
+                f"allowed: {', '.join(map(str, SUPPORTED_SR))} (or load with resample_to=)")
+        y, sr = resample(y, sr_in=sr, sr_out=resample_to), resample_to
+    markers = _read_markers(paths["markers"])
+    if markers.shape[0] != n_frames:
+        raise CorpusError(f"{paths['markers']}: {markers.shape[0]} frames, the manifest says "
+                          f"{n_frames}")
+    audio_frames = len(y) * fps / sr
+    if abs(audio_frames - n_frames) > 1.0:
+        raise CorpusError(f"{paths['audio']}: audio lasts {len(y) / sr:.3f} s = "
+                          f"{audio_frames:.2f} frames, but {paths['markers'].name} has {n_frames} "
+                          "frames (more than one frame apart)")
+    phones = _read_phones(paths["phones"], len(y) / sr, fps)
+    return Utterance(row["utt_id"], row["speaker"], row["expression"], row["text"], fps, sr,
+                     y, markers, phones)
+
+
+def load_corpus(root, *, resample_to: int | None = None) -> Corpus:
+    """Load and validate a whole corpus folder.
+
+    Parameters
+    ----------
+    root : path-like
+        The corpus folder (holding ``manifest.csv``).
+    resample_to : int, optional
+        Resample audio whose rate has no integer hop at 30 fps to this rate (Hz) instead of
+        refusing it.
+
+    Raises
+    ------
+    CorpusError
+        Naming the file (and manifest line) of the first problem found.
+    """
+    root = Path(root)
+    manifest = root / "manifest.csv"
+    if not manifest.is_file():
+        raise CorpusError(f"{manifest}: manifest not found (is {root} a corpus folder?)")
+    info_path = root / "corpus.json"
+    info = json.loads(info_path.read_text()) if info_path.is_file() else {}
+    with open(manifest, newline="") as f:
+        reader = csv.DictReader(f)
+        missing = [c for c in MANIFEST_COLUMNS if c not in (reader.fieldnames or [])]
+        if missing:
+            raise CorpusError(f"{manifest}: missing columns {missing}; required: "
+                              f"{', '.join(MANIFEST_COLUMNS)}")
+        rows = list(reader)
+    if not rows:
+        raise CorpusError(f"{manifest}: no utterances listed")
+    seen: set[str] = set()
+    utts = []
+    for line, row in enumerate(rows, start=2):
+        if row["utt_id"] in seen:
+            raise CorpusError(f"{manifest}, line {line}: duplicate utt_id {row['utt_id']!r}")
+        seen.add(row["utt_id"])
+        utts.append(_load_utterance(root, row, line, resample_to))
+    return Corpus(root=root, info=info, utterances=utts)
+
+
+def write_utterance(root, *, utt_id: str, audio: np.ndarray, sr: int, markers: np.ndarray,
+                    phones: list) -> dict:
+    """Write one utterance's three files under ``root`` and return its manifest path fields."""
+    root = Path(root)
+    markers = np.asarray(markers, dtype=np.float32)
+    if markers.ndim != 3 or markers.shape[1:] != (N_MARKERS, 2):
+        raise ParameterError(f"markers for {utt_id} must be (n_frames, 79, 2), got {markers.shape}")
+    rel = {"audio": f"audio/{utt_id}.wav", "markers": f"markers/{utt_id}.npy",
+           "phones": f"phones/{utt_id}.csv"}
+    for sub in ("audio", "markers", "phones"):
+        (root / sub).mkdir(parents=True, exist_ok=True)
+    write_wav(root / rel["audio"], audio, sr)
+    np.save(root / rel["markers"], markers, allow_pickle=False)
+    with open(root / rel["phones"], "w", newline="") as f:
+        w = csv.writer(f, lineterminator="\n")
+        w.writerow(["start_s", "end_s", "phone"])
+        for seg in phones:
+            w.writerow([f"{seg.start_s:.5f}", f"{seg.end_s:.5f}", seg.phone])
+    return rel
+
+
+def write_manifest(root, rows: list[dict]) -> None:
+    """Write ``manifest.csv`` (rows hold the :data:`MANIFEST_COLUMNS`)."""
+    with open(Path(root) / "manifest.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=MANIFEST_COLUMNS, lineterminator="\n")
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: r[k] for k in MANIFEST_COLUMNS})
+
+
+def corpus_hash(root) -> str:
+    """SHA-256 over the manifest and every file it lists (in manifest order)."""
+    root = Path(root)
+    h = hashlib.sha256()
+    manifest = root / "manifest.csv"
+    h.update(manifest.read_bytes())
+    with open(manifest, newline="") as f:
+        for row in csv.DictReader(f):
+            for k in ("audio", "markers", "phones"):
+                h.update((root / row[k]).read_bytes())
+    return h.hexdigest()
