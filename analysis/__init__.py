@@ -1,0 +1,1 @@
+"""Paper metrics, tallies, statistics and the PDF report builder (paper §VII)."""

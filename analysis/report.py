@@ -1,0 +1,93 @@
+"""The PDF report builder (reportlab): headings, paragraphs, real-text tables and figures.
+
+The builder only lays out what it is given; every number comes from a stage's saved results.
+Tables are reportlab ``Table`` flowables, so their text is real, searchable PDF text.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from reportlab.lib import colors
+from reportlab.lib.pagesizes import A4
+from reportlab.lib.styles import getSampleStyleSheet
+from reportlab.lib.units import cm
+from reportlab.platypus import (
+    Image,
+    KeepTogether,
+    PageBreak,
+    Paragraph,
+    SimpleDocTemplate,
+    Spacer,
+    Table,
+    TableStyle,
+)
+
+_STYLES = getSampleStyleSheet()
+_WIDTH = A4[0] - 4 * cm
+
+
+class Report:
+    """Accumulates flowables; :meth:`build` writes the PDF."""
+
+    def __init__(self, title: str, subtitle: str = ""):
+        self.title = title
+        self.story = [Paragraph(title, _STYLES["Title"])]
+        if subtitle:
+            self.story.append(Paragraph(subtitle, _STYLES["Italic"]))
+        self.story.append(Spacer(1, 0.4 * cm))
+
+    def heading(self, text: str, level: int = 1) -> None:
+        self.story.append(Paragraph(text, _STYLES[f"Heading{level}"]))
+
+    def paragraph(self, text: str) -> None:
+        self.story.append(Paragraph(text, _STYLES["BodyText"]))
+
+    def table(self, caption: str, header: list, rows: list, *, note: str = "",
+              col_widths: list | None = None) -> None:
+        """A captioned table; ``rows`` hold strings or numbers (formatted by the caller)."""
+        data = [header] + [[str(c) for c in r] for r in rows]
+        t = Table(data, colWidths=col_widths, hAlign="LEFT", repeatRows=1)
+        t.setStyle(TableStyle([
+            ("FONT", (0, 0), (-1, 0), "Helvetica-Bold", 8.5),
+            ("FONT", (0, 1), (-1, -1), "Helvetica", 8.5),
+            ("LINEABOVE", (0, 0), (-1, 0), 0.8, colors.black),
+            ("LINEBELOW", (0, 0), (-1, 0), 0.5, colors.black),
+            ("LINEBELOW", (0, -1), (-1, -1), 0.8, colors.black),
+            ("ROWBACKGROUNDS", (0, 1), (-1, -1), [colors.white, colors.HexColor("#f3f3f3")]),
+            ("VALIGN", (0, 0), (-1, -1), "TOP"),
+        ]))
+        parts = [Paragraph(f"<b>{caption}</b>", _STYLES["BodyText"]), t]
+        if note:
+            parts.append(Paragraph(f"<font size=7.5>{note}</font>", _STYLES["BodyText"]))
+        parts.append(Spacer(1, 0.3 * cm))
+        self.story.append(KeepTogether(parts))
+
+    def figure(self, path, caption: str, *, width: float = 1.0) -> None:
+        """A PNG scaled to ``width`` × the text width, with its caption underneath."""
+        from reportlab.lib.utils import ImageReader
+
+        w, h = ImageReader(str(path)).getSize()
+        draw_w = _WIDTH * width
+        img = Image(str(path), width=draw_w, height=draw_w * h / w)
+        self.story.append(KeepTogether([img, Paragraph(f"<font size=8>{caption}</font>",
+                                                       _STYLES["BodyText"]),
+                                        Spacer(1, 0.3 * cm)]))
+
+    def page_break(self) -> None:
+        self.story.append(PageBreak())
+
+    def build(self, path) -> Path:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        doc = SimpleDocTemplate(str(path), pagesize=A4, leftMargin=2 * cm, rightMargin=2 * cm,
+                                topMargin=1.8 * cm, bottomMargin=1.8 * cm, title=self.title,
+                                author="talkingface", invariant=1)
+
+        def footer(canvas, doc_):
+            canvas.saveState()
+            canvas.setFont("Helvetica", 7.5)
+            canvas.drawRightString(A4[0] - 2 * cm, 1.1 * cm, f"{self.title} — page {doc_.page}")
+            canvas.restoreState()
+
+        doc.build(list(self.story), onFirstPage=footer, onLaterPages=footer)
+        return path

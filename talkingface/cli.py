@@ -1,0 +1,159 @@
+"""The ``talkingface`` command: one sub-command per stage, and ``replicate`` for all of them.
+
+Every sub-command takes ``--config FILE`` (YAML, any subset of keys) and ``--set key=value``
+(repeatable); unknown keys are errors. Errors the project raises on bad input are printed as one
+line (``error: ...``) with exit status 2.
+"""
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+from pathlib import Path
+
+from face_model.errors import TalkingFaceError
+
+
+def _config_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", metavar="FILE", help="YAML config (defaults: the paper's values)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override one config value, e.g. --set synth.speakers=2 (repeatable)")
+    p.add_argument("--seed", type=int, help="the run seed (same as --set seed=N)")
+
+
+def _load(args):
+    from talkingface.config import load_config
+
+    overrides = list(args.overrides)
+    if getattr(args, "seed", None) is not None:
+        overrides.append(f"seed={args.seed}")
+    return load_config(args.config, overrides)
+
+
+def cmd_synth(args) -> int:
+    from data_synth.generate import synthesize_corpus
+    from talkingface.config import dump_config
+    from talkingface.pipeline import with_synth
+
+    cfg = _load(args)
+    changes = {}
+    if args.text:
+        changes["text_file"] = str(args.text)
+        if args.sentences is None:
+            changes["n_sentences"] = 0  # all of the user's sentences
+    if args.sentences is not None:
+        changes["n_sentences"] = args.sentences
+    if args.speakers is not None:
+        changes["speakers"] = args.speakers
+    cfg = with_synth(cfg, **changes)
+    out = synthesize_corpus(args.out, cfg.synth, cfg.seed, overwrite=args.overwrite)
+    dump_config(cfg, out / "config.yaml")
+    from face_model.corpus import load_corpus
+
+    c = load_corpus(out)
+    print(f"wrote {out}: {len(c)} utterances, {c.n_frames} frames")
+    return 0
+
+
+def cmd_units(args) -> int:
+    from talkingface.pipeline import stage_units
+
+    cfg = _load(args)
+    res = stage_units(Path(args.corpus), Path(args.out), cfg)
+    s = res["summary"]
+    print(f"Motion Units fitted in {res['seconds']:.2f} s -> {Path(args.out) / 'motion_units.npz'}")
+    print(f"{'':32s}{'ours':>10s}{'paper':>10s}")
+    print(f"{s['n_utterance']} utterance MUs (neutral){'':7s}{100 * s['explained']['neutral']:9.2f}%"
+          f"{100 * s['paper']['neutral']:9.2f}%")
+    for k, v in s["explained"].items():
+        if k != "neutral":
+            print(f"{s['n_expression']} expression MUs ({k}){'':<{13 - len(k)}s}{100 * v:9.2f}%"
+                  f"  >={100 * s['paper'][k]:.2f}%")
+    return 0
+
+
+def cmd_replicate(args) -> int:
+    from talkingface.pipeline import replicate
+
+    cfg = _load(args)
+    pdf = replicate(args.name, cfg, overwrite=args.overwrite)
+    print(f"report: {pdf}")
+    return 0
+
+
+def cmd_report(args) -> int:
+    from talkingface.config import load_config
+    from talkingface.paths import RunPaths
+    from talkingface.pipeline import stage_report
+
+    paths = RunPaths.create(args.name)
+    if not paths.config.is_file():
+        raise TalkingFaceError(f"{paths.config} not found: run 'talkingface replicate --name "
+                               f"{args.name}' first")
+    cfg = load_config(paths.config)
+    print(f"report: {stage_report(paths, cfg)}")
+    return 0
+
+
+def cmd_ui(args) -> int:
+    from talkingface.config import load_config
+    from talkingface.tracking import artifact_root, tracking_uri
+
+    uri = tracking_uri(load_config(args.config, args.overrides))
+    cmd = [sys.executable, "-m", "mlflow", "server", "--backend-store-uri", uri,
+           "--host", "127.0.0.1", "--port", str(args.port)]
+    if uri.startswith("sqlite:"):
+        cmd += ["--default-artifact-root", artifact_root()]
+    print(f"MLflow UI on http://127.0.0.1:{args.port} (store: {uri}); Ctrl-C stops it")
+    return subprocess.call(cmd)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="talkingface", description=__doc__.splitlines()[0])
+    sub = p.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("synth", help="generate the synthetic audio-visual corpus")
+    s.add_argument("--out", required=True, type=Path, help="corpus folder to create")
+    s.add_argument("--text", type=Path, help="your own sentences, one per line")
+    s.add_argument("--sentences", type=int, help="number of sentences (default: 100)")
+    s.add_argument("--speakers", type=int, help="number of speakers (default: 1)")
+    s.add_argument("--overwrite", action="store_true", help="replace an existing corpus folder")
+    _config_args(s)
+    s.set_defaults(func=cmd_synth)
+
+    s = sub.add_parser("units", help="fit the Motion Units on a corpus")
+    s.add_argument("--corpus", required=True, type=Path)
+    s.add_argument("--out", required=True, type=Path, help="folder for motion_units.npz")
+    _config_args(s)
+    s.set_defaults(func=cmd_units)
+
+    s = sub.add_parser("replicate", help="run every stage into runs/<name> and write the report")
+    s.add_argument("--name", required=True, help="run name (runs/<name>, reports/<name>.pdf)")
+    s.add_argument("--overwrite", action="store_true",
+                   help="replace an existing run made with a different config")
+    _config_args(s)
+    s.set_defaults(func=cmd_replicate)
+
+    s = sub.add_parser("report", help="rebuild reports/<name>.pdf from runs/<name>")
+    s.add_argument("--name", required=True)
+    s.set_defaults(func=cmd_report)
+
+    s = sub.add_parser("ui", help="start the MLflow UI on 127.0.0.1 against the same store")
+    s.add_argument("--port", type=int, default=5000)
+    s.add_argument("--config", metavar="FILE")
+    s.add_argument("--set", dest="overrides", action="append", default=[])
+    s.set_defaults(func=cmd_ui)
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except TalkingFaceError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
