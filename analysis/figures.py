@@ -123,7 +123,8 @@ def lip_trajectories(items: list, path) -> Path:
     ``items``: dicts with ``title``, ``t`` (s), ``aperture`` (px) and ``phones`` (list of
     ``(start_s, end_s, phone)``).
     """
-    fig, axes = plt.subplots(len(items), 1, figsize=(10, 2.4 * len(items)), squeeze=False)
+    fig, axes = plt.subplots(len(items), 1, figsize=(10, 2.6 * len(items)), squeeze=False,
+                             layout="constrained")
     for ax, it in zip(axes[:, 0], items):
         ax.plot(it["t"], it["aperture"], c="#d62728", lw=1.4)
         ax.set_ylabel("lip aperture (px)", fontsize=8)

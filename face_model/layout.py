@@ -136,7 +136,8 @@ def _mesh(neutral: np.ndarray, region: np.ndarray) -> np.ndarray:
             continue  # a triangle across the mouth opening
         p = neutral[t]
         edges = np.linalg.norm(p - np.roll(p, 1, axis=0), axis=1)
-        area = 0.5 * abs(np.cross(p[1] - p[0], p[2] - p[0]))
+        a, b = p[1] - p[0], p[2] - p[0]
+        area = 0.5 * abs(a[0] * b[1] - a[1] * b[0])
         # Slivers along the convex hull connect markers that are not neighbours on the skin.
         if area / (edges.max() ** 2) < 0.04:
             continue

@@ -1,0 +1,34 @@
+# talkingface: `make replicate` and `make test` do all set-up themselves (tools/setup.sh).
+VENV ?= .venv
+PY := $(VENV)/bin/python
+NAME ?= paper
+JOBS ?= 2
+
+.PHONY: setup replicate test bench lock ui clean
+
+setup:
+	@VENV=$(VENV) bash tools/setup.sh
+
+replicate: setup
+	$(PY) -m talkingface replicate --name $(NAME) --config configs/paper.yaml $(ARGS)
+
+# pytest exits 5 when it collected no test: that is a failure here, with a message.
+test: setup
+	@$(PY) -m pytest -n $(JOBS) -q $(ARGS); rc=$$?; \
+	if [ $$rc -eq 5 ]; then echo "make test: pytest collected no tests" >&2; exit 1; fi; exit $$rc
+
+bench: setup
+	$(PY) bench/bench_corpus.py
+	$(PY) bench/bench_units.py
+
+ui: setup
+	$(PY) -m talkingface ui
+
+# Refresh the pinned lock file from requirements/base.in (maintainers only).
+lock:
+	rm -rf /tmp/talkingface-lock && python3 -m venv /tmp/talkingface-lock
+	/tmp/talkingface-lock/bin/pip install -q -c requirements/constraints.txt -r requirements/base.in
+	/tmp/talkingface-lock/bin/pip freeze | sed 's/^torch==\(.*\)+cpu/torch==\1/' > requirements/lock.txt
+
+clean:
+	rm -rf runs reports/*.pdf mlartifacts mlflow.db .pytest_cache

@@ -1,0 +1,94 @@
+"""The command line and the replicate pipeline on a tiny corpus, with a throw-away MLflow store."""
+import json
+
+import pytest
+from pypdf import PdfReader
+
+from talkingface.cli import main
+
+TINY = ["--set", "synth.n_sentences=3", "--set", "synth.workers=2"]
+
+
+@pytest.fixture
+def workdir(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    return tmp_path
+
+
+def pdf_text(path) -> str:
+    return "\n".join(page.extract_text() for page in PdfReader(path).pages)
+
+
+def test_replicate_writes_runs_report_and_mlflow(workdir, capsys):
+    assert main(["replicate", "--name", "tiny", *TINY]) == 0
+    run = workdir / "runs" / "tiny"
+    for p in ("config.yaml", "corpus/manifest.csv", "corpus/done.json", "units/motion_units.npz",
+              "units/variance.csv", "report/summary.json", "report/mu_variance.png"):
+        assert (run / p).is_file(), p
+    text = pdf_text(workdir / "reports" / "tiny.pdf")
+    assert "MU variance explained: ours vs the paper's" in text
+    assert "Utterance MUs (neutral speech)" in text and "97.56 %" in text
+    summary = json.loads((run / "report" / "summary.json").read_text())
+    ours = f"{100 * summary['units']['explained']['neutral']:.2f} %"
+    assert ours in text  # our figure, as text, in the table
+
+    import mlflow
+
+    mlflow.set_tracking_uri(f"sqlite:///{workdir / 'mlflow.db'}")
+    runs = mlflow.search_runs(experiment_names=["talkingface"], output_format="list")
+    assert len(runs) == 1
+    r = runs[0]
+    assert r.data.params["synth.n_sentences"] == "3"
+    assert r.data.metrics["corpus.n_utterances"] == 9
+    assert abs(r.data.metrics["units.explained.neutral"]
+               - summary["units"]["explained"]["neutral"]) < 1e-12
+    assert len(r.data.tags["corpus_hash"]) == 64 and "git_commit" in r.data.tags
+    assert (workdir / "mlartifacts").is_dir()
+
+
+def test_replicate_refuses_a_different_config_under_the_same_name(workdir, capsys):
+    assert main(["replicate", "--name", "r", *TINY, "--set", "tracking.enabled=false"]) == 0
+    stamp = (workdir / "runs" / "r" / "corpus" / "done.json").read_text()
+    code = main(["replicate", "--name", "r", *TINY, "--set", "tracking.enabled=false",
+                 "--seed", "5"])
+    assert code == 2
+    assert "was made with a different config" in capsys.readouterr().err
+    # nothing was touched
+    assert (workdir / "runs" / "r" / "corpus" / "done.json").read_text() == stamp
+    # the same config again reuses the finished corpus
+    assert main(["replicate", "--name", "r", *TINY, "--set", "tracking.enabled=false"]) == 0
+    assert (workdir / "runs" / "r" / "corpus" / "done.json").read_text() == stamp
+
+
+def test_synth_then_units_print_the_variance(workdir, capsys):
+    assert main(["synth", "--out", "c", *TINY]) == 0
+    assert "9 utterances" in capsys.readouterr().out
+    assert main(["units", "--corpus", "c", "--out", "u"]) == 0
+    out = capsys.readouterr().out
+    assert "7 utterance MUs (neutral)" in out
+    assert "2 expression MUs (smile)" in out and "2 expression MUs (sad)" in out
+    assert "97.56%" in out and ">=98.13%" in out
+    # an existing corpus folder is never overwritten without --overwrite
+    assert main(["synth", "--out", "c", *TINY]) == 2
+    assert "already exists and is not empty" in capsys.readouterr().err
+
+
+def test_user_text_file(workdir, capsys):
+    (workdir / "mine.txt").write_text("# my sentences\nA cat sat on the mat.\n\nWe went home.\n")
+    assert main(["synth", "--out", "c", "--text", "mine.txt", "--set", "synth.expressions=[neutral]"]) == 0
+    assert "2 utterances" in capsys.readouterr().out
+    assert main(["synth", "--out", "d", "--text", "nope.txt"]) == 2
+    assert "--text file nope.txt not found" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["replicate", "--name", "../x"], "run name '../x' is not allowed"),
+    (["synth", "--out", "c", "--set", "synth.bogus=1"], "unknown config key synth.bogus"),
+    (["units", "--corpus", "missing", "--out", "u"], "missing/manifest.csv: manifest not found"),
+    (["report", "--name", "never"], "runs/never/config.yaml not found"),
+])
+def test_errors_are_one_clear_line(workdir, capsys, argv, message):
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and message in err

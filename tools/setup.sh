@@ -1,0 +1,48 @@
+#!/usr/bin/env bash
+# Everything `make replicate` and `make test` need, on a fresh Debian/Ubuntu machine:
+# missing Debian packages (apt-get, with sudo when not root), a .venv, and the pinned Python
+# packages (torch==2.13.0 through requirements/constraints.txt, the rest from requirements/lock.txt).
+# Re-running is cheap: the venv is rebuilt only when the lock file or pyproject changes.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+VENV=${VENV:-.venv}
+PY=${PYTHON:-python3}
+# Debian packages: Python with venv and pip.
+DEB_PKGS="python3 python3-venv python3-pip"
+
+missing=()
+for p in $DEB_PKGS; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+# A Python from elsewhere (pyenv, a conda base) with venv support is fine for the python3* trio.
+if "$PY" -c 'import venv, ensurepip' 2>/dev/null; then
+  keep=(); for p in "${missing[@]:-}"; do case "$p" in python3*|"") ;; *) keep+=("$p");; esac; done
+  missing=("${keep[@]:-}")
+fi
+if [ -n "${missing[*]:-}" ]; then
+  echo "setup: installing Debian packages: ${missing[*]}"
+  SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+  $SUDO apt-get update -q
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q --no-install-recommends "${missing[@]}"
+fi
+
+"$PY" - <<'PYV'
+import sys
+if not ((3, 10) <= sys.version_info[:2] <= (3, 12)):
+    sys.exit(f"setup: Python 3.10-3.12 is required, found {sys.version.split()[0]}")
+PYV
+
+STAMP="$VENV/.talkingface-installed"
+want=$(cat requirements/lock.txt requirements/constraints.txt pyproject.toml | sha256sum | cut -d' ' -f1)
+if [ -f "$STAMP" ] && [ "$(cat "$STAMP")" = "$want" ]; then
+  exit 0
+fi
+[ -x "$VENV/bin/python" ] || "$PY" -m venv "$VENV"
+"$VENV/bin/python" -m pip install -q --upgrade pip
+# torch first, from its pin, so nothing can pull a CUDA build.
+"$VENV/bin/python" -m pip install -q -c requirements/constraints.txt "torch==2.13.0"
+"$VENV/bin/python" -m pip install -q -c requirements/constraints.txt -r requirements/lock.txt
+"$VENV/bin/python" -m pip install -q --no-deps -e .
+echo "$want" > "$STAMP"
+echo "setup: $VENV ready"
