@@ -87,7 +87,9 @@ def make_figures(corpus, units, summary: dict, out_dir) -> dict:
             summary["units"]["paper"], out / "mu_variance.png"),
     }
     neutral = lay.neutral
-    utt = [unflatten(units.components_[i][None])[0] for i in range(units.n_utterance)]
+    # Each MU is drawn as the displacement of one standard deviation of its MUP.
+    sd = np.sqrt(units.variance_)
+    utt = [unflatten(units.components_[i][None])[0] * sd[i] for i in range(units.n_utterance)]
     figs["utterance_mus"] = figures.motion_unit_arrows(
         neutral, utt, [f"utterance MU {i + 1}" for i in range(len(utt))],
         out / "utterance_mus.png")
@@ -96,7 +98,8 @@ def make_figures(corpus, units, summary: dict, out_dir) -> dict:
         expr_units.append(unflatten(units.expression_mean_[k][None])[0])
         titles.append(f"{k}: mean m_k0")
         for j in range(units.n_expression):
-            expr_units.append(unflatten(units.expression_components_[k][j][None])[0])
+            sd_k = np.sqrt(units.expression_variance_[k][j])
+            expr_units.append(unflatten(units.expression_components_[k][j][None])[0] * sd_k)
             titles.append(f"{k}: MU {j + 1}")
     if expr_units:
         figs["expression_mus"] = figures.motion_unit_arrows(
@@ -160,7 +163,7 @@ def units_section(report, units_summary: dict, figs: dict) -> None:
     report.figure(figs["variance"], "Cumulative variance explained; circles: the number kept; "
                   "stars: the paper's values.", width=0.75)
     report.figure(figs["utterance_mus"], "The utterance MUs as displacement arrows on the "
-                  "neutral face (common scale).")
+                  "neutral face: each MU times one standard deviation of its MUP (common scale).")
     if "expression_mus" in figs:
         report.figure(figs["expression_mus"], "Expression MUs: the residual mean m_k0 and the "
-                      "first principal axes, per expression.", width=0.8)
+                      "principal axes (times one standard deviation), per expression.", width=0.8)

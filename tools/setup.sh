@@ -8,8 +8,8 @@ cd "$(dirname "$0")/.."
 
 VENV=${VENV:-.venv}
 PY=${PYTHON:-python3}
-# Debian packages: Python with venv and pip.
-DEB_PKGS="python3 python3-venv python3-pip"
+# Debian packages: Python with venv and pip; flite (the optional second speech backend, tested).
+DEB_PKGS="python3 python3-venv python3-pip flite"
 
 missing=()
 for p in $DEB_PKGS; do
