@@ -15,7 +15,14 @@ from __future__ import annotations
 import numpy as np
 
 from face_model.errors import ParameterError
-from face_model.phones import ARTIC_PARAMS, BILABIALS, PHONE_INDEX, dominance_matrix, target_matrix
+from face_model.phones import (
+    ARTIC_PARAMS,
+    BILABIALS,
+    PHONE_INDEX,
+    check_phone,
+    dominance_matrix,
+    target_matrix,
+)
 
 _CLOSURE = ARTIC_PARAMS.index("closure")
 
@@ -44,7 +51,7 @@ def coarticulate(segments, times: np.ndarray, *, theta_anticipation: float = 16.
                              f"{theta_anticipation}, {theta_carryover}, {power}")
     if len(segments) == 0:
         raise ParameterError("coarticulate: no phone segments")
-    idx = np.array([PHONE_INDEX[s.phone] for s in segments])
+    idx = np.array([PHONE_INDEX[check_phone(s.phone, source="coarticulate")] for s in segments])
     start = np.array([s.start_s for s in segments])
     end = np.array([s.end_s for s in segments])
     centre = 0.5 * (start + end)
@@ -57,12 +64,14 @@ def coarticulate(segments, times: np.ndarray, *, theta_anticipation: float = 16.
     edge = np.maximum(start[:, None] - t, t - end[:, None]).clip(min=0.0)
     dist = np.where(is_sil[:, None], edge, dist)
     theta = np.where(signed < 0, theta_anticipation, theta_carryover)
-    decay = np.exp(-theta * dist**power)  # (n_seg, n)
-
-    alpha = dominance_matrix()[idx]  # (n_seg, 7)
+    # log D = log alpha − θ|τ|^c; normalising by the per-time maximum before exp keeps the
+    # weighted mean exact however far a time lies from every segment centre.
+    log_decay = -theta * dist**power  # (n_seg, n)
+    alpha = dominance_matrix()[idx]  # (n_seg, 7), all > 0
     target = target_matrix()[idx]  # (n_seg, 7)
-    dom = alpha[:, None, :] * decay[:, :, None]  # (n_seg, n, 7)
-    traj = (dom * target[:, None, :]).sum(0) / np.maximum(dom.sum(0), 1e-12)
+    log_dom = np.log(alpha)[:, None, :] + log_decay[:, :, None]  # (n_seg, n, 7)
+    dom = np.exp(log_dom - log_dom.max(axis=0, keepdims=True))
+    traj = (dom * target[:, None, :]).sum(0) / dom.sum(0)
 
     bilabial = np.array([s.phone in BILABIALS for s in segments])
     if bilabial.any():

@@ -169,7 +169,9 @@ def synthesize_corpus(out, cfg, seed: int, *, overwrite: bool = False,
         "seed": seed,
         "layout_version": LAYOUT_VERSION,
         "backend": backend.version(),
-        "settings": {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(cfg).items()},
+        # Generator settings; `workers` is left out: it changes how fast, never what is made.
+        "settings": {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(cfg).items()
+                     if k != "workers"},
         "sentences": list(dict.fromkeys(p.text for p in plans)),
         "speakers": [{"id": f"s{s.index:02d}", "voice": s.voice, "rate_wpm": s.rate_wpm,
                       "pitch": s.pitch, "neutral": np.round(s.neutral, 4).tolist()}

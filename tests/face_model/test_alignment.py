@@ -93,8 +93,9 @@ def test_similarity_params_is_the_least_squares_solution(rng):
 
 def test_affine_alignment_maps_the_glasses_exactly_onto_the_reference(rng):
     faces = _deformed_faces(rng, 30)
-    # Arbitrary (non-similarity) glasses: the three points are moved independently.
-    faces[:, G] += rng.uniform(-15, 15, (30, 3, 2))
+    # Arbitrary (non-similarity) glasses: the three points move independently, by up to 5 px
+    # (more would make the 16 px high glasses triangle nearly degenerate).
+    faces[:, G] += rng.uniform(-5, 5, (30, 3, 2))
     aligned = align_markers(faces, model="affine")
     ref = np.broadcast_to(default_layout().neutral[G], (30, 3, 2))
     np.testing.assert_allclose(aligned[:, G], ref, rtol=0, atol=1e-9)
