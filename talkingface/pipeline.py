@@ -97,6 +97,7 @@ def stage_report(paths: RunPaths, cfg) -> Path:
     units = MotionUnits.load(paths.units_model)
     summary = {"corpus": summarize_corpus(corpus), "units": _done(paths.units)["summary"]}
     paths.report_dir.mkdir(parents=True, exist_ok=True)
+    dump_config(cfg, paths.report_dir / "config.yaml")
     (paths.report_dir / "summary.json").write_text(json.dumps(summary, indent=1))
     figs = make_figures(corpus, units, summary, paths.report_dir)
     rep = Report(f"talkingface replication: {paths.name}",

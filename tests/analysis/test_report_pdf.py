@@ -27,3 +27,18 @@ def test_same_content_gives_the_same_pdf(tmp_path):
         return (rep.build(tmp_path / name)).read_bytes()
 
     assert build("a.pdf") == build("b.pdf")
+
+
+def test_noise_floor_share_recovers_white_noise():
+    """Low-rank signal + white noise of known variance: the estimated share matches the truth."""
+    from analysis.foundation import noise_floor_share
+
+    rng = np.random.default_rng(3)
+    n, d, rank, sd = 20000, 158, 5, 0.2
+    basis = np.linalg.qr(rng.standard_normal((d, rank)))[0].T
+    signal = (rng.standard_normal((n, rank)) * [5, 4, 3, 2, 1]) @ basis
+    X = signal + sd * rng.standard_normal((n, d))
+    var = np.linalg.svd(X - X.mean(0), compute_uv=False) ** 2 / (n - 1)
+    true_share = d * sd**2 / var.sum()
+    assert abs(noise_floor_share(var) - true_share) < 0.1 * true_share
+    assert noise_floor_share(np.array([3.0, 2.0, 1.0])) == 0.0  # too few axes to tell
