@@ -92,3 +92,19 @@ def test_errors_are_one_clear_line(workdir, capsys, argv, message):
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: ") and message in err
+
+
+def test_ui_serves_the_same_store_on_localhost(workdir, monkeypatch, capsys):
+    import talkingface.cli as cli
+
+    calls = []
+    monkeypatch.setattr(cli.subprocess, "call", lambda cmd: calls.append(cmd) or 0)
+    assert main(["ui", "--port", "5099"]) == 0
+    cmd = calls[0]
+    assert cmd[cmd.index("--host") + 1] == "127.0.0.1" and cmd[cmd.index("--port") + 1] == "5099"
+    assert cmd[cmd.index("--backend-store-uri") + 1] == f"sqlite:///{workdir / 'mlflow.db'}"
+    assert cmd[cmd.index("--default-artifact-root") + 1] == (workdir / "mlartifacts").as_uri()
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", "postgresql://db.example/mlflow")
+    assert main(["ui"]) == 0
+    assert calls[1][calls[1].index("--backend-store-uri") + 1] == "postgresql://db.example/mlflow"
+    assert "--default-artifact-root" not in calls[1]
