@@ -14,7 +14,7 @@ import os
 import platform
 import shutil
 from dataclasses import asdict, dataclass
-from importlib.metadata import version
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 import numpy as np
@@ -127,7 +127,7 @@ def package_versions() -> dict:
     for n in names:
         try:
             out[n] = version(n)
-        except Exception:  # noqa: BLE001 - a missing optional package is simply not listed
+        except PackageNotFoundError:  # an optional package that is not installed is not listed
             continue
     return out
 
