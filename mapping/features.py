@@ -1,0 +1,118 @@
+"""Audio features of the mapping (paper §VI): 10 MFCC per 30 fps frame, and the context window.
+
+Frame k is centred at k / fps seconds, like video frame k. The hop is exactly ``sr / fps``
+samples. A rate without an integer hop is refused, and the caller resamples. HTK-style settings,
+written down here and in :data:`MFCC_SETTINGS`:
+
+* analysis window: 25 ms Hamming, centred on the frame instant (signal edge-padded by reflection);
+* power spectrum → 26 triangular mel filters (HTK mel scale) from 0 Hz to sr/2;
+* natural log with a floor of 1e-10 (digital silence stays finite);
+* DCT-II (orthonormal); c0 dropped, c1…c_n kept; sinusoidal lifter L = 22.
+"""
+from __future__ import annotations
+
+import librosa
+import numpy as np
+
+from face_model.errors import ParameterError
+
+MFCC_SETTINGS = {"window_s": 0.025, "window": "hamming", "n_mels": 26, "fmin": 0.0,
+                 "fmax": "sr/2", "mel_scale": "htk", "log_floor": 1e-10, "dct": "II, ortho",
+                 "c0": "dropped", "lifter": 22}
+
+
+def hop_samples(sr: int, fps: int = 30) -> int:
+    """The exact hop in samples, or a ParameterError naming the rate."""
+    if sr <= 0 or fps <= 0 or sr % fps:
+        raise ParameterError(f"sample rate {sr} Hz has no integer hop at {fps} fps; resample "
+                             "to e.g. 22050, 44100 or 48000 Hz")
+    return sr // fps
+
+
+def mfcc(y: np.ndarray, *, sr: int, fps: int = 30, n_mfcc: int = 10,
+         n_frames: int | None = None) -> np.ndarray:
+    """MFCC per video frame.
+
+    Parameters
+    ----------
+    y : ndarray, shape (n_samples,)
+        Mono audio, float.
+    sr : int
+        Sample rate in Hz; ``sr / fps`` must be an integer.
+    fps : int
+        Frames per second (30 in the paper).
+    n_mfcc : int
+        Coefficients c1 … c_n_mfcc (10 in the paper).
+    n_frames : int, optional
+        Number of frames to return. The default is the frames whose centre lies inside the
+        audio, ``ceil(n_samples / hop)``.
+
+    Returns
+    -------
+    ndarray, shape (n_frames, n_mfcc), frame-major.
+    """
+    y = np.asarray(y, dtype=np.float64)
+    if y.ndim != 1:
+        raise ParameterError(f"audio must be mono (n_samples,), got shape {y.shape}")
+    if len(y) == 0 or not np.all(np.isfinite(y)):
+        raise ParameterError("audio is empty or holds NaN/inf samples")
+    if not 1 <= n_mfcc <= MFCC_SETTINGS["n_mels"] - 1:
+        raise ParameterError(f"n_mfcc must be in 1..{MFCC_SETTINGS['n_mels'] - 1}, got {n_mfcc}")
+    hop = hop_samples(sr, fps)
+    n_out = int(np.ceil(len(y) / hop)) if n_frames is None else int(n_frames)
+    win = int(round(MFCC_SETTINGS["window_s"] * sr))
+    n_fft = 1 << (win - 1).bit_length()
+    power = np.abs(librosa.stft(y, n_fft=n_fft, hop_length=hop, win_length=win,
+                                window=MFCC_SETTINGS["window"], center=True,
+                                pad_mode="reflect")) ** 2
+    mel = librosa.filters.mel(sr=sr, n_fft=n_fft, n_mels=MFCC_SETTINGS["n_mels"], fmin=0.0,
+                              fmax=sr / 2, htk=True, norm=None)
+    logmel = np.log(np.maximum(mel @ power, MFCC_SETTINGS["log_floor"]))
+    cep = librosa.feature.mfcc(S=logmel, n_mfcc=n_mfcc + 1, dct_type=2, norm="ortho",
+                               lifter=MFCC_SETTINGS["lifter"])[1:]
+    feats = cep.T  # frame-major
+    if len(feats) < n_out:  # more frames asked for than the audio has: repeat the last
+        feats = np.concatenate([feats, np.repeat(feats[-1:], n_out - len(feats), axis=0)])
+    return feats[:n_out].astype(np.float32)
+
+
+def stack_context(features: np.ndarray, *, back: int = 3, forward: int = 3) -> np.ndarray:
+    """Concatenate each frame with ``back`` previous and ``forward`` next frames (edge-padded).
+
+    (n_frames, n_features) → (n_frames, (back + 1 + forward) · n_features), ordered oldest first.
+    The paper uses 3 + 1 + 3 (about 100 ms look-ahead at 30 fps).
+    """
+    x = np.asarray(features)
+    if x.ndim != 2:
+        raise ParameterError(f"features must be (n_frames, n_features), got {x.shape}")
+    if back < 0 or forward < 0:
+        raise ParameterError(f"context sizes must be >= 0, got back={back}, forward={forward}")
+    padded = np.pad(x, ((back, forward), (0, 0)), mode="edge")
+    n = len(x)
+    return np.concatenate([padded[i:i + n] for i in range(back + forward + 1)], axis=1)
+
+
+class FeatureNormalizer:
+    """Per-feature standardisation fitted on training data only (scikit-learn style)."""
+
+    def fit(self, X: np.ndarray) -> "FeatureNormalizer":
+        X = np.asarray(X, dtype=np.float64)
+        if X.ndim != 2 or len(X) < 2 or not np.all(np.isfinite(X)):
+            raise ParameterError(f"normaliser needs finite (n_frames >= 2, n_features) data, "
+                                 f"got shape {X.shape}")
+        self.mean_ = X.mean(0)
+        self.scale_ = np.where(X.std(0) > 0, X.std(0), 1.0)
+        return self
+
+    def transform(self, X: np.ndarray) -> np.ndarray:
+        if not hasattr(self, "mean_"):
+            from face_model.errors import NotFittedError
+
+            raise NotFittedError("FeatureNormalizer is not fitted yet: call fit() first")
+        X = np.asarray(X, dtype=np.float64)
+        if X.ndim != 2 or X.shape[1] != len(self.mean_):
+            raise ParameterError(f"features must be (n_frames, {len(self.mean_)}), got {X.shape}")
+        return ((X - self.mean_) / self.scale_).astype(np.float32)
+
+    def inverse_transform(self, Z: np.ndarray) -> np.ndarray:
+        return np.asarray(Z, dtype=np.float64) * self.scale_ + self.mean_
