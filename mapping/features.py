@@ -14,7 +14,7 @@ from __future__ import annotations
 import librosa
 import numpy as np
 
-from face_model.errors import ParameterError
+from face_model.errors import NotFittedError, ParameterError
 
 MFCC_SETTINGS = {"window_s": 0.025, "window": "hamming", "n_mels": 26, "fmin": 0.0,
                  "fmax": "sr/2", "mel_scale": "htk", "log_floor": 1e-10, "dct": "II, ortho",
@@ -106,8 +106,6 @@ class FeatureNormalizer:
 
     def transform(self, X: np.ndarray) -> np.ndarray:
         if not hasattr(self, "mean_"):
-            from face_model.errors import NotFittedError
-
             raise NotFittedError("FeatureNormalizer is not fitted yet: call fit() first")
         X = np.asarray(X, dtype=np.float64)
         if X.ndim != 2 or X.shape[1] != len(self.mean_):
