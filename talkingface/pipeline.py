@@ -50,8 +50,11 @@ def stage_synth(paths: RunPaths, cfg, *, progress: bool = True) -> dict:
     from data_synth.generate import synthesize_corpus
     from face_model.corpus import corpus_hash
 
+    def made_by(c: dict) -> tuple:  # what determines the corpus (workers only sets the speed)
+        return c["seed"], {k: v for k, v in c["synth"].items() if k != "workers"}
+
     done = _done(paths.corpus)
-    if done and done["config"]["synth"] == to_dict(cfg)["synth"] and done["config"]["seed"] == cfg.seed:
+    if done and made_by(done["config"]) == made_by(to_dict(cfg)):
         return done
     t0 = time.perf_counter()
     synthesize_corpus(paths.corpus, cfg.synth, cfg.seed, overwrite=True, progress=progress)

@@ -236,14 +236,20 @@ def test_manifest_rate_disagreeing_with_the_file_is_refused(corpus_copy):
 
 
 # -- audio and markers agreeing ----------------------------------------------------------------
-def test_markers_two_frames_short_of_the_audio_are_refused(corpus_copy):
-    mpath = corpus_copy / "markers" / f"{UTT}.npy"
+def _drop_last_frames(corpus_dir, n_drop: int) -> int:
+    """Cut ``n_drop`` frames off UTT's markers (manifest kept consistent); return the old count."""
+    mpath = corpus_dir / "markers" / f"{UTT}.npy"
     m = np.load(mpath)
-    np.save(mpath, m[:-2])
-    _edit_row(corpus_copy, UTT, n_frames=len(m) - 2)
+    np.save(mpath, m[:-n_drop])
+    _edit_row(corpus_dir, UTT, n_frames=len(m) - n_drop)
+    return len(m)
+
+
+def test_markers_two_frames_short_of_the_audio_are_refused(corpus_copy):
+    n = _drop_last_frames(corpus_copy, 2)
     apath = corpus_copy / "audio" / f"{UTT}.wav"
     with pytest.raises(CorpusError, match=_where(apath) + rf": audio lasts [\d.]+ s = "
-                       rf"{len(m)}\.00 frames, but {UTT}\.npy has {len(m) - 2} frames \(more than "
+                       rf"{n}\.00 frames, but {UTT}\.npy has {n - 2} frames \(more than "
                        r"one frame apart\)"):
         load_corpus(corpus_copy)
 
@@ -258,11 +264,8 @@ def test_audio_two_frames_longer_than_the_markers_is_refused(corpus_copy):
 
 
 def test_audio_and_markers_one_frame_apart_are_accepted(corpus_copy):
-    mpath = corpus_copy / "markers" / f"{UTT}.npy"
-    m = np.load(mpath)
-    np.save(mpath, m[:-1])
-    _edit_row(corpus_copy, UTT, n_frames=len(m) - 1)
-    assert load_corpus(corpus_copy)[UTT].n_frames == len(m) - 1
+    n = _drop_last_frames(corpus_copy, 1)
+    assert load_corpus(corpus_copy)[UTT].n_frames == n - 1
 
 
 def test_marker_count_disagreeing_with_the_manifest_is_refused(corpus_copy):
