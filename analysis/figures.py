@@ -140,3 +140,37 @@ def lip_trajectories(items: list, path) -> Path:
         ax.set_xlim(it["t"][0], it["t"][-1])
     axes[-1, 0].set_xlabel("time (s)")
     return _save(fig, path)
+
+
+def mup_trajectories(items: list, path, *, fps: int = 30, n_show: int = 3) -> Path:
+    """Predicted vs true MUPs over time: one row per item, the first ``n_show`` utterance MUPs
+    and (for an expression) the first expression MUP.
+
+    ``items``: dicts with ``title``, ``truth`` (n_frames, n_mups), ``n_utterance`` (A0) and
+    ``estimates`` ({method: (n_frames, n_mups)}).
+    """
+    styles = ["--", ":", "-."]
+    ncols = n_show + 1
+    fig, axes = plt.subplots(len(items), ncols, figsize=(3.0 * ncols, 2.2 * len(items)),
+                             squeeze=False, layout="constrained")
+    for row, it in zip(axes, items):
+        truth = np.asarray(it["truth"])
+        t = np.arange(len(truth)) / fps
+        n_utt = it.get("n_utterance", truth.shape[1])
+        cols = list(range(n_show)) + [n_utt]
+        for ax, j in zip(row, cols):
+            if j >= truth.shape[1]:
+                ax.axis("off")
+                continue
+            ax.plot(t, truth[:, j], c="k", lw=1.3, label="true")
+            for (name, est), ls in zip(it["estimates"].items(), styles):
+                ax.plot(t, np.asarray(est)[:, j], ls, lw=1.1, label=name)
+            ax.set_title(f"{'c0' if j < n_utt else 'ck'}[{j if j < n_utt else j - n_utt}]",
+                         fontsize=8)
+            ax.tick_params(labelsize=7)
+            ax.grid(alpha=0.3)
+        row[0].set_ylabel(it["title"], fontsize=7)
+    axes[0, 0].legend(fontsize=7, loc="best")
+    for ax in axes[-1]:
+        ax.set_xlabel("time (s)", fontsize=8)
+    return _save(fig, path)

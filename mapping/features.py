@@ -114,3 +114,55 @@ class FeatureNormalizer:
 
     def inverse_transform(self, Z: np.ndarray) -> np.ndarray:
         return np.asarray(Z, dtype=np.float64) * self.scale_ + self.mean_
+
+
+def audio_features(y: np.ndarray, *, sr: int, fps: int = 30, n_mfcc: int = 10,
+                   deltas: bool = False, n_frames: int | None = None) -> np.ndarray:
+    """MFCC per frame, optionally followed by their first differences (librosa ``delta``,
+    9-frame regression window, edges interpolated). Shape (n_frames, n_mfcc · (1 + deltas))."""
+    feats = mfcc(y, sr=sr, fps=fps, n_mfcc=n_mfcc, n_frames=n_frames)
+    if not deltas:
+        return feats
+    width = min(9, len(feats) if len(feats) % 2 else len(feats) - 1)
+    if width < 3:
+        d = np.zeros_like(feats)
+    else:
+        d = librosa.feature.delta(feats.T, width=width, order=1, mode="interp").T
+    return np.concatenate([feats, d.astype(np.float32)], axis=1)
+
+
+class ContextFeatures:
+    """Normalise raw per-frame features (fitted on training frames only), then stack context.
+
+    Parameters
+    ----------
+    back, forward : int
+        Context frames before and after the current one (paper: 3 and 3).
+    """
+
+    def __init__(self, back: int = 3, forward: int = 3):
+        self.back = back
+        self.forward = forward
+
+    def fit(self, features: list, masks: list | None = None) -> "ContextFeatures":
+        """``features``: per-utterance (n_frames, n_features) arrays; ``masks``: the training
+        frames of each (all frames when omitted)."""
+        rows = [f if m is None else f[m]
+                for f, m in zip(features, masks if masks is not None else [None] * len(features))]
+        self.normalizer_ = FeatureNormalizer().fit(np.concatenate(rows))
+        return self
+
+    @property
+    def n_inputs(self) -> int:
+        if not hasattr(self, "normalizer_"):
+            raise NotFittedError("ContextFeatures is not fitted yet: call fit() first")
+        return len(self.normalizer_.mean_) * (self.back + 1 + self.forward)
+
+    def transform(self, features: np.ndarray) -> np.ndarray:
+        """(n_frames, n_features) raw → (n_frames, n_inputs) normalised and stacked."""
+        if not hasattr(self, "normalizer_"):
+            raise NotFittedError("ContextFeatures is not fitted yet: call fit() first")
+        x = np.asarray(features)
+        if x.ndim == 2 and not np.all(np.isfinite(x)):
+            raise ParameterError("features hold NaN or inf values")
+        return stack_context(self.normalizer_.transform(x), back=self.back, forward=self.forward)

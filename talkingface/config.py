@@ -80,6 +80,38 @@ class UnitsConfig:
 
 
 @dataclass(frozen=True)
+class MappingConfig:
+    """The audio-to-MUP mapping (paper §VI) and its evaluation (§VII-A)."""
+
+    method: str = "gated_mlp"  # the mapping trained and logged as the model (or a baseline)
+    baselines: tuple = ("vq", "linear", "gmm_regression", "mlp_large", "tdnn", "gru")
+    splits: tuple = ("random_frames", "utterance")
+    train_fraction: float = 0.8
+    # features
+    n_mfcc: int = 10
+    deltas: bool = False
+    context_back: int = 3
+    context_forward: int = 3
+    # gate: one Gaussian mixture per phone class
+    n_classes: int = 44  # 44 phone classes | 8 viseme groups | 1 (a single MLP)
+    gate_components: int = 4
+    gate_covariance: str = "diag"
+    min_class_frames: int = 40  # smaller classes merge into their viseme group (see mapping.classes)
+    # MLP bank: hidden units grow with the subset size, between these bounds
+    hidden_min: int = 15
+    hidden_max: int = 25
+    # expressions: cascade (Υ_k on the bank's estimates) or a bank retrained per expression
+    expression_model: str = "cascade"
+    cascade_hidden: int = 30
+    # training of every network
+    validation_fraction: float = 0.15
+    max_epochs: int = 600
+    patience: int = 40
+    learning_rate: float = 0.01
+    weight_decay: float = 1e-4
+
+
+@dataclass(frozen=True)
 class TrackingConfig:
     """Experiment tracking (MLflow). Empty uri: $MLFLOW_TRACKING_URI, else ./mlflow.db."""
 
@@ -93,6 +125,7 @@ class Config:
     seed: int = 2002
     synth: SynthConfig = field(default_factory=SynthConfig)
     units: UnitsConfig = field(default_factory=UnitsConfig)
+    mapping: MappingConfig = field(default_factory=MappingConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
 
 

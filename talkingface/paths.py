@@ -6,6 +6,8 @@
       config.yaml           the resolved config of the last invocation
       corpus/               data_synth output (the corpus contract)
       units/                motion_units.npz, variance.csv, summary.json, config.yaml
+      mapping/              trained mappings, Tables I-II (CSV), ranking, gate accuracy, plots
+      ablations/            one folder per ablation setting and results.csv
       report/               figures and the summary the PDF is built from
     reports/<name>.pdf
 """
@@ -54,6 +56,14 @@ class RunPaths:
     @property
     def units_model(self) -> Path:
         return self.units / "motion_units.npz"
+
+    @property
+    def mapping(self) -> Path:
+        return self.root / "mapping"
+
+    @property
+    def ablations(self) -> Path:
+        return self.root / "ablations"
 
     @property
     def report_dir(self) -> Path:

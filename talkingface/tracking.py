@@ -40,10 +40,11 @@ def git_commit() -> str:
 
 
 @contextmanager
-def mlflow_run(cfg, *, run_name: str, tags: dict | None = None):
+def mlflow_run(cfg, *, run_name: str, tags: dict | None = None, nested: bool = False):
     """Start an MLflow run with the resolved config as params and the git commit as a tag.
 
     Yields the ``mlflow`` module (or ``None`` when tracking is disabled in the config).
+    ``nested`` makes the run a child of the active run (an ablation setting of its parent).
     """
     if not cfg.tracking.enabled:
         yield None
@@ -62,7 +63,7 @@ def mlflow_run(cfg, *, run_name: str, tags: dict | None = None):
         exp_id = client.create_experiment(cfg.tracking.experiment, artifact_location=loc)
     else:
         exp_id = exp.experiment_id
-    with mlflow.start_run(experiment_id=exp_id, run_name=run_name) as run:
+    with mlflow.start_run(experiment_id=exp_id, run_name=run_name, nested=nested) as run:
         mlflow.set_tags({"git_commit": git_commit(), **(tags or {})})
         mlflow.log_params({k: str(v)[:500] for k, v in flatten(cfg).items()})
         yield mlflow

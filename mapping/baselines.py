@@ -1,0 +1,178 @@
+"""Baselines from the paper's related work (§III-C), under the same evaluation as the gated MLP.
+
+Each baseline maps audio features to the full MUPs (utterance + expression part) and is trained
+separately per expression on that expression's training frames, the paper's "straightforward"
+way to handle expressions. Inputs are the normalised MFCC with a context window; unless said
+otherwise the paper's 3 + 1 + 3 frames, so that the baselines differ from the gated MLP in the
+mapping only.
+
+=================  ======================================================================
+``vq``             vector quantisation [43]: k-means codebook of the audio vectors; each
+                   codeword outputs the mean MUPs of its training frames
+``linear``         affine / linear regression [44] (ridge, α = 1)
+``gmm_regression`` Gaussian mixture regression [45]: a joint GMM of (audio, MUPs); the estimate
+                   is the posterior-weighted sum of each component's linear estimate E[v | a]
+``mlp_large``      one large MLP, 11-frame context (5 + 1 + 5), 600 hidden units [48]
+``tdnn``           time-delay neural network [49], [50] on the single-frame MFCC sequence
+``gru``            a modern sequence model: a unidirectional GRU (64 units) over the
+                   context-stacked frames, so its look-ahead is still 3 frames (real time)
+=================  ======================================================================
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.special import logsumexp
+from sklearn.cluster import KMeans
+from sklearn.linear_model import Ridge
+from sklearn.mixture import GaussianMixture
+
+from face_model.errors import NotFittedError, ParameterError
+from mapping.features import ContextFeatures
+from mapping.nets import GRUNet, MLP, TDNN, NetRegressor, TrainSettings
+
+BASELINES = ("vq", "linear", "gmm_regression", "mlp_large", "tdnn", "gru")
+REFERENCES = {"vq": "[43] vector quantisation", "linear": "[44] affine transformation",
+              "gmm_regression": "[45] Gaussian mixture", "mlp_large": "[48] MLP, 11 frames, 600 "
+              "hidden", "tdnn": "[49], [50] TDNN", "gru": "modern: GRU sequence model"}
+
+
+class VQRegressor:
+    """Codebook of ``n_codes`` k-means centroids; the output of a code is its mean target."""
+
+    def __init__(self, n_codes: int = 64, seed: int = 0):
+        self.n_codes, self.seed = n_codes, seed
+
+    def fit(self, X, Y):
+        k = int(min(self.n_codes, len(X)))
+        self.km_ = KMeans(k, n_init=4, random_state=self.seed).fit(X)
+        lab = self.km_.labels_
+        self.table_ = np.stack([Y[lab == c].mean(0) for c in range(k)])
+        return self
+
+    def predict(self, X):
+        return self.table_[self.km_.predict(X)]
+
+
+class GMMRegressor:
+    """Joint-density GMM regression (Gaussian mixture mapping of [45])."""
+
+    def __init__(self, n_components: int = 8, seed: int = 0):
+        self.n_components, self.seed = n_components, seed
+
+    def fit(self, X, Y):
+        self.d_ = X.shape[1]
+        k = int(max(1, min(self.n_components, len(X) // (4 * (X.shape[1] + Y.shape[1])))))
+        Z = np.concatenate([X, Y], axis=1).astype(np.float64)
+        g = GaussianMixture(k, covariance_type="full", reg_covar=1e-3, random_state=self.seed,
+                            max_iter=200).fit(Z)
+        d = self.d_
+        self.weights_ = g.weights_
+        self.mx_, self.my_ = g.means_[:, :d], g.means_[:, d:]
+        sxx, syx = g.covariances_[:, :d, :d], g.covariances_[:, d:, :d]
+        self.gain_ = np.stack([syx[i] @ np.linalg.inv(sxx[i]) for i in range(k)])
+        self.chol_ = np.stack([np.linalg.cholesky(sxx[i]) for i in range(k)])
+        return self
+
+    def _log_px(self, X):
+        out = []
+        for w, m, L in zip(self.weights_, self.mx_, self.chol_):
+            z = np.linalg.solve(L, (X - m).T)
+            out.append(np.log(w) - 0.5 * (z**2).sum(0) - np.log(np.diag(L)).sum()
+                       - 0.5 * self.d_ * np.log(2 * np.pi))
+        return np.stack(out, axis=1)
+
+    def predict(self, X):
+        X = np.asarray(X, dtype=np.float64)
+        lp = self._log_px(X)
+        post = np.exp(lp - logsumexp(lp, axis=1, keepdims=True))
+        est = np.stack([self.my_[i] + (X - self.mx_[i]) @ self.gain_[i].T
+                        for i in range(len(self.weights_))], axis=1)
+        return (post[:, :, None] * est).sum(1)
+
+
+class Baseline:
+    """One regressor per expression from context-stacked, normalised audio features to MUPs.
+
+    Parameters
+    ----------
+    kind : str
+        One of :data:`BASELINES`.
+    mcfg : MappingConfig
+        Supplies the feature context and the network training settings.
+    seed : int
+    """
+
+    def __init__(self, kind: str, mcfg, seed: int = 0):
+        if kind not in BASELINES:
+            raise ParameterError(f"unknown baseline {kind!r}; allowed: {', '.join(BASELINES)}")
+        self.kind, self.mcfg, self.seed = kind, mcfg, seed
+        self.name = kind
+        self.reference = REFERENCES[kind]
+
+    @property
+    def sequence(self) -> bool:
+        return self.kind in ("tdnn", "gru")
+
+    def _context(self):
+        if self.kind == "mlp_large":
+            return 5, 5
+        if self.kind == "tdnn":
+            return 0, 0  # the network's own time delays give the context (±4 frames)
+        return self.mcfg.context_back, self.mcfg.context_forward
+
+    def _make(self, n_in, n_out, seed):
+        settings = TrainSettings.from_config(self.mcfg)
+        if self.kind == "vq":
+            return VQRegressor(64, seed)
+        if self.kind == "linear":
+            return Ridge(alpha=1.0)
+        if self.kind == "gmm_regression":
+            return GMMRegressor(8, seed)
+        if self.kind == "mlp_large":
+            return NetRegressor(MLP(n_in, 600, n_out), settings, seed)
+        if self.kind == "tdnn":
+            return NetRegressor(TDNN(n_in, 48, n_out, layers=2, width=2), settings, seed)
+        return NetRegressor(GRUNet(n_in, 64, n_out), settings, seed)
+
+    def fit(self, data: list, masks: list) -> "Baseline":
+        self.context_ = ContextFeatures(*self._context()).fit([d.features for d in data], masks)
+        self.models_ = {}
+        for j, e in enumerate(sorted({d.expression for d in data})):
+            idx = [i for i, d in enumerate(data) if d.expression == e and masks[i].any()]
+            if not idx:
+                continue
+            xs = [self.context_.transform(data[i].features) for i in idx]
+            ys = [data[i].mups for i in idx]
+            model = self._make(xs[0].shape[1], ys[0].shape[1], self.seed + 1009 * j)
+            if self.sequence:
+                X, Y, M = _pad(xs, ys, [masks[i] for i in idx])
+                model.fit(X, Y, M)
+            else:
+                model.fit(np.concatenate([x[masks[i]] for x, i in zip(xs, idx)]),
+                          np.concatenate([y[masks[i]] for y, i in zip(ys, idx)]))
+            self.models_[e] = model
+        return self
+
+    def predict(self, features: np.ndarray, expression: str = "neutral") -> np.ndarray:
+        if not hasattr(self, "models_"):
+            raise NotFittedError(f"baseline {self.kind} is not trained yet: call fit() first")
+        if expression not in self.models_:
+            raise ParameterError(f"expression {expression!r} was not trained; allowed: "
+                                 f"{', '.join(sorted(self.models_))}")
+        X = self.context_.transform(features)
+        model = self.models_[expression]
+        if self.sequence:
+            return np.asarray(model.predict(X[None])[0], dtype=np.float32)
+        return np.asarray(model.predict(X), dtype=np.float32)
+
+
+def _pad(xs, ys, masks):
+    """Pad utterances to one length: (n_utt, T, ·) arrays and the mask of real training frames."""
+    T = max(len(x) for x in xs)
+    X = np.zeros((len(xs), T, xs[0].shape[1]), np.float32)
+    Y = np.zeros((len(xs), T, ys[0].shape[1]), np.float32)
+    M = np.zeros((len(xs), T), bool)
+    for i, (x, y, m) in enumerate(zip(xs, ys, masks)):
+        X[i, :len(x)], Y[i, :len(y)], M[i, :len(m)] = x, y, m
+        X[i, len(x):] = x[-1]  # edge padding keeps the convolution's right edge sensible
+    return X, Y, M

@@ -1,0 +1,131 @@
+"""The phone-class gate (paper §VI-A): one Gaussian mixture per class; a frame goes to the class
+whose mixture gives its features the highest likelihood.
+
+Classes. The paper's 44 phone classes (footnote 2), or coarser groupings for ablations: 8 groups
+(the six keyframe visemes ``i a o f u m``, the other speech sounds, and silence) or 1 group (no
+gate: one MLP for everything). :func:`class_groups` gives the grouping.
+
+Small classes (the explicit rule). A class with fewer than ``min_frames`` training frames cannot
+support its own mixture and MLP. It is merged into the largest class (by training frames) of the
+same viseme that has enough frames, or, when its viseme has none, into the largest class of all.
+Merging is decided on the training frames only and written down in ``merges_``, so the gate never
+meets a class without frames. :class:`PhoneGate` itself refuses a class with no frames.
+"""
+from __future__ import annotations
+
+import numpy as np
+from sklearn.mixture import GaussianMixture
+
+from face_model.errors import NotFittedError, ParameterError
+from face_model.phones import PHONES, viseme
+
+N_CLASS_CHOICES = (1, 8, 44)
+_GROUPS_8 = ("i", "a", "o", "f", "u", "m", "other", "sil")
+
+
+def class_groups(n_classes: int) -> tuple[np.ndarray, tuple, tuple]:
+    """Map the 44 phone classes onto ``n_classes`` groups.
+
+    Returns ``(group_of_phone (44,), group_names, group_visemes)``.
+    """
+    if n_classes == 44:
+        return np.arange(len(PHONES)), tuple(PHONES), tuple(viseme(p) for p in PHONES)
+    if n_classes == 8:
+        def grp(p):
+            if p == "sil":
+                return "sil"
+            v = viseme(p)
+            return "other" if v == "neutral" else v
+        g = np.array([_GROUPS_8.index(grp(p)) for p in PHONES])
+        return g, _GROUPS_8, _GROUPS_8
+    if n_classes == 1:
+        return np.zeros(len(PHONES), int), ("all",), ("all",)
+    raise ParameterError(f"n_classes must be one of {N_CLASS_CHOICES}, got {n_classes!r}")
+
+
+def merge_small_classes(labels: np.ndarray, names: tuple, visemes: tuple,
+                        min_frames: int) -> tuple[np.ndarray, dict]:
+    """Apply the small-class rule to training labels (group indices).
+
+    Returns ``(target (n_groups,), merges)``: ``target[g]`` is the class that group ``g`` is
+    modelled by, and ``merges`` maps each merged name to the name it joined.
+    """
+    counts = np.bincount(labels, minlength=len(names))
+    big = counts >= min_frames
+    if not big.any():
+        raise ParameterError(f"no phone class has {min_frames} training frames (largest: "
+                             f"{counts.max()}); lower mapping.min_class_frames or use more data")
+    target = np.arange(len(names))
+    merges = {}
+    for g in np.flatnonzero(~big):
+        same = [h for h in np.flatnonzero(big) if visemes[h] == visemes[g]]
+        pool = same or list(np.flatnonzero(big))
+        target[g] = max(pool, key=lambda h: (counts[h], -h))
+        merges[names[g]] = names[target[g]]
+    return target, merges
+
+
+class PhoneGate:
+    """One scikit-learn ``GaussianMixture`` per class; ``predict`` picks the most likely class.
+
+    Parameters
+    ----------
+    n_components : int
+        Mixture components per class (reduced for a class with few frames, to at most one
+        component per 10 frames).
+    covariance_type : str
+        scikit-learn covariance type (``diag`` by default).
+    random_state : int
+    """
+
+    def __init__(self, n_components: int = 4, covariance_type: str = "diag",
+                 random_state: int = 0):
+        self.n_components = n_components
+        self.covariance_type = covariance_type
+        self.random_state = random_state
+
+    def fit(self, X: np.ndarray, y: np.ndarray, classes) -> "PhoneGate":
+        """Fit one mixture per entry of ``classes`` on the rows of ``X`` labelled with it.
+
+        X : (n_frames, n_features); y : (n_frames,) class labels; classes : the labels to model.
+        """
+        X = np.asarray(X, dtype=np.float64)
+        y = np.asarray(y)
+        if X.ndim != 2 or len(X) != len(y):
+            raise ParameterError(f"features {X.shape} and labels {y.shape} must have the same "
+                                 "number of frames")
+        if not np.all(np.isfinite(X)):
+            raise ParameterError("features hold NaN or inf values")
+        self.classes_ = np.asarray(list(classes))
+        self.mixtures_ = []
+        for i, c in enumerate(self.classes_):
+            rows = X[y == c]
+            if len(rows) == 0:
+                raise ParameterError(f"phone class {c!r} has no frames in the training data; "
+                                     "merge it (mapping.min_class_frames) or leave it out")
+            k = int(max(1, min(self.n_components, len(rows) // 10)))
+            gmm = GaussianMixture(k, covariance_type=self.covariance_type, reg_covar=1e-3,
+                                  random_state=self.random_state + i, max_iter=200)
+            self.mixtures_.append(gmm.fit(rows) if len(rows) > 1 else
+                                  gmm.fit(np.concatenate([rows, rows + 1e-3])))
+        return self
+
+    def log_likelihood(self, X: np.ndarray) -> np.ndarray:
+        """(n_frames, n_classes) log-likelihood of every frame under every class mixture."""
+        if not hasattr(self, "mixtures_"):
+            raise NotFittedError("PhoneGate is not fitted yet: call fit() first")
+        X = np.asarray(X, dtype=np.float64)
+        if not np.all(np.isfinite(X)):
+            raise ParameterError("features hold NaN or inf values")
+        return np.stack([g.score_samples(X) for g in self.mixtures_], axis=1)
+
+    def predict(self, X: np.ndarray) -> np.ndarray:
+        """The class label of each frame (the highest likelihood)."""
+        return self.classes_[self.log_likelihood(X).argmax(1)]
+
+
+def confusion(true: np.ndarray, pred: np.ndarray, n: int) -> np.ndarray:
+    """(n, n) counts: row = true class, column = gated class."""
+    m = np.zeros((n, n), int)
+    np.add.at(m, (np.asarray(true), np.asarray(pred)), 1)
+    return m

@@ -1,0 +1,200 @@
+"""Small torch networks and the one training loop every network of the mapping uses.
+
+Every network is a regressor from audio features to MUPs, trained on CPU with Adam on the
+mean squared error of standardised targets, with early stopping on a validation part of the
+training frames (the weights of the best validation epoch are kept).
+
+Frame models take ``(n_frames, n_in)`` and return ``(n_frames, n_out)``. Sequence models take
+``(n_utt, T, n_in)`` and return ``(n_utt, T, n_out)``; they are trained on padded batches with a
+mask, so a split that draws single frames (the paper's ``random_frames``) still trains them on
+whole utterances while only the training frames count in the loss.
+"""
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import nn
+
+from face_model.errors import NotFittedError, ParameterError
+
+
+@dataclass(frozen=True)
+class TrainSettings:
+    """Optimisation settings shared by every network (see ``MappingConfig``)."""
+
+    validation_fraction: float = 0.15
+    max_epochs: int = 600
+    patience: int = 40
+    learning_rate: float = 0.01
+    weight_decay: float = 1e-4
+    batch_size: int = 0  # 0: full batch
+
+    @classmethod
+    def from_config(cls, mcfg) -> "TrainSettings":
+        return cls(mcfg.validation_fraction, mcfg.max_epochs, mcfg.patience, mcfg.learning_rate,
+                   mcfg.weight_decay)
+
+
+class MLP(nn.Module):
+    """The paper's three-layer perceptron: input, one tanh hidden layer, linear output."""
+
+    def __init__(self, n_in: int, n_hidden: int, n_out: int):
+        super().__init__()
+        self.net = nn.Sequential(nn.Linear(n_in, n_hidden), nn.Tanh(), nn.Linear(n_hidden, n_out))
+
+    def forward(self, x):
+        return self.net(x)
+
+
+class TDNN(nn.Module):
+    """Time-delay network (Lavagetto [49], Curinga et al. [50]): stacked 1-D convolutions over
+    frames, each layer seeing ``±width`` frames of the layer below (centred, so the look-ahead
+    is ``layers · width`` frames)."""
+
+    def __init__(self, n_in: int, n_hidden: int, n_out: int, *, layers: int = 2, width: int = 2):
+        super().__init__()
+        mods, c = [], n_in
+        for _ in range(layers):
+            mods += [nn.Conv1d(c, n_hidden, 2 * width + 1, padding=width, padding_mode="replicate"),
+                     nn.Tanh()]
+            c = n_hidden
+        self.body = nn.Sequential(*mods)
+        self.out = nn.Conv1d(c, n_out, 1)
+
+    def forward(self, x):  # (B, T, n_in) → (B, T, n_out)
+        return self.out(self.body(x.transpose(1, 2))).transpose(1, 2)
+
+
+class GRUNet(nn.Module):
+    """A small unidirectional GRU over context-stacked frames (its look-ahead is the stacked
+    forward context, so it stays usable in real time)."""
+
+    def __init__(self, n_in: int, n_hidden: int, n_out: int):
+        super().__init__()
+        self.gru = nn.GRU(n_in, n_hidden, batch_first=True)
+        self.out = nn.Linear(n_hidden, n_out)
+
+    def forward(self, x):
+        return self.out(self.gru(x)[0])
+
+
+def _check_xy(X, Y, mask):
+    X = np.asarray(X, dtype=np.float32)
+    Y = np.asarray(Y, dtype=np.float32)
+    if X.shape[:-1] != Y.shape[:-1]:
+        raise ParameterError(f"features and MUPs must have the same frames, got features "
+                             f"{X.shape} and MUPs {Y.shape}")
+    if not np.all(np.isfinite(X)):
+        raise ParameterError("features hold NaN or inf values")
+    if not np.all(np.isfinite(Y)):
+        raise ParameterError("MUPs hold NaN or inf values")
+    mask = np.ones(X.shape[:-1], bool) if mask is None else np.asarray(mask, bool)
+    if mask.shape != X.shape[:-1]:
+        raise ParameterError(f"mask must have shape {X.shape[:-1]}, got {mask.shape}")
+    if mask.sum() < 2:
+        raise ParameterError(f"a network needs at least 2 training frames, got {int(mask.sum())}")
+    return X, Y, mask
+
+
+def _safe_std(a: np.ndarray) -> np.ndarray:
+    s = a.std(0)
+    return np.where(s > 1e-8, s, 1.0).astype(np.float32)
+
+
+class NetRegressor:
+    """A torch module trained by :func:`fit_module` on standardised inputs and targets (means
+    and standard deviations of the training frames).
+
+    Parameters
+    ----------
+    module : nn.Module
+        Untrained network (frame or sequence model).
+    settings : TrainSettings
+    seed : int
+        Seeds the weights, the validation draw and the batch order.
+    """
+
+    def __init__(self, module: nn.Module, settings: TrainSettings = TrainSettings(), seed: int = 0):
+        self.module = module
+        self.settings = settings
+        self.seed = seed
+
+    def fit(self, X, Y, mask=None) -> "NetRegressor":
+        X, Y, mask = _check_xy(X, Y, mask)
+        x, y = X[mask], Y[mask]
+        self.x_mean_, self.x_std_ = x.mean(0), _safe_std(x)
+        self.y_mean_, self.y_std_ = y.mean(0), _safe_std(y)
+        self.history_ = fit_module(self.module, (X - self.x_mean_) / self.x_std_,
+                                   (Y - self.y_mean_) / self.y_std_, mask, self.settings,
+                                   self.seed)
+        return self
+
+    def predict(self, X) -> np.ndarray:
+        if not hasattr(self, "y_mean_"):
+            raise NotFittedError("the network is not trained yet: call fit() first")
+        X = np.asarray(X, dtype=np.float32)
+        if not np.all(np.isfinite(X)):
+            raise ParameterError("features hold NaN or inf values")
+        self.module.eval()
+        with torch.no_grad():
+            out = self.module(torch.from_numpy((X - self.x_mean_) / self.x_std_)).numpy()
+        return out * self.y_std_ + self.y_mean_
+
+
+def fit_module(module: nn.Module, X: np.ndarray, Y: np.ndarray, mask: np.ndarray,
+               settings: TrainSettings, seed: int) -> dict:
+    """Adam on the masked MSE with early stopping; returns the training history.
+
+    A random ``validation_fraction`` of the masked (training) entries is held out for early
+    stopping when there are at least 10 of them; otherwise every epoch up to ``max_epochs`` runs
+    on all of them and the last weights are kept.
+    """
+    rng = np.random.default_rng(seed)
+    torch.manual_seed(seed)
+    for m in module.modules():  # deterministic initial weights from the seed
+        if hasattr(m, "reset_parameters"):
+            m.reset_parameters()
+    idx = np.flatnonzero(mask.ravel())
+    n_val = int(round(settings.validation_fraction * len(idx))) if len(idx) >= 10 else 0
+    val = np.zeros(mask.size, bool)
+    val[rng.permutation(idx)[:n_val]] = True
+    val = val.reshape(mask.shape)
+    train = mask & ~val
+    x, y = torch.from_numpy(X), torch.from_numpy(Y)
+    w_tr = torch.from_numpy(train.astype(np.float32))[..., None]
+    w_va = torch.from_numpy(val.astype(np.float32))[..., None]
+    opt = torch.optim.Adam(module.parameters(), lr=settings.learning_rate,
+                           weight_decay=settings.weight_decay)
+    n_units = len(X)
+    batch = settings.batch_size or n_units
+    best, best_state, best_epoch, losses = np.inf, None, 0, []
+    for epoch in range(settings.max_epochs):
+        module.train()
+        order = rng.permutation(n_units) if batch < n_units else np.arange(n_units)
+        for s in range(0, n_units, batch):
+            b = torch.from_numpy(order[s:s + batch])
+            wb = w_tr[b]
+            denom = wb.sum() * y.shape[-1]
+            if denom == 0:
+                continue
+            opt.zero_grad()
+            loss = (((module(x[b]) - y[b]) ** 2) * wb).sum() / denom
+            loss.backward()
+            opt.step()
+        if n_val == 0:
+            continue
+        module.eval()
+        with torch.no_grad():
+            v = float((((module(x) - y) ** 2) * w_va).sum() / (w_va.sum() * y.shape[-1]))
+        losses.append(v)
+        if v < best - 1e-6:
+            best, best_state, best_epoch = v, copy.deepcopy(module.state_dict()), epoch
+        elif epoch - best_epoch >= settings.patience:
+            break
+    if best_state is not None:
+        module.load_state_dict(best_state)
+    return {"epochs": len(losses) if n_val else settings.max_epochs, "best_epoch": best_epoch,
+            "best_validation_mse": float(best) if n_val else float("nan")}

@@ -1,0 +1,85 @@
+"""The trained mapping as an MLflow pyfunc model: audio in, MUPs per frame out.
+
+Input (``model.predict(x, params={"expression": "smile"})``):
+
+* a WAV path (``str`` or ``Path``), or a list of them;
+* ``{"audio": array (n_samples,), "sr": int}``, or a list of such dicts;
+* a pandas DataFrame with a ``path`` column (one WAV per row), as the MLflow scoring server sends.
+
+Output: one ``(n_frames, A0 + Ak)`` float32 array per input (a single array for a single input);
+frame k is centred at k / 30 s. ``expression`` is ``neutral`` by default.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import mlflow.pyfunc
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+CODE_PATHS = [str(REPO / p) for p in ("face_model", "mapping", "talkingface")]
+
+
+class MappingModel(mlflow.pyfunc.PythonModel):
+    """Wraps :class:`mapping.model.AudioMapping` (artifact ``mapping``)."""
+
+    def load_context(self, context):
+        from mapping.model import AudioMapping
+
+        self.mapping = AudioMapping.load(context.artifacts["mapping"])
+
+    def predict(self, context, model_input, params=None):
+        expression = (params or {}).get("expression", "neutral")
+        items, single = _as_items(model_input)
+        out = []
+        for it in items:
+            if isinstance(it, dict):
+                out.append(self.mapping.predict_audio(np.asarray(it["audio"]), it["sr"],
+                                                      expression))
+            else:
+                out.append(self.mapping.predict_wav(it, expression))
+        return out[0] if single else out
+
+
+def _as_items(model_input) -> tuple[list, bool]:
+    from face_model.errors import ParameterError
+
+    if isinstance(model_input, (str, Path)):
+        return [model_input], True
+    if isinstance(model_input, dict):
+        if "audio" in model_input and "sr" in model_input:
+            return [model_input], True
+        if "path" in model_input:
+            paths = model_input["path"]
+            return ([paths], True) if isinstance(paths, (str, Path)) else (list(paths), False)
+    if hasattr(model_input, "columns"):  # pandas DataFrame
+        if "path" in model_input.columns:
+            return list(model_input["path"]), False
+        if len(model_input.columns) == 1:
+            return list(model_input.iloc[:, 0]), False
+    if isinstance(model_input, (list, tuple)):
+        return list(model_input), False
+    raise ParameterError(f"the mapping model takes a WAV path, a dict with 'audio' and 'sr', a "
+                         f"list of these, or a DataFrame with a 'path' column; got "
+                         f"{type(model_input).__name__}")
+
+
+def log_mapping_model(mlf, model_path: Path, *, name: str = "mapping"):
+    """Log ``model_path`` (an ``AudioMapping`` file) as a pyfunc model of the active run."""
+    from mlflow.models import ModelSignature
+    from mlflow.types.schema import ParamSchema, ParamSpec
+
+    # No input schema: the input is a path, a dict or a list, which a column schema would turn
+    # into a DataFrame; the params schema carries the expression.
+    signature = ModelSignature(inputs=None,
+                               params=ParamSchema([ParamSpec("expression", "string", "neutral")]))
+    return mlf.pyfunc.log_model(name=name, python_model=MappingModel(),
+                                artifacts={"mapping": str(model_path)}, code_paths=CODE_PATHS,
+                                signature=signature, pip_requirements=_requirements())
+
+
+def _requirements() -> list[str]:
+    from importlib.metadata import version
+
+    return [f"{p}=={version(p)}" for p in ("numpy", "scipy", "scikit-learn", "torch", "librosa",
+                                           "mlflow")]
