@@ -76,8 +76,55 @@ def cmd_replicate(args) -> int:
     from talkingface.pipeline import replicate
 
     cfg = _load(args)
-    pdf = replicate(args.name, cfg, overwrite=args.overwrite)
+    grid = None if str(args.ablations).lower() == "none" else args.ablations
+    pdf = replicate(args.name, cfg, overwrite=args.overwrite, ablation_grid=grid,
+                    workers=args.workers)
     print(f"report: {pdf}")
+    return 0
+
+
+def _prepared(args):
+    """Config and paths of ``runs/<name>``, with the corpus and Motion Units made if missing."""
+    from talkingface.paths import RunPaths
+    from talkingface.pipeline import prepare_run, stage_synth, stage_units, _done
+
+    cfg = _load(args)
+    paths = RunPaths.create(args.name)
+    prepare_run(paths, cfg, overwrite=args.overwrite)
+    stage_synth(paths, cfg)
+    if not _done(paths.units):
+        stage_units(paths.corpus, paths.units, cfg)
+    return cfg, paths
+
+
+def cmd_train(args) -> int:
+    from talkingface.pipeline import stage_train
+    from talkingface.tracking import mlflow_run
+
+    cfg, paths = _prepared(args)
+    with mlflow_run(cfg, run_name=f"train:{args.name}", tags={"stage": "train"}) as mlf:
+        done = stage_train(paths, cfg, mlf=mlf)
+    for split, rk in done["ranking"].items():
+        print(f"{split} split, mean test R / MSE:")
+        for x in rk:
+            print(f"  {x['rank']}. {x['method']:<15} R={x['R']:.3f}  MSE={x['MSE']:.4f}")
+    print(f"tables and models: {paths.mapping}")
+    return 0
+
+
+def cmd_ablate(args) -> int:
+    from talkingface.pipeline import stage_ablate
+    from talkingface.tracking import mlflow_run
+
+    cfg, paths = _prepared(args)
+    with mlflow_run(cfg, run_name=f"ablate:{Path(args.grid).stem}",
+                    tags={"stage": "ablate", "grid": str(args.grid)}) as mlf:
+        rows = stage_ablate(paths, cfg, args.grid, workers=args.workers, mlf=mlf, nested=False)
+    for r in rows:
+        figures = "  ".join(f"{k}={float(v):.4f}" for k, v in r.items()
+                            if k.endswith(("_R", "_MSE")) and v != "")
+        print(f"  {r['setting']:<24} {figures}")
+    print(f"results: {paths.ablations / 'results.csv'}")
     return 0
 
 
@@ -133,6 +180,29 @@ def build_parser() -> argparse.ArgumentParser:
                    help="replace an existing run made with a different config")
     _config_args(s)
     s.set_defaults(func=cmd_replicate)
+
+    s.add_argument("--ablations", default="configs/ablations.yaml", metavar="GRID",
+                   help="ablation grid trained as child runs and tabulated ('none' to skip)")
+    s.add_argument("--workers", type=int, default=0, help="processes for ablations (0: all cores)")
+
+    s = sub.add_parser("train", help="train and evaluate the mapping and the baselines "
+                       "(runs/<name>/mapping), logged to MLflow with the pyfunc model")
+    s.add_argument("--name", required=True, help="run name (its corpus and MUs are made if "
+                   "missing)")
+    s.add_argument("--overwrite", action="store_true",
+                   help="replace an existing run made with a different config")
+    _config_args(s)
+    s.set_defaults(func=cmd_train)
+
+    s = sub.add_parser("ablate", help="one MLflow child run per setting of an ablation grid")
+    s.add_argument("--grid", required=True, type=Path, help="grid file, e.g. "
+                   "configs/ablations.yaml")
+    s.add_argument("--name", required=True, help="run whose corpus and MUs are used")
+    s.add_argument("--workers", type=int, default=0, help="processes (0: all cores)")
+    s.add_argument("--overwrite", action="store_true",
+                   help="replace an existing run made with a different config")
+    _config_args(s)
+    s.set_defaults(func=cmd_ablate)
 
     s = sub.add_parser("report", help="rebuild reports/<name>.pdf from runs/<name>")
     s.add_argument("--name", required=True)

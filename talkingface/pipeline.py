@@ -89,6 +89,55 @@ def stage_units(corpus_dir: Path, out_dir: Path, cfg) -> dict:
     return results
 
 
+def _trained_by(c: dict) -> tuple:  # what determines the mapping results
+    return (c["seed"], {k: v for k, v in c["synth"].items() if k != "workers"}, c["units"],
+            c["mapping"])
+
+
+def stage_train(paths: RunPaths, cfg, *, progress: bool = True, mlf=None) -> dict:
+    """Train and evaluate the mapping and the baselines (reused when done for this config)."""
+    from talkingface.train_stage import log_train, train_and_evaluate
+
+    done = _done(paths.mapping)
+    if not (done and _trained_by(done["config"]) == _trained_by(to_dict(cfg))):
+        t0 = time.perf_counter()
+        train_and_evaluate(paths.corpus, paths.units_model, paths.mapping, cfg,
+                           progress=progress)
+        done = _done(paths.mapping)
+        done["seconds"] = time.perf_counter() - t0
+    if mlf is not None:
+        log_train(mlf, done, paths.mapping, cfg)
+    return done
+
+
+def stage_ablate(paths: RunPaths, cfg, grid_path, *, workers: int = 0, progress: bool = True,
+                 mlf=None, nested: bool = True) -> list[dict]:
+    """Every setting of an ablation grid as a child run (see :mod:`talkingface.ablate`).
+
+    The children hang under a parent run: a new nested run of the active run (``nested``), or
+    the active run itself."""
+    from talkingface.ablate import load_grid, run_ablations
+
+    grid = load_grid(grid_path, cfg)
+    with (mlf.start_run(run_name=f"ablations:{Path(grid_path).stem}", nested=True)
+          if mlf is not None and nested else _null()):
+        if mlf is not None:
+            mlf.set_tags({"stage": "ablate", "grid": str(grid_path)})
+        rows = run_ablations(grid, paths.corpus, paths.units_model, paths.ablations,
+                             workers=workers, progress=progress, mlf=mlf)
+        if mlf is not None:
+            mlf.log_artifact(str(paths.ablations / "results.csv"), "ablations")
+    return rows
+
+
+class _null:
+    def __enter__(self):
+        return None
+
+    def __exit__(self, *exc):
+        return False
+
+
 def stage_report(paths: RunPaths, cfg) -> Path:
     """Summaries and figures from the run's stage folders, then ``reports/<name>.pdf``."""
     from analysis.foundation import corpus_section, make_figures, summarize_corpus, units_section
@@ -108,6 +157,12 @@ def stage_report(paths: RunPaths, cfg) -> Path:
                  "Expressions Using Neural Networks — rebuilt on a synthetic corpus")
     corpus_section(rep, summary["corpus"], figs)
     units_section(rep, summary["units"], figs)
+    if _done(paths.mapping):
+        from analysis.mapping_report import mapping_section
+
+        ablations = paths.ablations / "results.csv"
+        mapping_section(rep, _done(paths.mapping), paths.mapping,
+                        ablations if ablations.is_file() else None)
     methods_section(rep, cfg, corpus.info)
     return rep.build(paths.pdf)
 
@@ -126,8 +181,12 @@ def methods_section(rep, cfg, corpus_info: dict) -> None:
 
 
 def replicate(name: str, cfg, *, overwrite: bool = False, progress: bool = True,
-              runs_dir="runs", reports_dir="reports") -> Path:
-    """Run every stage into ``runs/<name>`` and write ``reports/<name>.pdf``; log to MLflow."""
+              runs_dir="runs", reports_dir="reports", ablation_grid=None,
+              workers: int = 0) -> Path:
+    """Run every stage into ``runs/<name>`` and write ``reports/<name>.pdf``; log to MLflow.
+
+    ``ablation_grid``: a grid file whose settings are trained as child runs and tabulated in
+    the report (None: no ablations)."""
     from face_model.corpus import corpus_hash
 
     paths = RunPaths.create(name, runs_dir=runs_dir, reports_dir=reports_dir)
@@ -135,6 +194,9 @@ def replicate(name: str, cfg, *, overwrite: bool = False, progress: bool = True,
     with mlflow_run(cfg, run_name=name, tags={"stage": "replicate"}) as mlf:
         synth = stage_synth(paths, cfg, progress=progress)
         units = stage_units(paths.corpus, paths.units, cfg)
+        stage_train(paths, cfg, progress=progress, mlf=mlf)
+        if ablation_grid:
+            stage_ablate(paths, cfg, ablation_grid, workers=workers, progress=progress, mlf=mlf)
         pdf = stage_report(paths, cfg)
         if mlf is not None:
             mlf.set_tag("corpus_hash", synth.get("corpus_hash") or corpus_hash(paths.corpus))

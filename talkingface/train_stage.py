@@ -105,3 +105,38 @@ def _trajectory_items(data, results, mcfg, n_utterance: int) -> list[dict]:
                       "truth": data[i].mups, "n_utterance": n_utterance,
                       "estimates": {meth: by[meth].predictions[i] for meth in shown if meth in by}})
     return items
+
+
+def train_metrics(summary: dict, primary: str) -> dict:
+    """MLflow metrics: the primary method as ``<split>.<expression>.<part>.<metric>``, every
+    other method under ``baseline.<method>.``, gate accuracy and training times."""
+    out = {}
+    for r in summary["rows"]:
+        prefix = "" if r["method"] == primary else f"baseline.{r['method']}."
+        for k in ("R", "nu_d", "nu_d_est", "MSE"):
+            out[f"{prefix}{r['split']}.{r['expression']}.{r['part']}.{k}"] = r[k]
+    for key, g in summary["gate"].items():
+        split = key.split("/")[1]
+        out.update({f"gate.{split}.{k}": v for k, v in g.items() if isinstance(v, float)})
+    for key, sec in summary["fit_seconds"].items():
+        method, split = key.split("/")
+        out[f"fit_seconds.{method}.{split}"] = sec
+    for split, rk in summary["ranking"].items():
+        for x in rk:
+            out[f"rank.{split}.{x['method']}"] = x["rank"]
+    out["feature_seconds"] = summary["feature_seconds"]
+    return out
+
+
+def log_train(mlf, summary: dict, out_dir: Path, cfg) -> None:
+    """Log the train stage to the active MLflow run: metrics, tables, plots, models, pyfunc."""
+    from talkingface.pyfunc import log_mapping_model
+
+    mlf.log_metrics(train_metrics(summary, cfg.mapping.method))
+    for p in sorted(out_dir.iterdir()):
+        if p.suffix in (".csv", ".json", ".png", ".yaml", ".tfmap"):
+            mlf.log_artifact(str(p), "mapping")
+    models = summary["models"]
+    if models:
+        split = "utterance" if "utterance" in models else next(iter(models))
+        log_mapping_model(mlf, out_dir / models[split], name="mapping")

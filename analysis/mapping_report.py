@@ -1,0 +1,112 @@
+"""The mapping part of the PDF: Tables I and II beside the paper's, the ranking of every method,
+the gate, the ablations and the trajectory plots. Reads only the train stage's summary and the
+ablation results; computes nothing new."""
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from analysis.metrics import PAPER_TABLES
+
+_TABLE_NAME = {"train": "TABLE I", "test": "TABLE II"}
+_PART_NAME = {"train": "training set", "test": "testing set"}
+
+
+def _f(x, nd=3) -> str:
+    return "–" if x is None or (isinstance(x, float) and np.isnan(x)) else f"{x:.{nd}f}"
+
+
+def paper_table_rows(rows: list[dict], method: str, part: str) -> list[list]:
+    """Rows of Table I (``train``) or II (``test``): per split and expression, ours beside the
+    paper's R, nu_d, nu_d' and MSE."""
+    out = []
+    for r in rows:
+        if r["method"] != method or r["part"] != part:
+            continue
+        p = PAPER_TABLES[part].get(r["expression"])
+        out.append([r["split"], r["expression"],
+                    _f(r["R"]), _f(p[0]) if p else "–",
+                    _f(r["nu_d"]), _f(p[1]) if p else "–",
+                    _f(r["nu_d_est"]), _f(p[2]) if p else "–",
+                    _f(r["MSE"], 4), _f(p[3], 4) if p else "–"])
+    return out
+
+
+def split_gap(rows: list[dict], method: str) -> float | None:
+    """Mean test R on the frame split minus the utterance split (None if one is missing)."""
+    def mean_r(split):
+        v = [r["R"] for r in rows if r["method"] == method and r["split"] == split
+             and r["part"] == "test"]
+        return float(np.mean(v)) if v else None
+    a, b = mean_r("random_frames"), mean_r("utterance")
+    return None if a is None or b is None else a - b
+
+
+def mapping_section(report, summary: dict, mapping_dir: Path, ablations_csv: Path | None) -> None:
+    cfg = summary["config"]["mapping"]
+    method = cfg["method"]
+    rows = summary["rows"]
+    report.heading("3. Audio-to-MUP mapping (§VI) and its evaluation (§VII-A)")
+    report.paragraph(
+        f"Features: {cfg['n_mfcc']} MFCC per 30 fps frame{' with deltas' if cfg['deltas'] else ''}"
+        f", context {cfg['context_back']} + 1 + {cfg['context_forward']} frames. Gate: one "
+        f"Gaussian mixture ({cfg['gate_components']} {cfg['gate_covariance']} components) per "
+        f"class, {cfg['n_classes']} classes; bank: one MLP per class with {cfg['hidden_min']}–"
+        f"{cfg['hidden_max']} hidden units by subset size; expressions: "
+        f"{'the cascade Upsilon_k with ' + str(cfg['cascade_hidden']) + ' hidden units' if cfg['expression_model'] == 'cascade' else 'a bank retrained per expression'}."
+        " Ground truth and estimates are both reconstructed from MUPs (the paper's ground truth is "
+        "the tracked MUP sequence) and divided per marker coordinate by its maximum absolute "
+        "displacement in the database. Splits: random_frames (the paper's, 80 % of frames drawn "
+        "at random) and utterance (80 % of the sentences; no sentence on both sides).")
+    header = ["split", "expression", "R", "R paper", "nu_d", "nu_d paper", "nu_d'", "nu_d' paper",
+              "MSE", "MSE paper"]
+    for part in ("train", "test"):
+        report.table(f"{_TABLE_NAME[part]}: {method} on the {_PART_NAME[part]}, ours vs the "
+                     "paper's", header, paper_table_rows(rows, method, part),
+                     note="Paper: Hong, Wen &amp; Huang (2002), Tables I and II (their split "
+                          "draws frames at random).")
+    gap = split_gap(rows, method)
+    if gap is not None:
+        report.paragraph(
+            f"How much the frame split flatters: the mean test R over expressions is "
+            f"{gap:+.3f} higher on random_frames than on utterance. Drawing frames at random puts "
+            "the neighbours of a test frame, from the same sentence, in the training set.")
+    for key, g in summary["gate"].items():
+        merges = ", ".join(f"{a}->{b}" for a, b in g["merges"].items()) or "none"
+        report.paragraph(
+            f"Gate ({key.split('/')[1]} split): frame accuracy on neutral frames "
+            f"{100 * g['neutral_train']:.1f} % (training) and {100 * g['neutral_test']:.1f} % "
+            f"(test); all test frames {100 * g['all_test']:.1f} %. Classes with fewer than "
+            f"{cfg['min_class_frames']} training frames merged into their viseme's largest "
+            f"class: {merges}.")
+    for split, rk in summary["ranking"].items():
+        report.table(f"Methods ranked by mean test R ({split} split)",
+                     ["rank", "method", "related work", "R", "MSE", "fit (s)"],
+                     [[x["rank"], x["method"], x["reference"].replace("&", "&amp;"), _f(x["R"]),
+                       _f(x["MSE"], 4), f"{x['fit_seconds']:.1f}"] for x in rk],
+                     note="Mean over expressions of the test-set figures. Baselines are trained "
+                          "per expression on the same frames and evaluated the same way.")
+    if ablations_csv is not None:
+        with open(ablations_csv, newline="") as f:
+            ab = list(csv.DictReader(f))
+        splits = [s for s in ("utterance", "random_frames") if ab and f"{s}_R" in ab[0]]
+        head = ["setting", "method", "classes", "context", "MFCC", "hidden", "expressions"]
+        body = []
+        for r in ab:
+            line = [r["setting"], r["method"], r["n_classes"], r["context"],
+                    r["n_mfcc"] + (" +delta" if r["deltas"] == "True" else ""), r["hidden"],
+                    r["expression_model"]]
+            for s in splits:
+                line += [_f(float(r[f"{s}_R"])) if r.get(f"{s}_R") else "–",
+                         _f(float(r[f"{s}_MSE"]), 4) if r.get(f"{s}_MSE") else "–"]
+            body.append(line)
+        for s in splits:
+            head += [f"R ({s})", f"MSE ({s})"]
+        report.table("Ablations: one child run per setting (mean test figures)", head, body,
+                     note="Every setting is an MLflow child run of the ablation parent run.")
+    traj = mapping_dir / summary["trajectories"]
+    if traj.is_file():
+        report.figure(traj, "Predicted vs true MUPs of a test sentence per expression: the first "
+                      "three utterance MUPs and the first expression MUP.")

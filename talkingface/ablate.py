@@ -1,0 +1,158 @@
+"""Ablations: one training per setting of a grid, in parallel, logged as MLflow child runs.
+
+A grid file (``configs/ablations.yaml``)::
+
+    base:                  # settings applied to every child (optional)
+      mapping.splits: [utterance]
+    children:              # one child run per entry: name → settings
+      paper: {}
+      classes-1: {mapping.n_classes: 1}
+      context-5: {mapping.context_back: 5, mapping.context_forward: 5}
+
+Keys are ``section.key`` as for ``--set``; an unknown key is an error naming the grid file and the
+child. Each child trains only its ``mapping.method`` (the paper's mapping unless the child sets a
+baseline) on the run's corpus and Motion Units and writes ``runs/<name>/ablations/<child>/``.
+``results.csv`` gathers the children's test figures.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import multiprocessing
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from face_model.errors import ParameterError
+from talkingface.config import apply_overrides, flatten, parse_set, to_dict
+
+_CHILD_NAME = "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_.-"
+
+
+def load_grid(path, cfg) -> dict:
+    """``{child name: resolved Config}`` from a grid file, in file order."""
+    path = Path(path)
+    if not path.is_file():
+        raise ParameterError(f"ablation grid {path} not found")
+    tree = yaml.safe_load(path.read_text()) or {}
+    if not isinstance(tree, dict) or not isinstance(tree.get("children"), dict) \
+            or not tree["children"]:
+        raise ParameterError(f"{path}: an ablation grid needs a non-empty 'children' mapping "
+                             "(name → settings)")
+    unknown = set(tree) - {"base", "children"}
+    if unknown:
+        raise ParameterError(f"{path}: unknown top-level keys {sorted(unknown)}; allowed: base, "
+                             "children")
+
+    def settings(where, d) -> dict:
+        if d is None:
+            return {}
+        if not isinstance(d, dict):
+            raise ParameterError(f"{path}: {where} must map section.key to a value, got {d!r}")
+        return parse_set([f"{k}={json.dumps(v)}" for k, v in d.items()])
+
+    base = settings("base", tree.get("base"))
+    out = {}
+    for name, d in tree["children"].items():
+        name = str(name)
+        if not name or any(ch not in _CHILD_NAME for ch in name):
+            raise ParameterError(f"{path}: child name {name!r} may use letters, digits, '_.-'")
+        try:
+            child = apply_overrides(apply_overrides(cfg, base), settings(name, d))
+        except ParameterError as e:
+            raise ParameterError(f"{path}: child {name!r}: {e}") from None
+        out[name] = child
+    return out
+
+
+def _init_worker() -> None:
+    import torch
+
+    torch.set_num_threads(1)  # one core per child: the pool gives the parallelism
+
+
+def _run_child(name: str, corpus_dir: str, units_path: str, out_dir: str, cfg) -> dict:
+    from talkingface.train_stage import train_and_evaluate
+
+    t0 = time.perf_counter()
+    summary = train_and_evaluate(Path(corpus_dir), Path(units_path), Path(out_dir), cfg,
+                                 methods=[cfg.mapping.method], progress=False)
+    return {"name": name, "summary": summary, "seconds": time.perf_counter() - t0}
+
+
+def child_metrics(summary: dict, method: str) -> dict:
+    """MLflow metrics of one child: ``<split>.<expression>.<part>.<metric>`` and means."""
+    out = {}
+    for r in summary["rows"]:
+        if r["method"] != method:
+            continue
+        for k in ("R", "nu_d", "nu_d_est", "MSE"):
+            out[f"{r['split']}.{r['expression']}.{r['part']}.{k}"] = r[k]
+    for split, rk in summary["ranking"].items():
+        for x in rk:
+            if x["method"] == method:
+                out[f"{split}.mean_test_R"] = x["R"]
+                out[f"{split}.mean_test_MSE"] = x["MSE"]
+                out[f"{split}.fit_seconds"] = x["fit_seconds"]
+    for key, g in summary["gate"].items():
+        split = key.split("/")[1]
+        out.update({f"{split}.gate.{k}": v for k, v in g.items() if isinstance(v, float)})
+    return out
+
+
+def run_ablations(grid: dict, corpus_dir: Path, units_path: Path, out_dir: Path, *,
+                  workers: int = 0, progress: bool = True, mlf=None) -> list[dict]:
+    """Train every child of ``grid`` (from :func:`load_grid`) with ``workers`` processes (0: all
+    cores); log each as a child run of the active MLflow run when ``mlf`` is given."""
+    from tqdm import tqdm
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    n = workers or os.cpu_count() or 1
+    ctx = multiprocessing.get_context("spawn")  # torch is not fork-safe once its pools exist
+    results = {}
+    with ProcessPoolExecutor(max_workers=min(n, len(grid)), mp_context=ctx,
+                             initializer=_init_worker) as pool:
+        futs = [pool.submit(_run_child, name, str(corpus_dir), str(units_path),
+                            str(out_dir / name), c) for name, c in grid.items()]
+        for fut in tqdm(as_completed(futs), total=len(futs), desc="ablations", unit="run",
+                        disable=not progress):
+            res = fut.result()
+            results[res["name"]] = res
+            if mlf is not None:
+                _log_child(mlf, res, grid[res["name"]], out_dir / res["name"])
+    rows = [_result_row(name, grid[name], results[name]) for name in grid]
+    fields = list(dict.fromkeys(k for r in rows for k in r))
+    with open(out_dir / "results.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=fields, restval="")
+        w.writeheader()
+        w.writerows(rows)
+    return rows
+
+
+def _result_row(name: str, cfg, res: dict) -> dict:
+    m = cfg.mapping
+    metrics = child_metrics(res["summary"], m.method)
+    row = {"setting": name, "method": m.method, "n_classes": m.n_classes,
+           "context": f"{m.context_back}+1+{m.context_forward}", "n_mfcc": m.n_mfcc,
+           "deltas": m.deltas, "hidden": f"{m.hidden_min}-{m.hidden_max}",
+           "expression_model": m.expression_model}
+    for split in m.splits:
+        row[f"{split}_R"] = metrics.get(f"{split}.mean_test_R", np.nan)
+        row[f"{split}_MSE"] = metrics.get(f"{split}.mean_test_MSE", np.nan)
+        row[f"{split}_gate_acc"] = metrics.get(f"{split}.gate.neutral_test", np.nan)
+    row["seconds"] = res["seconds"]
+    return row
+
+
+def _log_child(mlf, res: dict, cfg, child_dir: Path) -> None:
+    with mlf.start_run(run_name=res["name"], nested=True):
+        mlf.set_tags({"ablation.setting": res["name"], "mapping.method": cfg.mapping.method})
+        mlf.log_params({k: str(v)[:500] for k, v in flatten(cfg).items()})
+        mlf.log_metrics({**child_metrics(res["summary"], cfg.mapping.method),
+                         "seconds": res["seconds"]})
+        mlf.log_artifact(str(child_dir / "tables.csv"))
+        mlf.log_dict(to_dict(cfg), "config.json")
