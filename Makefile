@@ -20,6 +20,7 @@ test: setup
 bench: setup
 	$(PY) bench/bench_corpus.py
 	$(PY) bench/bench_units.py
+	$(PY) bench/bench_mapping.py
 
 ui: setup
 	$(PY) -m talkingface ui

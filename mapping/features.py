@@ -11,6 +11,8 @@ written down here and in :data:`MFCC_SETTINGS`:
 """
 from __future__ import annotations
 
+import functools
+
 import librosa
 import numpy as np
 
@@ -65,8 +67,7 @@ def mfcc(y: np.ndarray, *, sr: int, fps: int = 30, n_mfcc: int = 10,
     power = np.abs(librosa.stft(y, n_fft=n_fft, hop_length=hop, win_length=win,
                                 window=MFCC_SETTINGS["window"], center=True,
                                 pad_mode="reflect")) ** 2
-    mel = librosa.filters.mel(sr=sr, n_fft=n_fft, n_mels=MFCC_SETTINGS["n_mels"], fmin=0.0,
-                              fmax=sr / 2, htk=True, norm=None)
+    mel = _mel_filters(sr, n_fft)
     logmel = np.log(np.maximum(mel @ power, MFCC_SETTINGS["log_floor"]))
     cep = librosa.feature.mfcc(S=logmel, n_mfcc=n_mfcc + 1, dct_type=2, norm="ortho",
                                lifter=MFCC_SETTINGS["lifter"])[1:]
@@ -74,6 +75,15 @@ def mfcc(y: np.ndarray, *, sr: int, fps: int = 30, n_mfcc: int = 10,
     if len(feats) < n_out:  # more frames asked for than the audio has: repeat the last
         feats = np.concatenate([feats, np.repeat(feats[-1:], n_out - len(feats), axis=0)])
     return feats[:n_out].astype(np.float32)
+
+
+@functools.lru_cache(maxsize=8)
+def _mel_filters(sr: int, n_fft: int) -> np.ndarray:
+    """The 26 HTK-scale triangular filters (unnormalised), cached per rate and FFT size."""
+    mel = librosa.filters.mel(sr=sr, n_fft=n_fft, n_mels=MFCC_SETTINGS["n_mels"], fmin=0.0,
+                              fmax=sr / 2, htk=True, norm=None)
+    mel.setflags(write=False)
+    return mel
 
 
 def stack_context(features: np.ndarray, *, back: int = 3, forward: int = 3) -> np.ndarray:

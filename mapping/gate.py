@@ -7,7 +7,8 @@ gate: one MLP for everything). :func:`class_groups` gives the grouping.
 
 Small classes (the explicit rule). A class with fewer than ``min_frames`` training frames cannot
 support its own mixture and MLP. It is merged into the largest class (by training frames) of the
-same viseme that has enough frames, or, when its viseme has none, into the largest class of all.
+same viseme that has enough frames, or, when its viseme has none, into the largest class of all
+(when no class has enough, everything joins the largest class).
 Merging is decided on the training frames only and written down in ``merges_``, so the gate never
 meets a class without frames. :class:`PhoneGate` itself refuses a class with no frames.
 """
@@ -51,10 +52,12 @@ def merge_small_classes(labels: np.ndarray, names: tuple, visemes: tuple,
     modelled by, and ``merges`` maps each merged name to the name it joined.
     """
     counts = np.bincount(labels, minlength=len(names))
+    if counts.sum() == 0:
+        raise ParameterError("the gate has no training frames at all")
     big = counts >= min_frames
-    if not big.any():
-        raise ParameterError(f"no phone class has {min_frames} training frames (largest: "
-                             f"{counts.max()}); lower mapping.min_class_frames or use more data")
+    if not big.any():  # a tiny corpus: every class joins the largest (one MLP, as n_classes=1)
+        big = counts == counts.max()
+        big[np.flatnonzero(big)[1:]] = False
     target = np.arange(len(names))
     merges = {}
     for g in np.flatnonzero(~big):
@@ -108,7 +111,22 @@ class PhoneGate:
                                   random_state=self.random_state + i, max_iter=200)
             self.mixtures_.append(gmm.fit(rows) if len(rows) > 1 else
                                   gmm.fit(np.concatenate([rows, rows + 1e-3])))
+        self._pack()
         return self
+
+    def _pack(self) -> None:
+        """For diagonal mixtures, stack every component of every class so one matrix product
+        scores all of them (the real-time path; identical to ``score_samples``)."""
+        self.packed_ = None
+        if self.covariance_type != "diag":
+            return
+        prec = np.concatenate([g.precisions_ for g in self.mixtures_])  # (K, d)
+        mean = np.concatenate([g.means_ for g in self.mixtures_])
+        const = (np.concatenate([np.log(g.weights_) for g in self.mixtures_])
+                 + 0.5 * np.log(prec).sum(1) - 0.5 * mean.shape[1] * np.log(2 * np.pi)
+                 - 0.5 * (mean**2 * prec).sum(1))
+        owner = np.concatenate([np.full(g.n_components, i) for i, g in enumerate(self.mixtures_)])
+        self.packed_ = (-0.5 * prec.T, (mean * prec).T, const, owner)
 
     def log_likelihood(self, X: np.ndarray) -> np.ndarray:
         """(n_frames, n_classes) log-likelihood of every frame under every class mixture."""
@@ -117,11 +135,18 @@ class PhoneGate:
         X = np.asarray(X, dtype=np.float64)
         if not np.all(np.isfinite(X)):
             raise ParameterError("features hold NaN or inf values")
-        return np.stack([g.score_samples(X) for g in self.mixtures_], axis=1)
+        if getattr(self, "packed_", None) is None:
+            return np.stack([g.score_samples(X) for g in self.mixtures_], axis=1)
+        a, b, const, owner = self.packed_
+        comp = (X**2) @ a + X @ b + const  # (n, K): log w_c + log N(x | component c)
+        starts = np.flatnonzero(np.r_[True, owner[1:] != owner[:-1]])  # owner is sorted
+        top = np.maximum.reduceat(comp, starts, axis=1)  # per-class log-sum-exp, stably
+        return top + np.log(np.add.reduceat(np.exp(comp - top[:, owner]), starts, axis=1))
 
     def predict(self, X: np.ndarray) -> np.ndarray:
         """The class label of each frame (the highest likelihood)."""
-        return self.classes_[self.log_likelihood(X).argmax(1)]
+        ll = self.log_likelihood(X)  # checks that the gate is fitted first
+        return self.classes_[ll.argmax(1)]
 
 
 def confusion(true: np.ndarray, pred: np.ndarray, n: int) -> np.ndarray:

@@ -127,6 +127,7 @@ class NetRegressor:
         x, y = X[mask], Y[mask]
         self.x_mean_, self.x_std_ = x.mean(0), _safe_std(x)
         self.y_mean_, self.y_std_ = y.mean(0), _safe_std(y)
+        self._np_weights = None
         self.history_ = fit_module(self.module, (X - self.x_mean_) / self.x_std_,
                                    (Y - self.y_mean_) / self.y_std_, mask, self.settings,
                                    self.seed)
@@ -138,10 +139,22 @@ class NetRegressor:
         X = np.asarray(X, dtype=np.float32)
         if not np.all(np.isfinite(X)):
             raise ParameterError("features hold NaN or inf values")
+        if isinstance(self.module, MLP):  # the real-time path: two small matrix products
+            w1, b1, w2, b2 = self._mlp_weights()
+            h = np.tanh(((X - self.x_mean_) / self.x_std_) @ w1 + b1)
+            return (h @ w2 + b2) * self.y_std_ + self.y_mean_
         self.module.eval()
         with torch.no_grad():
             out = self.module(torch.from_numpy((X - self.x_mean_) / self.x_std_)).numpy()
         return out * self.y_std_ + self.y_mean_
+
+
+    def _mlp_weights(self):
+        if getattr(self, "_np_weights", None) is None:
+            first, last = self.module.net[0], self.module.net[2]
+            self._np_weights = tuple(t.detach().numpy().copy() for t in (
+                first.weight.T, first.bias, last.weight.T, last.bias))
+        return self._np_weights
 
 
 def fit_module(module: nn.Module, X: np.ndarray, Y: np.ndarray, mask: np.ndarray,

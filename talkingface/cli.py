@@ -13,6 +13,8 @@ from pathlib import Path
 
 from face_model.errors import TalkingFaceError
 
+DEFAULT_GRID = Path(__file__).resolve().parents[1] / "configs" / "ablations.yaml"
+
 
 def _config_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", metavar="FILE", help="YAML config (defaults: the paper's values)")
@@ -77,6 +79,8 @@ def cmd_replicate(args) -> int:
 
     cfg = _load(args)
     grid = None if str(args.ablations).lower() == "none" else args.ablations
+    if grid is None and args.ablations is None:
+        grid = DEFAULT_GRID
     pdf = replicate(args.name, cfg, overwrite=args.overwrite, ablation_grid=grid,
                     workers=args.workers)
     print(f"report: {pdf}")
@@ -181,8 +185,9 @@ def build_parser() -> argparse.ArgumentParser:
     _config_args(s)
     s.set_defaults(func=cmd_replicate)
 
-    s.add_argument("--ablations", default="configs/ablations.yaml", metavar="GRID",
-                   help="ablation grid trained as child runs and tabulated ('none' to skip)")
+    s.add_argument("--ablations", default=None, metavar="GRID",
+                   help="ablation grid trained as child runs and tabulated ('none' to skip; "
+                        "default: the project's configs/ablations.yaml)")
     s.add_argument("--workers", type=int, default=0, help="processes for ablations (0: all cores)")
 
     s = sub.add_parser("train", help="train and evaluate the mapping and the baselines "

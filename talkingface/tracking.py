@@ -63,6 +63,7 @@ def mlflow_run(cfg, *, run_name: str, tags: dict | None = None, nested: bool = F
         exp_id = client.create_experiment(cfg.tracking.experiment, artifact_location=loc)
     else:
         exp_id = exp.experiment_id
+    mlflow.set_experiment(experiment_id=exp_id)  # nested (child) runs go to the same experiment
     with mlflow.start_run(experiment_id=exp_id, run_name=run_name, nested=nested) as run:
         mlflow.set_tags({"git_commit": git_commit(), **(tags or {})})
         mlflow.log_params({k: str(v)[:500] for k, v in flatten(cfg).items()})

@@ -25,6 +25,12 @@ from data_synth.generate import synthesize_corpus  # noqa: E402
 from face_model.corpus import load_corpus  # noqa: E402
 from talkingface.config import Config  # noqa: E402
 
+# Each pytest-xdist worker is one process on one core: torch's own thread pool would only
+# oversubscribe the machine (tiny networks run many times slower when threads compete).
+import torch  # noqa: E402
+
+torch.set_num_threads(1)
+
 # Property tests: reproducible examples (derandomize), no wall-clock deadline, no example database.
 settings.register_profile("talkingface", derandomize=True, deadline=None, database=None,
                           max_examples=60, suppress_health_check=[HealthCheck.too_slow])

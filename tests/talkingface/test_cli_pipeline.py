@@ -1,4 +1,5 @@
 """The command line and the replicate pipeline on a tiny corpus, with a throw-away MLflow store."""
+import csv
 import json
 
 import pytest
@@ -21,7 +22,7 @@ def pdf_text(path) -> str:
 
 
 def test_replicate_writes_runs_report_and_mlflow(workdir, capsys):
-    assert main(["replicate", "--name", "tiny", *TINY]) == 0
+    assert main(["replicate", "--name", "tiny", *TINY, "--ablations", "none"]) == 0
     run = workdir / "runs" / "tiny"
     for p in ("config.yaml", "corpus/manifest.csv", "corpus/done.json", "units/motion_units.npz",
               "units/variance.csv", "report/summary.json", "report/mu_variance.png"):
@@ -32,6 +33,17 @@ def test_replicate_writes_runs_report_and_mlflow(workdir, capsys):
     summary = json.loads((run / "report" / "summary.json").read_text())
     ours = f"{100 * summary['units']['explained']['neutral']:.2f} %"
     assert ours in text  # our figure, as text, in the table
+    # the mapping: Tables I and II with our figures beside the paper's, and the ranking
+    assert "TABLE I:" in text and "TABLE II:" in text
+    with open(run / "mapping" / "tables.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    for part, paper_r in (("train", "0.980"), ("test", "0.968")):
+        ours = next(r for r in rows if r["method"] == "gated_mlp" and r["split"] == "utterance"
+                    and r["expression"] == "neutral" and r["part"] == part)
+        assert f"{float(ours['R']):.3f}" in text and paper_r in text
+    assert "Methods ranked by mean test R (utterance split)" in text
+    for method in ("gated_mlp", "vq", "linear", "gmm_regression", "mlp_large", "tdnn", "gru"):
+        assert method in text
 
     import mlflow
 
@@ -48,7 +60,8 @@ def test_replicate_writes_runs_report_and_mlflow(workdir, capsys):
 
 
 def test_replicate_refuses_a_different_config_under_the_same_name(workdir, capsys):
-    assert main(["replicate", "--name", "r", *TINY, "--set", "tracking.enabled=false"]) == 0
+    assert main(["replicate", "--name", "r", *TINY, "--ablations", "none",
+                 "--set", "tracking.enabled=false"]) == 0
     stamp = (workdir / "runs" / "r" / "corpus" / "done.json").read_text()
     code = main(["replicate", "--name", "r", *TINY, "--set", "tracking.enabled=false",
                  "--seed", "5"])
@@ -57,7 +70,8 @@ def test_replicate_refuses_a_different_config_under_the_same_name(workdir, capsy
     # nothing was touched
     assert (workdir / "runs" / "r" / "corpus" / "done.json").read_text() == stamp
     # the same config again reuses the finished corpus
-    assert main(["replicate", "--name", "r", *TINY, "--set", "tracking.enabled=false"]) == 0
+    assert main(["replicate", "--name", "r", *TINY, "--ablations", "none",
+                 "--set", "tracking.enabled=false"]) == 0
     assert (workdir / "runs" / "r" / "corpus" / "done.json").read_text() == stamp
 
 

@@ -1,0 +1,215 @@
+"""The related-work baselines (§III-C), the method registry and the saved audio → MUP model."""
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from face_model.audio import resample
+from face_model.errors import NotFittedError, ParameterError
+from face_model.motion_units import fit_corpus_units
+from face_model.phones import PHONES
+from mapping import BASELINES, METHODS, Baseline, GatedMLP, build_dataset, make_mapper, mfcc
+from mapping.dataset import UttData, split_masks
+from mapping.features import audio_features
+from mapping.model import FORMAT, AudioMapping
+from talkingface.config import MappingConfig
+
+A0, AK, N_FEAT = 3, 2, 4
+SPOKEN = ("iy", "aa", "m", "sil")
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_torch_thread():
+    """Tiny networks train fastest on one thread; two workers on two cores with two torch
+    threads each oversubscribe the CPU (100× slower under load). Restored afterwards."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def config(**changes) -> MappingConfig:
+    base = dict(max_epochs=150, patience=25, min_class_frames=15, gate_components=2)
+    base.update(changes)
+    return dataclasses.replace(MappingConfig(), **base)
+
+
+def synthetic_data(seed: int = 0, n_utt: int = 4, n_seg: int = 10, seg_len: int = 7) -> list:
+    """Runs of phones with one feature cluster each; MUPs a known nonlinear function of the
+    current frame's features, plus an offset for the expression part of smiling speech."""
+    rng = np.random.default_rng(seed)
+    centres = np.random.default_rng(99).normal(0, 3, (len(SPOKEN), N_FEAT))
+    W = np.random.default_rng(98).normal(0, 0.6, (N_FEAT, A0))
+    data = []
+    for e in ("neutral", "smile"):
+        for i in range(n_utt):
+            k = np.repeat(rng.integers(len(SPOKEN), size=n_seg), seg_len)
+            feats = centres[k] + rng.standard_normal((len(k), N_FEAT))
+            c0 = np.tanh(feats @ W)
+            ck = (np.zeros((len(k), AK)) if e == "neutral"
+                  else np.array([1.5, -1.0]) + 0.5 * c0[:, :AK])
+            data.append(UttData(f"s0_{e}_{i}", "s0", e, f"sentence {i}", feats.astype(np.float32),
+                                np.concatenate([c0, ck], 1).astype(np.float32),
+                                np.array([PHONES.index(SPOKEN[j]) for j in k])))
+    return data
+
+
+@pytest.fixture(scope="module")
+def data():
+    return synthetic_data()
+
+
+@pytest.fixture(scope="module")
+def masks(data):
+    return split_masks(data, "random_frames", train_fraction=0.8, seed=0)
+
+
+# -- baselines ---------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("kind", BASELINES)
+def test_baseline_beats_the_training_mean(kind, data, masks):
+    b = Baseline(kind, config(), seed=0).fit(data, masks)
+    assert b.name == kind and b.reference
+    assert sorted(b.models_) == ["neutral", "smile"]  # one regressor per expression
+    err_model = err_mean = 0.0
+    for e in ("neutral", "smile"):
+        idx = [i for i, d in enumerate(data) if d.expression == e]
+        Y = np.concatenate([data[i].mups[masks[i]] for i in idx])
+        P = np.concatenate([b.predict(data[i].features, e)[masks[i]] for i in idx])
+        assert P.shape == Y.shape and P.dtype == np.float32 and np.all(np.isfinite(P))
+        err_model += np.sum((P - Y) ** 2)
+        err_mean += np.sum((Y - Y.mean(0)) ** 2)  # the best constant per expression
+    assert err_model < 0.5 * err_mean, (kind, err_model / err_mean)
+
+
+def test_baseline_errors(data, masks):
+    with pytest.raises(ParameterError, match=r"unknown baseline 'knn'; allowed: vq, linear, "
+                                             r"gmm_regression, mlp_large, tdnn, gru"):
+        Baseline("knn", config())
+    b = Baseline("linear", config())
+    with pytest.raises(NotFittedError, match="baseline linear is not trained yet"):
+        b.predict(data[0].features)
+    b.fit(data, masks)
+    with pytest.raises(ParameterError, match=r"expression 'sad' was not trained; allowed: "
+                                             r"neutral, smile"):
+        b.predict(data[0].features, "sad")
+
+
+def test_baseline_context_sizes(data, masks):
+    """mlp_large sees 5 + 1 + 5 frames, tdnn single frames, the others the configured 3 + 1 + 3."""
+    cfg = config(max_epochs=2)
+    assert Baseline("mlp_large", cfg).fit(data, masks).context_.n_inputs == 11 * N_FEAT
+    assert Baseline("tdnn", cfg).fit(data, masks).context_.n_inputs == N_FEAT
+    assert Baseline("linear", cfg).fit(data, masks).context_.n_inputs == 7 * N_FEAT
+    assert Baseline("linear", config(context_back=1, context_forward=0)).fit(
+        data, masks).context_.n_inputs == 2 * N_FEAT
+
+
+def test_make_mapper():
+    assert METHODS == ("gated_mlp", *BASELINES)
+    g = make_mapper("gated_mlp", config(), n_utterance=5, seed=2)
+    assert isinstance(g, GatedMLP) and g.n_utterance == 5 and g.seed == 2
+    for kind in BASELINES:
+        b = make_mapper(kind, config(), seed=4)
+        assert isinstance(b, Baseline) and b.kind == kind and b.seed == 4
+    with pytest.raises(ParameterError, match=r"unknown mapping method 'nope'; allowed: gated_mlp, "
+                                             r"vq, linear, gmm_regression, mlp_large, tdnn, gru"):
+        make_mapper("nope", config())
+
+
+# -- the saved model ---------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def corpus_model(small_corpus):
+    """A quickly trained GatedMLP on the small corpus, wrapped as an AudioMapping."""
+    units, _ = fit_corpus_units(small_corpus)
+    data = build_dataset(small_corpus, units)
+    masks = split_masks(data, "random_frames", seed=0)
+    mapper = GatedMLP(config(n_classes=8, min_class_frames=20, max_epochs=30), seed=0)
+    mapper.fit(data, masks)
+    u = small_corpus.utterances[0]
+    return AudioMapping(mapper, sample_rate=u.sample_rate, fps=u.fps, n_utterance=7,
+                        metadata={"note": "unit test", "n_frames": 996})
+
+
+def test_audio_mapping_matches_the_method(small_corpus, corpus_model):
+    assert corpus_model.expressions == ("neutral", "sad", "smile")
+    u = small_corpus.utterances[5]
+    feats = audio_features(u.audio, sr=u.sample_rate, fps=u.fps)
+    assert feats.shape == (int(np.ceil(len(u.audio) / (u.sample_rate // u.fps))), 10)
+    np.testing.assert_array_equal(corpus_model.features(u.audio, u.sample_rate), feats)
+    np.testing.assert_array_equal(corpus_model.predict_audio(u.audio, u.sample_rate, "smile"),
+                                  corpus_model.mapper.predict(feats, "smile"))
+
+
+def test_save_load_round_trip(small_corpus, corpus_model, tmp_path):
+    path = corpus_model.save(tmp_path / "models" / "m.tfmap")
+    assert path.is_file()
+    header = json.loads(path.read_bytes().split(b"\n", 1)[0])
+    assert header["format"] == FORMAT and header["method"] == "gated_mlp"
+    loaded = AudioMapping.load(path)
+    assert (loaded.sample_rate, loaded.fps, loaded.n_mfcc, loaded.deltas, loaded.n_utterance) == (
+        corpus_model.sample_rate, corpus_model.fps, 10, False, 7)
+    assert loaded.metadata == corpus_model.metadata
+    assert loaded.expressions == corpus_model.expressions
+    for u in small_corpus.utterances[::4]:
+        for e in loaded.expressions:
+            a = corpus_model.predict_audio(u.audio, u.sample_rate, e)
+            b = loaded.predict_audio(u.audio, u.sample_rate, e)
+            assert a.shape == (u.n_frames, 9)  # one row per video frame
+            np.testing.assert_array_equal(a, b)
+
+
+def test_saved_baseline_round_trip(data, masks, tmp_path):
+    """A baseline trained on raw features saves and loads too (predict from features)."""
+    b = Baseline("vq", config(), seed=0).fit(data, masks)
+    m = AudioMapping(b, sample_rate=22050, n_utterance=A0)
+    loaded = AudioMapping.load(m.save(tmp_path / "vq.tfmap"))
+    assert loaded.expressions == ("neutral", "smile")
+    np.testing.assert_array_equal(loaded.mapper.predict(data[5].features, "smile"),
+                                  b.predict(data[5].features, "smile"))
+
+
+def test_loading_other_files_is_refused(tmp_path):
+    with pytest.raises(ParameterError, match="not found"):
+        AudioMapping.load(tmp_path / "missing.tfmap")
+    text = tmp_path / "notes.txt"
+    text.write_text("hello\nworld\n")
+    with pytest.raises(ParameterError, match="not a talkingface mapping model"):
+        AudioMapping.load(text)
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps({"format": "someone.else/3"}) + "\n")
+    with pytest.raises(ParameterError, match=r"not a talkingface mapping model .*someone\.else/3"):
+        AudioMapping.load(other)
+    binary = tmp_path / "blob.bin"
+    binary.write_bytes(bytes(range(256)) * 4)
+    with pytest.raises(ParameterError, match="not a talkingface mapping model"):
+        AudioMapping.load(binary)
+
+
+def test_sample_rates(small_corpus, corpus_model):
+    u = small_corpus.utterances[0]
+    for bad in (4000, 7999, 192001, 22050.0, "22050"):
+        with pytest.raises(ParameterError, match="unsupported sample rate"):
+            corpus_model.predict_audio(u.audio, bad)
+    with pytest.raises(ParameterError, match="mono"):
+        corpus_model.features(np.stack([u.audio, u.audio], 1), u.sample_rate)
+    with pytest.raises(ParameterError, match="expression 'angry' is not known to this model"):
+        corpus_model.predict_audio(u.audio, u.sample_rate, "angry")
+    # The same sound at twice the rate: the same frames, nearly the same features and MUPs.
+    base = corpus_model.features(u.audio, u.sample_rate)
+    y44 = resample(u.audio, sr_in=u.sample_rate, sr_out=44100)
+    f44 = corpus_model.features(y44, 44100)
+    assert f44.shape == base.shape
+    assert len(corpus_model.predict_audio(y44, 44100)) == len(base)
+    assert np.corrcoef(f44.ravel(), base.ravel())[0, 1] > 0.99
+    # 16 kHz has no integer hop at 30 fps: the MFCC refuse it, the model resamples it.
+    y16 = resample(u.audio, sr_in=u.sample_rate, sr_out=16000)
+    with pytest.raises(ParameterError, match="sample rate 16000 Hz has no integer hop"):
+        mfcc(y16, sr=16000)
+    assert abs(len(corpus_model.features(y16, 16000)) - len(base)) <= 1

@@ -1,0 +1,170 @@
+"""The train and ablate commands, the logged pyfunc model, the MLflow UI, and the paper's
+mapping against the linear and VQ baselines on held-out sentences."""
+import csv
+import os
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from talkingface.cli import main
+
+TINY = ["--set", "synth.n_sentences=4", "--set", "synth.workers=2"]
+
+
+@pytest.fixture
+def workdir(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'mlflow.db'}")
+    return tmp_path
+
+
+def test_gated_mlp_beats_linear_and_vq_on_held_out_sentences(default_corpus):
+    from analysis.evaluation import ranking, run_experiment
+    from face_model.motion_units import fit_corpus_units
+    from mapping import build_dataset
+    from talkingface.config import Config
+
+    cfg = Config()
+    units, _ = fit_corpus_units(default_corpus)
+    data = build_dataset(default_corpus, units)
+    results = run_experiment(data, units, cfg.mapping, seed=cfg.seed,
+                             methods=["gated_mlp", "linear", "vq"], splits=["utterance"])
+    by = {x["method"]: x for x in ranking(results, "utterance")}
+    for baseline in ("linear", "vq"):
+        assert by["gated_mlp"]["R"] > by[baseline]["R"], by
+        assert by["gated_mlp"]["MSE"] < by[baseline]["MSE"], by
+    # every expression, not only the mean
+    gated = next(r for r in results if r.method == "gated_mlp").tables
+    linear = next(r for r in results if r.method == "linear").tables
+    for e in ("neutral", "smile", "sad"):
+        assert gated[e]["test"].R > linear[e]["test"].R
+
+
+def test_train_logs_a_pyfunc_model_that_predicts_from_a_wav(workdir, capsys):
+    import mlflow
+    import mlflow.pyfunc
+
+    from mapping.model import AudioMapping
+
+    assert main(["train", "--name", "t", *TINY,
+                 "--set", "mapping.baselines=[linear]"]) == 0
+    out = capsys.readouterr().out
+    assert "utterance split" in out and "gated_mlp" in out and "linear" in out
+    model = mlflow.last_logged_model()
+    run = mlflow.get_run(model.source_run_id)
+    # every metric: expression x split x part, gate accuracy, training time
+    for split in ("random_frames", "utterance"):
+        for e in ("neutral", "smile", "sad"):
+            for part in ("train", "test"):
+                for k in ("R", "nu_d", "nu_d_est", "MSE"):
+                    assert f"{split}.{e}.{part}.{k}" in run.data.metrics
+        assert f"gate.{split}.neutral_test" in run.data.metrics
+        assert f"fit_seconds.gated_mlp.{split}" in run.data.metrics
+    assert run.data.params["mapping.n_classes"] == "44"
+    artifacts = {a.path for a in mlflow.MlflowClient().list_artifacts(run.info.run_id, "mapping")}
+    assert {"mapping/tables.csv", "mapping/trajectories.png",
+            "mapping/gated_mlp_utterance.tfmap"} <= artifacts
+
+    wav = sorted((workdir / "runs" / "t" / "corpus" / "audio").glob("*.wav"))[0]
+    loaded = mlflow.pyfunc.load_model(model.model_uri)
+    mups = loaded.predict(str(wav))
+    direct = AudioMapping.load(workdir / "runs" / "t" / "mapping" / "gated_mlp_utterance.tfmap")
+    np.testing.assert_array_equal(mups, direct.predict_wav(wav))
+    n_frames = np.load(workdir / "runs" / "t" / "corpus" / "markers" /
+                       (wav.stem + ".npy")).shape[0]
+    assert mups.shape == (n_frames, 9)
+    assert np.all(mups[:, 7:] == 0)  # neutral by default: no expression MUPs
+    smile = loaded.predict(str(wav), params={"expression": "smile"})
+    assert np.abs(smile[:, 7:]).max() > 0
+    from face_model.audio import read_wav
+    y, sr = read_wav(wav)
+    np.testing.assert_allclose(loaded.predict({"audio": y, "sr": sr}), mups, rtol=0, atol=1e-5)
+
+
+def test_ablate_leaves_a_parent_run_with_one_child_per_setting(workdir, capsys):
+    import mlflow
+
+    grid = workdir / "grid.yaml"
+    grid.write_text("base:\n  mapping.splits: [utterance]\nchildren:\n  paper: {}\n"
+                    "  classes-1: {mapping.n_classes: 1}\n"
+                    "  baseline-linear: {mapping.method: linear}\n")
+    assert main(["ablate", "--grid", str(grid), "--name", "a", *TINY, "--workers", "2"]) == 0
+    runs = mlflow.search_runs(experiment_names=["talkingface"], output_format="list")
+    parents = [r for r in runs if r.data.tags.get("stage") == "ablate"]
+    assert len(parents) == 1
+    children = [r for r in runs if r.data.tags.get("mlflow.parentRunId") ==
+                parents[0].info.run_id]
+    assert sorted(r.data.tags["ablation.setting"] for r in children) == \
+        ["baseline-linear", "classes-1", "paper"]
+    for r in children:
+        assert "utterance.mean_test_R" in r.data.metrics
+    by = {r.data.tags["ablation.setting"]: r for r in children}
+    assert by["classes-1"].data.params["mapping.n_classes"] == "1"
+    assert by["baseline-linear"].data.params["mapping.method"] == "linear"
+    with open(workdir / "runs" / "a" / "ablations" / "results.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [r["setting"] for r in rows] == ["paper", "classes-1", "baseline-linear"]
+    for r in rows:
+        assert float(r["utterance_R"]) == pytest.approx(
+            by[r["setting"]].data.metrics["utterance.mean_test_R"])
+    # one class means one MLP, so the gate is always right
+    assert float(rows[1]["utterance_gate_acc"]) == 1.0
+
+
+@pytest.mark.parametrize("grid_text, message", [
+    ("children: {}\n", "needs a non-empty 'children' mapping"),
+    ("children:\n  x: {mapping.nope: 1}\n", "child 'x': unknown config key mapping.nope"),
+    ("children:\n  x: {}\nextra: 1\n", "unknown top-level keys"),
+])
+def test_bad_grids_are_refused_with_the_file_and_the_problem(workdir, capsys, grid_text,
+                                                             message):
+    from talkingface.ablate import load_grid
+    from talkingface.config import Config
+    from face_model.errors import ParameterError
+
+    grid = workdir / "g.yaml"
+    grid.write_text(grid_text)
+    with pytest.raises(ParameterError, match=message) as err:
+        load_grid(grid, Config())
+    assert str(grid) in str(err.value)
+    assert main(["ablate", "--grid", str(workdir / "missing.yaml"), "--name", "m", *TINY]) == 2
+    assert "ablation grid" in capsys.readouterr().err
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_ui_front_page_answers_http_200(workdir):
+    port = _free_port()
+    repo = str(Path(__file__).resolve().parents[2])
+    env = {**os.environ, "HOME": str(workdir),
+           "PYTHONPATH": os.pathsep.join(filter(None, [repo, os.environ.get("PYTHONPATH")]))}
+    proc = subprocess.Popen([sys.executable, "-m", "talkingface", "ui", "--port", str(port)],
+                            cwd=workdir, env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        status = None
+        for _ in range(240):  # the server needs a few seconds to start; poll for up to ~2 min
+            try:
+                with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=2) as r:
+                    status = r.status
+                    body = r.read(2000).decode(errors="replace")
+                break
+            except OSError:
+                if proc.poll() is not None:
+                    break
+                time.sleep(0.5)
+        assert status == 200
+        assert "mlflow" in body.lower()
+    finally:
+        os.killpg(proc.pid, 15)
+        proc.wait(timeout=30)
