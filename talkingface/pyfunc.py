@@ -11,6 +11,7 @@ frame k is centred at k / 30 s. ``expression`` is ``neutral`` by default.
 """
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import mlflow.pyfunc
@@ -73,9 +74,15 @@ def log_mapping_model(mlf, model_path: Path, *, name: str = "mapping"):
     # into a DataFrame; the params schema carries the expression.
     signature = ModelSignature(inputs=None,
                                params=ParamSchema([ParamSpec("expression", "string", "neutral")]))
-    return mlf.pyfunc.log_model(name=name, python_model=MappingModel(),
-                                artifacts={"mapping": str(model_path)}, code_paths=CODE_PATHS,
-                                signature=signature, pip_requirements=_requirements())
+    with warnings.catch_warnings():
+        # The input is free-form on purpose (path, dict or list), so MLflow's advice to add type
+        # hints or an input example does not apply; every other warning still shows.
+        warnings.filterwarnings("ignore", message=".*type hints.*", category=UserWarning)
+        warnings.filterwarnings("ignore", message=".*input example.*", category=UserWarning)
+        return mlf.pyfunc.log_model(name=name, python_model=MappingModel(),
+                                    artifacts={"mapping": str(model_path)},
+                                    code_paths=CODE_PATHS, signature=signature,
+                                    pip_requirements=_requirements())
 
 
 def _requirements() -> list[str]:
