@@ -174,3 +174,20 @@ def mup_trajectories(items: list, path, *, fps: int = 30, n_show: int = 3) -> Pa
     for ax in axes[-1]:
         ax.set_xlabel("time (s)", fontsize=8)
     return _save(fig, path)
+
+
+def confusion_matrix(counts: np.ndarray, names: list, path, *, title: str = "") -> Path:
+    """Row-normalised confusion of the gate (true class per row, chosen class per column)."""
+    counts = np.asarray(counts, dtype=float)
+    rows = counts.sum(1, keepdims=True)
+    frac = np.divide(counts, rows, out=np.zeros_like(counts), where=rows > 0)
+    fig, ax = plt.subplots(figsize=(7.5, 6.8), layout="constrained")
+    im = ax.imshow(frac, cmap="Blues", vmin=0, vmax=1)
+    ax.set_xticks(range(len(names)), names, rotation=90, fontsize=6)
+    ax.set_yticks(range(len(names)), names, fontsize=6)
+    ax.set_xlabel("class chosen by the gate")
+    ax.set_ylabel("true class")
+    if title:
+        ax.set_title(title, fontsize=9)
+    fig.colorbar(im, ax=ax, shrink=0.7, label="fraction of the true class's frames")
+    return _save(fig, path)

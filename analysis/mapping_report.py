@@ -49,13 +49,15 @@ def mapping_section(report, summary: dict, mapping_dir: Path, ablations_csv: Pat
     method = cfg["method"]
     rows = summary["rows"]
     report.heading("3. Audio-to-MUP mapping (§VI) and its evaluation (§VII-A)")
+    expressions = (f"the cascade Upsilon_k with {cfg['cascade_hidden']} hidden units"
+                   if cfg["expression_model"] == "cascade" else "a bank retrained per expression")
     report.paragraph(
         f"Features: {cfg['n_mfcc']} MFCC per 30 fps frame{' with deltas' if cfg['deltas'] else ''}"
         f", context {cfg['context_back']} + 1 + {cfg['context_forward']} frames. Gate: one "
         f"Gaussian mixture ({cfg['gate_components']} {cfg['gate_covariance']} components) per "
         f"class, {cfg['n_classes']} classes; bank: one MLP per class with {cfg['hidden_min']}–"
         f"{cfg['hidden_max']} hidden units by subset size; expressions: "
-        f"{'the cascade Upsilon_k with ' + str(cfg['cascade_hidden']) + ' hidden units' if cfg['expression_model'] == 'cascade' else 'a bank retrained per expression'}."
+        f"{expressions}."
         " Ground truth and estimates are both reconstructed from MUPs (the paper's ground truth is "
         "the tracked MUP sequence) and divided per marker coordinate by its maximum absolute "
         "displacement in the database. Splits: random_frames (the paper's, 80 % of frames drawn "
@@ -81,6 +83,11 @@ def mapping_section(report, summary: dict, mapping_dir: Path, ablations_csv: Pat
             f"(test); all test frames {100 * g['all_test']:.1f} %. Classes with fewer than "
             f"{cfg['min_class_frames']} training frames merged into their viseme's largest "
             f"class: {merges}.")
+    conf = mapping_dir / "confusion_utterance.png"
+    if conf.is_file():
+        report.figure(conf, "The gate's confusion on the neutral test frames of the utterance "
+                      "split (rows: the frame's phone class; merged classes have empty rows).",
+                      width=0.8)
     for split, rk in summary["ranking"].items():
         report.table(f"Methods ranked by mean test R ({split} split)",
                      ["rank", "method", "related work", "R", "MSE", "fit (s)"],

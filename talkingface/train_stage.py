@@ -5,8 +5,8 @@ Reads ``runs/<name>/corpus`` and ``runs/<name>/units``; writes ``runs/<name>/map
     tables.csv        every method × split × expression × train/test: R, ν, ν', MSE, paper values
     ranking_<split>.csv   methods ranked by mean test R
     gate.json         gate accuracy per split, the small-class merges
-    confusion_<split>.csv  the gate's confusion on neutral test frames (true class per row)
-    <method>_<split>.tfmap the primary method trained on each split (mapping.model format)
+    confusion_<split>.csv/.png  the gate's confusion on neutral test frames (true class per row)
+    <method>_<split>.tfmap the primary method trained on each split (AudioMapping file)
     trajectories.png  predicted vs true MUPs of test sentences
     done.json         the config and a summary
 """
@@ -35,7 +35,7 @@ def train_and_evaluate(corpus_dir: Path, units_path: Path, out_dir: Path, cfg, *
     """Train and evaluate ``methods`` (default: the primary method and every baseline) on
     ``splits``; write the stage folder and return its summary."""
     from analysis.evaluation import ranking, run_experiment, table_rows
-    from analysis.figures import mup_trajectories
+    from analysis.figures import confusion_matrix, mup_trajectories
     from face_model.corpus import corpus_hash, load_corpus
     from face_model.motion_units import MotionUnits
     from mapping.dataset import build_dataset
@@ -67,6 +67,8 @@ def train_and_evaluate(corpus_dir: Path, units_path: Path, out_dir: Path, cfg, *
                 w.writerow(["true\\gated", *r.gate["class_names"]])
                 for name, row in zip(r.gate["class_names"], conf):
                     w.writerow([name, *row.tolist()])
+            confusion_matrix(conf, r.gate["class_names"], out_dir / f"confusion_{r.split}.png",
+                             title=f"Gate confusion, neutral test frames ({r.split} split)")
         if r.method == m.method:
             path = out_dir / f"{r.method}_{r.split}.tfmap"
             AudioMapping(r.mapper, sample_rate=corpus.utterances[0].sample_rate,
@@ -75,7 +77,8 @@ def train_and_evaluate(corpus_dir: Path, units_path: Path, out_dir: Path, cfg, *
                          metadata={**meta, "split": r.split}).save(path)
             models[r.split] = str(path.name)
     (out_dir / "gate.json").write_text(json.dumps(gate, indent=1))
-    traj = mup_trajectories(_trajectory_items(data, results, m, units.n_utterance), out_dir / "trajectories.png")
+    traj = mup_trajectories(_trajectory_items(data, results, m, units.n_utterance),
+                            out_dir / "trajectories.png")
     summary = {"rows": rows, "ranking": ranks, "gate": gate, "models": models,
                "feature_seconds": feature_seconds, "trajectories": traj.name,
                "fit_seconds": {f"{r.method}/{r.split}": r.fit_seconds for r in results},
