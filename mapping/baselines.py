@@ -160,10 +160,19 @@ class Baseline:
             raise ParameterError(f"expression {expression!r} was not trained; allowed: "
                                  f"{', '.join(sorted(self.models_))}")
         X = self.context_.transform(features)
-        model = self.models_[expression]
         if self.sequence:
-            return np.asarray(model.predict(X[None])[0], dtype=np.float32)
-        return np.asarray(model.predict(X), dtype=np.float32)
+            return np.asarray(self.models_[expression].predict(X[None])[0], dtype=np.float32)
+        return self.predict_stacked(X, expression)
+
+    def predict_stacked(self, X: np.ndarray, expression: str = "neutral") -> np.ndarray:
+        """MUPs from normalised, context-stacked frames, each on its own (frame models only)."""
+        if self.sequence:
+            raise ParameterError(f"baseline {self.kind} is a sequence model: it estimates whole "
+                                 "utterances, not single frames")
+        if expression not in self.models_:
+            raise ParameterError(f"expression {expression!r} was not trained; allowed: "
+                                 f"{', '.join(sorted(self.models_))}")
+        return np.asarray(self.models_[expression].predict(X), dtype=np.float32)
 
 
 def _pad(xs, ys, masks):

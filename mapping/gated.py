@@ -173,10 +173,15 @@ class GatedMLP:
     def predict(self, features: np.ndarray, expression: str = "neutral") -> np.ndarray:
         """MUPs (n_frames, A0 + Ak) of one utterance from its raw features (n_frames, n_feat)."""
         self._check_fitted()
+        return self.predict_stacked(self.context_.transform(features), expression)
+
+    def predict_stacked(self, X: np.ndarray, expression: str = "neutral") -> np.ndarray:
+        """MUPs from normalised, context-stacked features (n_frames, n_inputs); each row is
+        estimated on its own, which is what the streaming animator needs."""
+        self._check_fitted()
         if expression != "neutral" and expression not in self.experts_:
             raise ParameterError(f"expression {expression!r} was not trained; allowed: neutral, "
                                  f"{', '.join(self.expressions_)}")
-        X = self.context_.transform(features)
         gated = self.gate_.predict(X)
         c0 = self.bank_.predict(X, gated)
         if expression == "neutral":

@@ -159,6 +159,34 @@ def cmd_ui(args) -> int:
     return subprocess.call(cmd)
 
 
+def cmd_animate(args) -> int:
+    from talkingface.animate import animate_file
+
+    res = animate_file(args.wav, args.out, expression=args.expression, model=args.model,
+                       markers_out=args.markers, keyframes_out=args.keyframes)
+    if res["warning"]:
+        print(f"warning: {res['warning']}", file=sys.stderr)
+    print(f"{args.out}: {res['frames']} frames ({res['audio_s']:.2f} s of audio) in "
+          f"{res['seconds']:.2f} s = {res['x_realtime']:.1f}x real time; model {res['model']}")
+    return 0
+
+
+def cmd_stream(args) -> int:
+    import os
+
+    from talkingface.animate import stream_file
+
+    show = args.show and bool(os.environ.get("DISPLAY"))
+    res = stream_file(args.wav, expression=args.expression, model=args.model,
+                      paced=not args.fast, show=show)
+    if res["warning"]:
+        print(f"warning: {res['warning']}", file=sys.stderr)
+    print(f"{res['frames']} frames streamed from {res['audio_s']:.2f} s of audio; algorithmic "
+          f"latency {1000 * res['algorithmic_latency_s']:.0f} ms; measured latency p50 "
+          f"{1000 * res['latency_p50_s']:.0f} ms, p99 {1000 * res['latency_p99_s']:.0f} ms")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="talkingface", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="command", required=True)
@@ -208,6 +236,26 @@ def build_parser() -> argparse.ArgumentParser:
                    help="replace an existing run made with a different config")
     _config_args(s)
     s.set_defaults(func=cmd_ablate)
+
+    s = sub.add_parser("animate", help="animate a face from a WAV file into an MP4 (H.264, "
+                       "30 fps, audio muxed)")
+    s.add_argument("wav", type=Path, help="speech (any sample rate, mono or stereo)")
+    s.add_argument("-o", "--out", type=Path, required=True, help="the MP4 to write")
+    s.add_argument("--expression", default="neutral", help="neutral, smile or sad")
+    s.add_argument("--model", help="run name, run folder or .tfmap (default: the latest run)")
+    s.add_argument("--markers", type=Path, help="also write the markers (n_frames, 79, 2) .npy")
+    s.add_argument("--keyframes", type=Path, help="also write keyframe tracks (.json or .csv)")
+    s.set_defaults(func=cmd_animate)
+
+    s = sub.add_parser("stream", help="stream a WAV through the real-time animator, paced in "
+                       "real time, and report the latency")
+    s.add_argument("wav", type=Path)
+    s.add_argument("--expression", default="neutral")
+    s.add_argument("--model", help="run name, run folder or .tfmap (default: the latest run)")
+    s.add_argument("--show", action="store_true", help="show the face in a window (needs a "
+                   "display)")
+    s.add_argument("--fast", action="store_true", help="do not pace the input in real time")
+    s.set_defaults(func=cmd_stream)
 
     s = sub.add_parser("report", help="rebuild reports/<name>.pdf from runs/<name>")
     s.add_argument("--name", required=True)

@@ -1,0 +1,232 @@
+"""From speech to moving markers, offline and streaming (paper §VI, Figs. 6–7).
+
+:class:`FaceAnimator` bundles a trained :class:`~mapping.model.AudioMapping`, the Motion Units
+and a neutral face: audio → MUPs → deformations (Eq. 2) → markers (n_frames, 79, 2).
+
+Silence. Frames whose analysis window is quieter than ``silence_dbfs`` get the utterance MUPs of
+the neutral face (a closed, neutral mouth) whatever the network says, so digital silence, far
+outside the training data, gives a defined face. The expression MUPs are kept.
+
+:class:`StreamingAnimator` takes audio chunks of any size and emits frame k (time k / fps) as soon
+as the samples its 3-frame look-ahead needs have arrived: those of frame k + forward's analysis
+window, i.e. up to (k + forward)·hop + window/2 samples. Its frames equal the offline frames for
+the same audio (the same MFCC columns, the same normalisation and networks, row by row).
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from face_model.alignment import unflatten
+from face_model.errors import ParameterError
+from mapping.features import MFCC_SETTINGS, hop_samples, mfcc, stack_context
+
+
+def frame_rms_dbfs(y: np.ndarray, *, sr: int, fps: int = 30, n_frames: int) -> np.ndarray:
+    """Level (dBFS) of each frame's 25 ms analysis window, centred at k / fps (n_frames,)."""
+    hop = hop_samples(sr, fps)
+    half = int(round(MFCC_SETTINGS["window_s"] * sr)) // 2
+    y = np.asarray(y, dtype=np.float64)
+    out = np.empty(n_frames)
+    for k in range(n_frames):
+        seg = y[max(0, k * hop - half):k * hop + half + 1]
+        out[k] = 10 * np.log10(np.mean(seg**2) + 1e-20) if len(seg) else -200.0
+    return out
+
+
+class FaceAnimator:
+    """Audio → MUPs → markers.
+
+    Parameters
+    ----------
+    mapping : AudioMapping
+    units : MotionUnits
+    neutral : ndarray (79, 2), optional
+        The face to animate (default: the marker layout's neutral face).
+    silence_dbfs : float
+        Frames quieter than this are drawn with a closed, neutral mouth.
+    """
+
+    def __init__(self, mapping, units, neutral: np.ndarray | None = None,
+                 silence_dbfs: float = -60.0):
+        from face_model.layout import default_layout
+
+        self.mapping = mapping
+        self.units = units
+        self.neutral = default_layout().neutral if neutral is None else np.asarray(neutral)
+        self.silence_dbfs = silence_dbfs
+        if mapping.n_utterance != units.n_utterance:
+            raise ParameterError(f"the mapping estimates {mapping.n_utterance} utterance MUPs but "
+                                 f"the Motion Units have {units.n_utterance}")
+        # MUPs of zero deformation: the neutral face
+        self.rest_ = units.transform(np.zeros((1, 2 * len(self.neutral))))[0, :units.n_utterance]
+
+    def check_expression(self, expression: str) -> str:
+        if expression not in self.mapping.expressions:
+            raise ParameterError(f"unknown expression {expression!r}; allowed: "
+                                 f"{', '.join(self.mapping.expressions)}")
+        return expression
+
+    def silence_fix(self, mups: np.ndarray, levels_dbfs: np.ndarray) -> np.ndarray:
+        """Utterance MUPs of the neutral face on frames below the silence level."""
+        out = np.array(mups, dtype=np.float32, copy=True)
+        quiet = np.asarray(levels_dbfs) < self.silence_dbfs
+        out[quiet, : self.units.n_utterance] = self.rest_
+        return out
+
+    def mups(self, y: np.ndarray, sr: int, expression: str = "neutral") -> np.ndarray:
+        """MUPs (n_frames, A0 + Ak) of mono audio, with the silence rule applied."""
+        self.check_expression(expression)
+        feats = self.mapping.features(y, sr)
+        est = self.mapping.mapper.predict(feats, expression)
+        y_m = self._at_model_rate(y, sr)
+        levels = frame_rms_dbfs(y_m, sr=self.mapping.sample_rate, fps=self.mapping.fps,
+                                n_frames=len(est))
+        return self.silence_fix(est, levels)
+
+    def _at_model_rate(self, y, sr):
+        from face_model.audio import resample
+
+        y = np.asarray(y, dtype=np.float32)
+        return y if sr == self.mapping.sample_rate else resample(
+            y, sr_in=int(sr), sr_out=self.mapping.sample_rate)
+
+    def markers(self, mups: np.ndarray, expression: str = "neutral") -> np.ndarray:
+        """Markers (n_frames, 79, 2) in pixels from MUPs (Eq. 2 plus the neutral face)."""
+        d = self.units.inverse_transform(mups, expression)
+        return self.neutral[None] + unflatten(d)
+
+    def animate(self, y: np.ndarray, sr: int, expression: str = "neutral"):
+        """``(mups, markers)`` for mono audio ``y`` at ``sr`` Hz."""
+        mups = self.mups(y, sr, expression)
+        return mups, self.markers(mups, expression)
+
+
+@dataclass(frozen=True)
+class StreamFrame:
+    """One emitted frame: its index, its time k / fps (s), MUPs and markers (79, 2)."""
+
+    index: int
+    time_s: float
+    mups: np.ndarray
+    markers: np.ndarray
+
+
+class StreamingAnimator:
+    """Chunked, causal animation with the mapping's look-ahead (see the module docstring).
+
+    Audio must arrive at the mapping's sample rate (resample beforehand). Frame models only
+    (the gated MLP and the frame baselines); features without deltas.
+    """
+
+    def __init__(self, animator: FaceAnimator, expression: str = "neutral"):
+        m = animator.mapping
+        if m.deltas:
+            raise ParameterError("streaming needs a mapping without delta features (deltas "
+                                 "look 4 frames further ahead)")
+        if not hasattr(m.mapper, "predict_stacked") or getattr(m.mapper, "sequence", False):
+            raise ParameterError(f"the {getattr(m.mapper, 'name', '?')} mapping estimates whole "
+                                 "utterances and cannot stream frame by frame")
+        self.animator = animator
+        self.expression = animator.check_expression(expression)
+        self.sr, self.fps = m.sample_rate, m.fps
+        self.hop = hop_samples(self.sr, self.fps)
+        self.half = int(round(MFCC_SETTINGS["window_s"] * self.sr)) // 2
+        ctx = m.mapper.context_
+        self.back, self.forward = ctx.back, ctx.forward
+        self.normalizer = ctx.normalizer_
+        self.reset()
+
+    def reset(self) -> None:
+        self._audio = np.zeros(0, np.float32)  # samples from self._a0 on
+        self._a0 = 0
+        self._n_samples = 0
+        self._feats: dict[int, np.ndarray] = {}  # normalised MFCC of the frames still needed
+        self._n_feats = 0
+        self._next_out = 0
+        self._done = False
+
+    @property
+    def latency_s(self) -> float:
+        """Algorithmic latency: the look-ahead plus half an analysis window."""
+        return self.forward / self.fps + self.half / self.sr
+
+    def _samples(self, start: int, end: int) -> np.ndarray:
+        return self._audio[max(start, self._a0) - self._a0:max(end, self._a0) - self._a0]
+
+    def _feature(self, k: int, final: bool) -> np.ndarray:
+        # The frame's MFCC from a segment starting two hops earlier: the STFT column sees exactly
+        # the samples it sees offline (the window is zero beyond ±window/2 of the frame centre,
+        # and a segment from sample 0 reflects at the start as the whole signal does).
+        col = min(k, 2)
+        start = (k - col) * self.hop
+        end = self._n_samples if final else k * self.hop + self.half + 1
+        with warnings.catch_warnings():  # short segments at the very start are expected
+            warnings.filterwarnings("ignore", message="n_fft=.*too large", category=UserWarning)
+            f = mfcc(self._samples(start, end), sr=self.sr, fps=self.fps,
+                     n_mfcc=self.animator.mapping.n_mfcc, n_frames=col + 1)[col]
+        return self.normalizer.transform(f[None])[0]
+
+    def _emit(self, k: int, n_total: int | None) -> StreamFrame:
+        last = self._n_feats - 1 if n_total is None else n_total - 1
+        rows = [self._feats[min(max(j, 0), last)] for j in range(k - self.back,
+                                                                k + self.forward + 1)]
+        x = np.concatenate(rows)[None]
+        mups = self.animator.mapping.mapper.predict_stacked(x, self.expression)
+        seg = self._samples(k * self.hop - self.half, k * self.hop + self.half + 1)
+        level = 10 * np.log10(np.mean(seg.astype(np.float64) ** 2) + 1e-20) if len(seg) \
+            else -200.0
+        mups = self.animator.silence_fix(mups, np.array([level]))
+        markers = self.animator.markers(mups, self.expression)[0]
+        return StreamFrame(k, k / self.fps, mups[0], markers)
+
+    def push(self, chunk: np.ndarray) -> list[StreamFrame]:
+        """Add mono samples (any length); return the frames that became complete."""
+        if self._done:
+            raise ParameterError("the stream was flushed; call reset() to start a new one")
+        chunk = np.asarray(chunk, dtype=np.float32)
+        if chunk.ndim != 1:
+            raise ParameterError(f"chunks must be mono (n_samples,), got shape {chunk.shape}")
+        if not np.all(np.isfinite(chunk)):
+            raise ParameterError("the audio chunk holds NaN or inf samples")
+        self._audio = np.concatenate([self._audio, chunk])
+        self._n_samples += len(chunk)
+        while self._n_samples >= self._n_feats * self.hop + self.half + 1:
+            self._add_feature(final=False)
+        out = []
+        while self._next_out + self.forward < self._n_feats:
+            out.append(self._emit(self._next_out, None))
+            self._next_out += 1
+        self._forget()
+        return out
+
+    def _add_feature(self, final: bool) -> None:
+        self._feats[self._n_feats] = self._feature(self._n_feats, final)
+        self._n_feats += 1
+
+    def _forget(self) -> None:
+        """Drop samples and features no future frame needs (a live stream runs for hours)."""
+        for j in [j for j in self._feats if 0 < j < self._next_out - self.back]:
+            del self._feats[j]  # frame 0 stays: the start is edge-padded with it
+        keep = max(0, min((self._n_feats - 2) * self.hop, self._next_out * self.hop - self.half))
+        if keep > self._a0:
+            self._audio = self._audio[keep - self._a0:]
+            self._a0 = keep
+
+    def flush(self) -> list[StreamFrame]:
+        """End of the audio: compute the remaining frames (as offline, edge-padded)."""
+        if self._done:
+            return []
+        self._done = True
+        n_total = int(np.ceil(self._n_samples / self.hop))
+        if n_total == 0:
+            return []
+        while self._n_feats < n_total:
+            self._add_feature(final=True)
+        out = []
+        while self._next_out < n_total:
+            out.append(self._emit(self._next_out, n_total))
+            self._next_out += 1
+        return out

@@ -1,0 +1,182 @@
+"""``talkingface animate`` and ``talkingface stream``: a face from any WAV file.
+
+The trained mapping comes from ``--model`` (a run name, a run folder or a ``.tfmap`` file) or, by
+default, from the most recent run under ``runs/`` that has a trained mapping.
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from face_model.errors import ParameterError
+
+CLIP_LEVEL = 0.999
+CLIP_WARN_FRACTION = 0.001
+
+
+def find_model(model: str | None, runs_dir="runs") -> tuple[Path, Path]:
+    """``(mapping .tfmap, motion_units.npz)`` for ``--model`` (see the module docstring)."""
+    runs = Path(runs_dir)
+    if model is None:
+        done = sorted(runs.glob("*/mapping/done.json"), key=lambda p: p.stat().st_mtime)
+        if not done:
+            raise ParameterError(
+                f"no trained mapping under {runs}/: run `make replicate` (or `talkingface train "
+                "--name NAME`) first, or pass --model with a run name or a .tfmap file")
+        run = done[-1].parent.parent
+    else:
+        p = Path(model)
+        if p.suffix == ".tfmap":
+            if not p.is_file():
+                raise ParameterError(f"--model {p}: file not found")
+            units = p.parent.parent / "units" / "motion_units.npz"
+            if not units.is_file():
+                raise ParameterError(f"--model {p}: the Motion Units of its run ({units}) are "
+                                     "missing")
+            return p, units
+        run = p if p.is_dir() else runs / model
+        if not (run / "mapping" / "done.json").is_file():
+            raise ParameterError(f"--model {model}: no trained mapping in {run}/mapping (train "
+                                 "it with `talkingface train --name NAME`)")
+    done = json.loads((run / "mapping" / "done.json").read_text())
+    models = done.get("models", {})
+    if not models:
+        raise ParameterError(f"{run}/mapping holds no saved model")
+    split = "utterance" if "utterance" in models else next(iter(models))
+    return run / "mapping" / models[split], run / "units" / "motion_units.npz"
+
+
+def load_animator(model: str | None, runs_dir="runs"):
+    from face_model.motion_units import MotionUnits
+    from mapping.animator import FaceAnimator
+    from mapping.model import AudioMapping
+
+    tfmap, units = find_model(model, runs_dir)
+    return FaceAnimator(AudioMapping.load(tfmap), MotionUnits.load(units)), tfmap
+
+
+def read_speech(path) -> tuple[np.ndarray, int, str | None]:
+    """Mono float audio, its rate, and a warning when the file is clipped."""
+    from face_model.audio import read_wav
+
+    y, sr = read_wav(path, mix_to_mono=True)
+    clipped = float(np.mean(np.abs(y) >= CLIP_LEVEL))
+    warn = None
+    if clipped > CLIP_WARN_FRACTION:
+        warn = (f"{path}: {100 * clipped:.1f} % of the samples are clipped; the face follows "
+                "the distorted sound")
+    return y, sr, warn
+
+
+def write_mp4(path, frames_iter, n_frames: int, size, *, fps: int, audio_path,
+              progress: bool = True) -> Path:
+    """H.264 video at ``fps`` with the audio of ``audio_path`` muxed as AAC."""
+    import imageio_ffmpeg
+    from tqdm import tqdm
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    writer = imageio_ffmpeg.write_frames(str(path), size, fps=fps, codec="libx264",
+                                         pix_fmt_in="rgb24", pix_fmt_out="yuv420p", quality=7,
+                                         audio_path=str(audio_path), audio_codec="aac")
+    writer.send(None)
+    for frame in tqdm(frames_iter, total=n_frames, desc="render", unit="frame",
+                      disable=not progress):
+        writer.send(np.ascontiguousarray(frame))
+    writer.close()
+    return path
+
+
+def animate_file(wav, out_mp4, *, expression: str = "neutral", model: str | None = None,
+                 markers_out=None, keyframes_out=None, runs_dir="runs",
+                 progress: bool = True) -> dict:
+    """WAV → MP4 (and optionally markers .npy and keyframe tracks); returns a summary."""
+    from face_model.render import FaceRenderer
+
+    animator, tfmap = load_animator(model, runs_dir)
+    animator.check_expression(expression)
+    y, sr, warn = read_speech(wav)
+    t0 = time.perf_counter()
+    mups, markers = animator.animate(y, sr, expression)
+    renderer = FaceRenderer()
+    fps = animator.mapping.fps
+    write_mp4(out_mp4, (renderer.render(m) for m in markers), len(markers), renderer.size,
+              fps=fps, audio_path=wav, progress=progress)
+    seconds = time.perf_counter() - t0
+    if markers_out:
+        np.save(markers_out, markers.astype(np.float32))
+    if keyframes_out:
+        from face_model.keyframes import KeyframeModel, write_keyframe_tracks
+
+        kf_path = tfmap.parent.parent / "keyframes" / "keyframes.npz"
+        if not kf_path.is_file():
+            raise ParameterError(f"keyframes were not fitted for this run ({kf_path} missing); "
+                                 "run `talkingface replicate` for it")
+        weights = KeyframeModel.load(kf_path).mups_to_keyframes(mups, expression)
+        write_keyframe_tracks(keyframes_out, weights, fps, expression=expression,
+                              source=str(wav))
+    duration = len(y) / sr
+    return {"frames": len(markers), "audio_s": duration, "seconds": seconds,
+            "x_realtime": duration / seconds if seconds > 0 else float("inf"),
+            "model": str(tfmap), "warning": warn}
+
+
+def stream_file(wav, *, expression: str = "neutral", model: str | None = None, runs_dir="runs",
+                chunk_s: float = 0.01, paced: bool = True, show: bool = False,
+                on_frame=None) -> dict:
+    """Play a WAV through the :class:`~mapping.animator.StreamingAnimator` in chunks of
+    ``chunk_s`` seconds, paced in real time unless ``paced`` is False; returns latency figures.
+
+    Latency of frame k = the wall-clock time it was emitted minus the time its instant k / fps
+    was reached in the (paced) input, so it includes the look-ahead and the compute.
+    """
+    from face_model.audio import resample
+    from mapping.animator import StreamingAnimator
+
+    animator, tfmap = load_animator(model, runs_dir)
+    y, sr, warn = read_speech(wav)
+    if sr != animator.mapping.sample_rate:
+        y, sr = resample(y, sr_in=sr, sr_out=animator.mapping.sample_rate), \
+            animator.mapping.sample_rate
+    warm = StreamingAnimator(animator, expression)  # first calls load code paths: not latency
+    warm.push(np.zeros(sr // 5, np.float32))
+    warm.flush()
+    stream = StreamingAnimator(animator, expression)
+    renderer = None
+    if show:
+        import cv2
+
+        from face_model.render import FaceRenderer
+        renderer = FaceRenderer()
+    step = max(1, int(round(chunk_s * sr)))
+    latencies, compute, frames = [], [], 0
+    t_start = time.perf_counter()
+    for i in range(0, len(y) + step, step):
+        chunk = y[i:i + step]
+        if paced:
+            wait = t_start + (i + len(chunk)) / sr - time.perf_counter()
+            if wait > 0:
+                time.sleep(wait)
+        c0 = time.perf_counter()
+        out = stream.push(chunk) if len(chunk) else stream.flush()
+        compute.append((time.perf_counter() - c0) / max(len(out), 1))
+        now = time.perf_counter() - t_start
+        for f in out:
+            latencies.append(now - f.time_s)
+            frames += 1
+            if on_frame is not None:
+                on_frame(f)
+            if renderer is not None:
+                cv2.imshow("talkingface", cv2.cvtColor(renderer.render(f.markers),
+                                                       cv2.COLOR_RGB2BGR))
+                cv2.waitKey(1)
+        if not len(chunk):
+            break
+    lat = np.array(latencies) if latencies else np.zeros(1)
+    return {"frames": frames, "audio_s": len(y) / sr, "model": str(tfmap),
+            "algorithmic_latency_s": stream.latency_s,
+            "latency_p50_s": float(np.percentile(lat, 50)),
+            "latency_p99_s": float(np.percentile(lat, 99)), "warning": warn}
