@@ -162,7 +162,7 @@ class StreamingAnimator:
         # and a segment from sample 0 reflects at the start as the whole signal does).
         col = min(k, 2)
         start = (k - col) * self.hop
-        end = self._n_samples if final else k * self.hop + self.half + 1
+        end = self._n_samples if final else max(k, 2) * self.hop + self.half + 1
         with warnings.catch_warnings():  # short segments at the very start are expected
             warnings.filterwarnings("ignore", message="n_fft=.*too large", category=UserWarning)
             f = mfcc(self._samples(start, end), sr=self.sr, fps=self.fps,
@@ -193,7 +193,10 @@ class StreamingAnimator:
             raise ParameterError("the audio chunk holds NaN or inf samples")
         self._audio = np.concatenate([self._audio, chunk])
         self._n_samples += len(chunk)
-        while self._n_samples >= self._n_feats * self.hop + self.half + 1:
+        # Frames 0 and 1 wait for frame 2's window too: a segment shorter than the FFT would be
+        # padded differently from the whole signal (it costs no latency: frame 0 leaves only
+        # with frame 3's features).
+        while self._n_samples >= max(self._n_feats, 2) * self.hop + self.half + 1:
             self._add_feature(final=False)
         out = []
         while self._next_out + self.forward < self._n_feats:

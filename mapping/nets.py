@@ -140,9 +140,10 @@ class NetRegressor:
         if not np.all(np.isfinite(X)):
             raise ParameterError("features hold NaN or inf values")
         if isinstance(self.module, MLP):  # the real-time path: two small matrix products
+            # float64: a row alone and a block of rows then agree far below float32 precision
             w1, b1, w2, b2 = self._mlp_weights()
-            h = np.tanh(((X - self.x_mean_) / self.x_std_) @ w1 + b1)
-            return (h @ w2 + b2) * self.y_std_ + self.y_mean_
+            h = np.tanh(((X.astype(np.float64) - self.x_mean_) / self.x_std_) @ w1 + b1)
+            return ((h @ w2 + b2) * self.y_std_ + self.y_mean_).astype(np.float32)
         self.module.eval()
         with torch.no_grad():
             out = self.module(torch.from_numpy((X - self.x_mean_) / self.x_std_)).numpy()
@@ -152,7 +153,7 @@ class NetRegressor:
     def _mlp_weights(self):
         if getattr(self, "_np_weights", None) is None:
             first, last = self.module.net[0], self.module.net[2]
-            self._np_weights = tuple(t.detach().numpy().copy() for t in (
+            self._np_weights = tuple(t.detach().numpy().astype(np.float64) for t in (
                 first.weight.T, first.bias, last.weight.T, last.bias))
         return self._np_weights
 
