@@ -176,7 +176,9 @@ def stream_file(wav, *, expression: str = "neutral", model: str | None = None, r
         if not len(chunk):
             break
     lat = np.array(latencies) if latencies else np.zeros(1)
-    return {"frames": frames, "audio_s": len(y) / sr, "model": str(tfmap),
+    return {"frames": frames, "audio_s": len(y) / sr, "model": str(tfmap), "paced": paced,
+            "compute_p50_s": float(np.percentile(compute, 50)),
+            "compute_p99_s": float(np.percentile(compute, 99)),
             "algorithmic_latency_s": stream.latency_s,
             "latency_p50_s": float(np.percentile(lat, 50)),
             "latency_p99_s": float(np.percentile(lat, 99)), "warning": warn}

@@ -181,9 +181,13 @@ def cmd_stream(args) -> int:
                       paced=not args.fast, show=show)
     if res["warning"]:
         print(f"warning: {res['warning']}", file=sys.stderr)
-    print(f"{res['frames']} frames streamed from {res['audio_s']:.2f} s of audio; algorithmic "
-          f"latency {1000 * res['algorithmic_latency_s']:.0f} ms; measured latency p50 "
-          f"{1000 * res['latency_p50_s']:.0f} ms, p99 {1000 * res['latency_p99_s']:.0f} ms")
+    line = (f"{res['frames']} frames streamed from {res['audio_s']:.2f} s of audio; algorithmic "
+            f"latency {1000 * res['algorithmic_latency_s']:.0f} ms; compute per frame p50 "
+            f"{1000 * res['compute_p50_s']:.2f} ms, p99 {1000 * res['compute_p99_s']:.2f} ms")
+    if res["paced"]:  # wall-clock latency only means something when the input is real time
+        line += (f"; measured latency p50 {1000 * res['latency_p50_s']:.0f} ms, p99 "
+                 f"{1000 * res['latency_p99_s']:.0f} ms")
+    print(line)
     return 0
 
 
