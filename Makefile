@@ -21,6 +21,7 @@ bench: setup
 	$(PY) bench/bench_corpus.py
 	$(PY) bench/bench_units.py
 	$(PY) bench/bench_mapping.py
+	$(PY) bench/bench_streaming.py
 
 ui: setup
 	$(PY) -m talkingface ui
