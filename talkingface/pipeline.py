@@ -163,6 +163,11 @@ def stage_report(paths: RunPaths, cfg) -> Path:
         ablations = paths.ablations / "results.csv"
         mapping_section(rep, _done(paths.mapping), paths.mapping,
                         ablations if ablations.is_file() else None)
+    if _done(paths.root / "keyframes"):
+        from analysis.motion_report import motion_section
+
+        motion_section(rep, paths.root / "keyframes", paths.root / "render",
+                       paths.root / "tracking")
     methods_section(rep, cfg, corpus.info)
     return rep.build(paths.pdf)
 
@@ -194,7 +199,10 @@ def replicate(name: str, cfg, *, overwrite: bool = False, progress: bool = True,
     with mlflow_run(cfg, run_name=name, tags={"stage": "replicate"}) as mlf:
         synth = stage_synth(paths, cfg, progress=progress)
         units = stage_units(paths.corpus, paths.units, cfg)
+        from talkingface.motion_stage import stage_keyframes, stage_render
+        stage_keyframes(paths.corpus, paths.units_model, paths.root / "keyframes", cfg)
         stage_train(paths, cfg, progress=progress, mlf=mlf)
+        stage_render(paths.root, paths.root / "render", cfg)
         if ablation_grid:
             stage_ablate(paths, cfg, ablation_grid, workers=workers, progress=progress, mlf=mlf)
         pdf = stage_report(paths, cfg)

@@ -79,7 +79,11 @@ def train_and_evaluate(corpus_dir: Path, units_path: Path, out_dir: Path, cfg, *
     (out_dir / "gate.json").write_text(json.dumps(gate, indent=1))
     traj = mup_trajectories(_trajectory_items(data, results, m, units.n_utterance),
                             out_dir / "trajectories.png")
+    held = next((r for r in results if r.split == "utterance"), None)
+    test_utts = ([d.utt_id for d, mk in zip(data, held.masks) if not mk.any()]
+                 if held is not None else [])
     summary = {"rows": rows, "ranking": ranks, "gate": gate, "models": models,
+               "test_utterances": test_utts,
                "feature_seconds": feature_seconds, "trajectories": traj.name,
                "fit_seconds": {f"{r.method}/{r.split}": r.fit_seconds for r in results},
                "config": to_dict(cfg)}

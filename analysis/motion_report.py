@@ -1,0 +1,42 @@
+"""The face-in-motion part of the PDF: keyframes (Eqs. 3–4, Fig. 4), the round trip, the
+animated sentence (Fig. 6), the three expressions (Fig. 7) and the tracker evaluation (§V).
+Reads the stage folders only."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+
+def motion_section(report, keyframes_dir: Path, render_dir: Path | None,
+                   tracking_dir: Path | None = None) -> None:
+    report.heading("4. The face in motion")
+    kf = json.loads((keyframes_dir / "done.json").read_text())
+    samples = ", ".join(f"{k} {v}" for k, v in kf["samples"].items())
+    report.paragraph(
+        "Keyframes (§IV-B, §VII-B): smile, sad and the visemes i, a, o, f, u, m, each the median "
+        "deformation of training frames that correspond to it semantically: the centres of the "
+        "viseme's most strongly articulated phones in neutral speech, and the hold of each "
+        "expression with a closed mouth. Frames per keyframe: "
+        f"{samples}. Conversion by Eq. 4; condition number of K {kf['condition']:.0f}.")
+    rows = [[r["expression"], r["frames"], f"{100 * r['mup_relative']:.1f} %",
+             f"{r['pixel_rmse']:.3f}", f"{r['pixel_max']:.2f}",
+             f"{100 * r['shape_relative']:.1f} %"] for r in kf["roundtrip"]]
+    report.table("Keyframe round trip: MUPs -> keyframe weights -> MUPs (Eq. 4), every frame",
+                 ["expression", "frames", "MUP error", "px RMS", "px max", "shape error"], rows,
+                 note="Eight keyframes span 8 dimensions; an expression's MU shapes span A0 + Ak "
+                      "= 9 (plus its mean), so the conversion loses a little, as measured here.")
+    report.figure(keyframes_dir / "keyframes.png", "The eight keyframes (cf. the paper's Fig. 4) "
+                  "drawn on the neutral face.", width=0.8)
+    if render_dir is not None and (render_dir / "done.json").is_file():
+        r = json.loads((render_dir / "done.json").read_text())
+        text = r["text"].replace("&", "&amp;")
+        report.figure(render_dir / r["fig6"], f"Fig. 6 style: a held-out sentence animated from "
+                      f"its audio alone by the trained mapping ({r['utterance']}: \"{text}\"), "
+                      "ten frames with the phone under way.", width=0.95)
+        report.figure(render_dir / r["fig7"], "Fig. 7 style: the same moment of that sentence "
+                      "animated neutral, smiling and sad.", width=0.7)
+    if tracking_dir is not None and (tracking_dir / "done.json").is_file():
+        t = json.loads((tracking_dir / "done.json").read_text())
+        report.paragraph(t.get("summary", ""))
+        if t.get("figure"):
+            report.figure(tracking_dir / t["figure"], t.get("caption", ""), width=0.7)

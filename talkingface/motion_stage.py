@@ -1,0 +1,101 @@
+"""The face-in-motion stages (paper §IV-B, §VII-B, Figs. 4, 6 and 7).
+
+``keyframes/``: the Eq. 3–4 keyframe model fitted on the run's corpus, its MUP → keyframe → MUP
+round trip per expression (``roundtrip.csv``) and the keyframe shapes drawn on the face.
+``render/``: a held-out sentence animated from its audio by the trained mapping (Fig. 6 style),
+the same moment in neutral, smile and sad (Fig. 7 style), and that sentence's keyframe tracks.
+"""
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+
+from talkingface.config import dump_config
+
+
+def stage_keyframes(corpus_dir: Path, units_path: Path, out_dir: Path, cfg) -> dict:
+    from analysis.figures import face_grid
+    from face_model.alignment import corpus_deformations, unflatten
+    from face_model.corpus import load_corpus
+    from face_model.keyframes import KEYFRAMES, KeyframeModel
+    from face_model.layout import default_layout
+    from face_model.motion_units import MotionUnits
+    from face_model.render import FaceRenderer
+
+    corpus = load_corpus(corpus_dir)
+    units = MotionUnits.load(units_path)
+    defs = corpus_deformations(corpus, model=units.metadata_.get("alignment", "similarity"))
+    model = KeyframeModel().fit(corpus, units, deformations=defs)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    model.save(out_dir / "keyframes.npz")
+    rows = []
+    for expr in dict.fromkeys(u.expression for u in corpus.utterances):
+        mups = np.concatenate([units.transform(defs[u.utt_id], expr)
+                               for u in corpus.utterances if u.expression == expr])
+        e = model.round_trip_error(mups, expr)
+        rows.append({"expression": expr, "frames": e.n_frames, "mup_relative": e.mup_relative,
+                     "pixel_rmse": e.pixel_rmse, "pixel_max": e.pixel_max,
+                     "shape_relative": e.shape_relative})
+    with open(out_dir / "roundtrip.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    neutral = default_layout().neutral
+    renderer = FaceRenderer(mesh=False)
+    images = [renderer.render(neutral + unflatten(s[None])[0]) for s in model.shapes_]
+    face_grid(images, list(KEYFRAMES), out_dir / "keyframes.png", ncols=4)
+    summary = {"roundtrip": rows, "condition": float(model.condition_),
+               "samples": {k: len(v) for k, v in model.selection_.items()}}
+    dump_config(cfg, out_dir / "config.yaml")
+    (out_dir / "done.json").write_text(json.dumps(summary, indent=1))
+    return summary
+
+
+def stage_render(run_root: Path, out_dir: Path, cfg) -> dict:
+    """Fig. 6 / Fig. 7-style pictures and keyframe tracks of a held-out sentence."""
+    from analysis.figures import face_grid
+    from face_model.corpus import load_corpus
+    from face_model.keyframes import KeyframeModel, write_keyframe_tracks
+    from face_model.render import FaceRenderer
+    from talkingface.animate import load_animator
+
+    animator, tfmap = load_animator(str(run_root))
+    corpus = load_corpus(run_root / "corpus")
+    done = json.loads((run_root / "mapping" / "done.json").read_text())
+    utt = _held_out(corpus, done)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    renderer = FaceRenderer(mesh=False)
+    mups, markers = animator.animate(utt.audio, utt.sample_rate, "neutral")
+    picks = np.linspace(0, len(markers) - 1, 10).round().astype(int)
+    phones = utt.phone_per_frame()
+    from face_model.phones import PHONES
+    fig6 = face_grid([renderer.render(markers[k]) for k in picks],
+                     [f"{k / 30:.2f} s /{PHONES[phones[k]]}/" for k in picks],
+                     out_dir / "fig6_sentence.png", ncols=5)
+    # Fig. 7: the frame of widest mouth opening, animated neutral, smiling and sad
+    gap = markers[:, 71:76, 1].mean(1) - markers[:, 65:70, 1].mean(1)
+    k = int(np.argmax(gap))
+    faces, titles = [], []
+    for expr in animator.mapping.expressions:
+        _, m = animator.animate(utt.audio, utt.sample_rate, expr)
+        faces.append(renderer.render(m[k]))
+        titles.append(expr)
+    fig7 = face_grid(faces, titles, out_dir / "fig7_expressions.png", ncols=len(faces))
+    kf = KeyframeModel.load(run_root / "keyframes" / "keyframes.npz")
+    tracks = write_keyframe_tracks(out_dir / "keyframe_tracks.json",
+                                   kf.mups_to_keyframes(mups, "neutral"), 30,
+                                   expression="neutral", source=utt.utt_id)
+    summary = {"utterance": utt.utt_id, "text": utt.text, "fig6": fig6.name, "fig7": fig7.name,
+               "fig7_frame": k, "tracks": Path(tracks).name, "model": str(tfmap)}
+    (out_dir / "done.json").write_text(json.dumps(summary, indent=1))
+    return summary
+
+
+def _held_out(corpus, done: dict):
+    """The first neutral utterance held out by the utterance split (any neutral one if none)."""
+    held = set(done.get("test_utterances", []))
+    neutral = [u for u in corpus.utterances if u.expression == "neutral"] or corpus.utterances
+    return next((u for u in neutral if u.utt_id in held), neutral[0])
