@@ -105,9 +105,13 @@ def cmd_train(args) -> int:
     from talkingface.pipeline import stage_train
     from talkingface.tracking import mlflow_run
 
+    from talkingface.motion_stage import stage_keyframes
+
     cfg, paths = _prepared(args)
     with mlflow_run(cfg, run_name=f"train:{args.name}", tags={"stage": "train"}) as mlf:
         done = stage_train(paths, cfg, mlf=mlf)
+    if not (paths.root / "keyframes" / "done.json").is_file():  # animate --keyframes needs it
+        stage_keyframes(paths.corpus, paths.units_model, paths.root / "keyframes", cfg)
     for split, rk in done["ranking"].items():
         print(f"{split} split, mean test R / MSE:")
         for x in rk:
@@ -248,7 +252,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--expression", default="neutral", help="neutral, smile or sad")
     s.add_argument("--model", help="run name, run folder or .tfmap (default: the latest run)")
     s.add_argument("--markers", type=Path, help="also write the markers (n_frames, 79, 2) .npy")
-    s.add_argument("--keyframes", type=Path, help="also write keyframe tracks (.json or .csv)")
+    s.add_argument("--keyframes", type=Path, help="also write keyframe tracks (.json or .csv: "
+                   "weights of smile, sad, i, a, o, f, u, m per frame)")
     s.set_defaults(func=cmd_animate)
 
     s = sub.add_parser("stream", help="stream a WAV through the real-time animator, paced in "

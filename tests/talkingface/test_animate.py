@@ -58,9 +58,9 @@ def _speech(trained, sr_out, stereo):
 def test_animate_a_16k_stereo_wav_into_an_mp4(trained, tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(trained)
     wav = _write(tmp_path / "st.wav", _speech(trained, 16000, True), 16000, channels=2)
-    out, npy = tmp_path / "out.mp4", tmp_path / "m.npy"
+    out, npy, kf = tmp_path / "out.mp4", tmp_path / "m.npy", tmp_path / "k.csv"
     assert main(["animate", str(wav), "--expression", "smile", "-o", str(out),
-                 "--markers", str(npy)]) == 0
+                 "--markers", str(npy), "--keyframes", str(kf)]) == 0
     assert "real time" in capsys.readouterr().out
     streams = _probe(out)
     assert streams["video"]["codec_name"] == "h264"
@@ -73,6 +73,9 @@ def test_animate_a_16k_stereo_wav_into_an_mp4(trained, tmp_path, monkeypatch, ca
     markers = np.load(npy)
     assert markers.shape == (int(np.ceil(audio_s * 30)), 79, 2)
     assert np.all(np.isfinite(markers))
+    from face_model.keyframes import KEYFRAMES, read_keyframe_tracks
+    tracks = read_keyframe_tracks(kf)  # validates names, times at 1/30 s, finite weights
+    assert tracks.weights.shape == (len(markers), len(KEYFRAMES))
 
 
 def test_silence_animates_a_closed_neutral_mouth(trained, tmp_path, monkeypatch):
