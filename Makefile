@@ -22,6 +22,7 @@ bench: setup
 	$(PY) bench/bench_units.py
 	$(PY) bench/bench_mapping.py
 	$(PY) bench/bench_streaming.py
+	$(PY) bench/bench_tracker.py
 
 ui: setup
 	$(PY) -m talkingface ui
