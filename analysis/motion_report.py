@@ -38,5 +38,9 @@ def motion_section(report, keyframes_dir: Path, render_dir: Path | None,
     if tracking_dir is not None and (tracking_dir / "done.json").is_file():
         t = json.loads((tracking_dir / "done.json").read_text())
         report.paragraph(t.get("summary", ""))
+        report.table("Tracker error against ground truth (mean marker error, pixels)",
+                     ["image noise sd", "raw Lucas-Kanade", "measurements", "MU-constrained"],
+                     [[f"{r['noise_sd']:.0f}", f"{r['lk_px']:.2f}", f"{r['measured_px']:.2f}",
+                       f"{r['constrained_px']:.2f}"] for r in t["rows"]])
         if t.get("figure"):
             report.figure(tracking_dir / t["figure"], t.get("caption", ""), width=0.7)

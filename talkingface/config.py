@@ -112,6 +112,15 @@ class MappingConfig:
 
 
 @dataclass(frozen=True)
+class TrackerConfig:
+    """The MU-constrained tracker's evaluation on rendered marker video (paper §V)."""
+
+    n_utterances: int = 6  # a subset of the corpus, spread over the expressions
+    noise_levels: tuple = (0.0, 10.0, 20.0, 40.0)  # image noise sd, grey levels
+    init: str = "markers"  # markers (true first frame) | corners (the paper's mouth corners)
+
+
+@dataclass(frozen=True)
 class TrackingConfig:
     """Experiment tracking (MLflow). Empty uri: $MLFLOW_TRACKING_URI, else ./mlflow.db."""
 
@@ -126,6 +135,7 @@ class Config:
     synth: SynthConfig = field(default_factory=SynthConfig)
     units: UnitsConfig = field(default_factory=UnitsConfig)
     mapping: MappingConfig = field(default_factory=MappingConfig)
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
 
 

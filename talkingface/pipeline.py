@@ -199,8 +199,9 @@ def replicate(name: str, cfg, *, overwrite: bool = False, progress: bool = True,
     with mlflow_run(cfg, run_name=name, tags={"stage": "replicate"}) as mlf:
         synth = stage_synth(paths, cfg, progress=progress)
         units = stage_units(paths.corpus, paths.units, cfg)
-        from talkingface.motion_stage import stage_keyframes, stage_render
+        from talkingface.motion_stage import stage_keyframes, stage_render, stage_tracking
         stage_keyframes(paths.corpus, paths.units_model, paths.root / "keyframes", cfg)
+        stage_tracking(paths.corpus, paths.units_model, paths.root / "tracking", cfg)
         stage_train(paths, cfg, progress=progress, mlf=mlf)
         stage_render(paths.root, paths.root / "render", cfg)
         if ablation_grid:
