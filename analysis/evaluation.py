@@ -66,26 +66,20 @@ def _expr_order(e: str) -> tuple:
 def gate_accuracy(mapper, data: list, masks: list) -> dict:
     """Frame accuracy of the gate (after the small-class rule) on neutral training and test
     frames and on all test frames, with the confusion matrix of the neutral test frames."""
-    out = {}
-    conf = None
     n = len(mapper.class_names_)
-    for part in PARTS:
-        for scope in ("neutral", "all"):
-            hit = tot = 0
-            for d, m in zip(data, masks):
-                if scope == "neutral" and d.expression != "neutral":
-                    continue
-                sel = m if part == "train" else ~m
-                if not sel.any():
-                    continue
-                pred = mapper.gate_classes(d.features)[sel]
-                true = mapper.group_of_phone_[d.phones[sel]]
-                hit += int((pred == true).sum())
-                tot += int(sel.sum())
-                if part == "test" and scope == "neutral":
-                    c = confusion(true, pred, n)
-                    conf = c if conf is None else conf + c
-            out[f"{scope}_{part}"] = hit / tot if tot else float("nan")
+    hits = {f"{s}_{p}": [0, 0] for p in PARTS for s in ("neutral", "all")}
+    conf = np.zeros((n, n), int)
+    for d, m in zip(data, masks):
+        pred = mapper.gate_classes(d.features)  # once per utterance, both parts
+        true = mapper.group_of_phone_[d.phones]
+        for part, sel in (("train", m), ("test", ~m)):
+            scopes = ("neutral", "all") if d.expression == "neutral" else ("all",)
+            for scope in scopes:
+                hits[f"{scope}_{part}"][0] += int((pred[sel] == true[sel]).sum())
+                hits[f"{scope}_{part}"][1] += int(sel.sum())
+            if part == "test" and d.expression == "neutral":
+                conf += confusion(true[sel], pred[sel], n)
+    out = {k: h / t if t else float("nan") for k, (h, t) in hits.items()}
     out["confusion"] = conf
     out["class_names"] = list(mapper.class_names_)
     out["merges"] = dict(mapper.merges_)

@@ -24,16 +24,17 @@ from face_model.errors import ParameterError
 from mapping.features import MFCC_SETTINGS, hop_samples, mfcc, stack_context
 
 
+def window_dbfs(y: np.ndarray, centre: int, half: int) -> float:
+    """Level (dBFS) of the analysis window ``y[centre − half : centre + half + 1]``."""
+    seg = np.asarray(y[max(0, centre - half):centre + half + 1], dtype=np.float64)
+    return float(10 * np.log10(np.mean(seg**2) + 1e-20)) if len(seg) else -200.0
+
+
 def frame_rms_dbfs(y: np.ndarray, *, sr: int, fps: int = 30, n_frames: int) -> np.ndarray:
     """Level (dBFS) of each frame's 25 ms analysis window, centred at k / fps (n_frames,)."""
     hop = hop_samples(sr, fps)
     half = int(round(MFCC_SETTINGS["window_s"] * sr)) // 2
-    y = np.asarray(y, dtype=np.float64)
-    out = np.empty(n_frames)
-    for k in range(n_frames):
-        seg = y[max(0, k * hop - half):k * hop + half + 1]
-        out[k] = 10 * np.log10(np.mean(seg**2) + 1e-20) if len(seg) else -200.0
-    return out
+    return np.array([window_dbfs(y, k * hop, half) for k in range(n_frames)])
 
 
 class FaceAnimator:
@@ -79,19 +80,12 @@ class FaceAnimator:
     def mups(self, y: np.ndarray, sr: int, expression: str = "neutral") -> np.ndarray:
         """MUPs (n_frames, A0 + Ak) of mono audio, with the silence rule applied."""
         self.check_expression(expression)
-        feats = self.mapping.features(y, sr)
+        y_m = self.mapping.at_model_rate(y, sr)  # checked and resampled once
+        feats = self.mapping.features(y_m, self.mapping.sample_rate)
         est = self.mapping.mapper.predict(feats, expression)
-        y_m = self._at_model_rate(y, sr)
         levels = frame_rms_dbfs(y_m, sr=self.mapping.sample_rate, fps=self.mapping.fps,
                                 n_frames=len(est))
         return self.silence_fix(est, levels)
-
-    def _at_model_rate(self, y, sr):
-        from face_model.audio import resample
-
-        y = np.asarray(y, dtype=np.float32)
-        return y if sr == self.mapping.sample_rate else resample(
-            y, sr_in=int(sr), sr_out=self.mapping.sample_rate)
 
     def markers(self, mups: np.ndarray, expression: str = "neutral") -> np.ndarray:
         """Markers (n_frames, 79, 2) in pixels from MUPs (Eq. 2 plus the neutral face)."""
@@ -175,9 +169,8 @@ class StreamingAnimator:
                                                                 k + self.forward + 1)]
         x = np.concatenate(rows)[None]
         mups = self.animator.mapping.mapper.predict_stacked(x, self.expression)
-        seg = self._samples(k * self.hop - self.half, k * self.hop + self.half + 1)
-        level = 10 * np.log10(np.mean(seg.astype(np.float64) ** 2) + 1e-20) if len(seg) \
-            else -200.0
+        # the kept samples start at self._a0 (earlier ones are no longer needed)
+        level = window_dbfs(self._audio, k * self.hop - self._a0, self.half)
         mups = self.animator.silence_fix(mups, np.array([level]))
         markers = self.animator.markers(mups, self.expression)[0]
         return StreamFrame(k, k / self.fps, mups[0], markers)

@@ -53,8 +53,8 @@ class AudioMapping:
             trained = tuple(e for e in getattr(m, "models_", {}) if e != "neutral")
         return ("neutral", *trained)
 
-    def features(self, y: np.ndarray, sr: int) -> np.ndarray:
-        """Raw per-frame features of mono audio ``y`` at ``sr`` Hz (resampled if needed)."""
+    def at_model_rate(self, y: np.ndarray, sr: int) -> np.ndarray:
+        """Mono float32 audio at the training rate (checked, resampled when needed)."""
         if not isinstance(sr, (int, np.integer)) or not MIN_SR <= sr <= MAX_SR:
             raise ParameterError(f"unsupported sample rate {sr!r} Hz; allowed: an integer from "
                                  f"{MIN_SR} to {MAX_SR} Hz (the model resamples to "
@@ -62,9 +62,13 @@ class AudioMapping:
         y = np.asarray(y, dtype=np.float32)
         if y.ndim != 1:
             raise ParameterError(f"audio must be mono, shape (n_samples,), got {y.shape}")
-        if sr != self.sample_rate:
-            y = resample(y, sr_in=int(sr), sr_out=self.sample_rate)
-        return audio_features(y, sr=self.sample_rate, fps=self.fps, n_mfcc=self.n_mfcc,
+        if sr == self.sample_rate:
+            return y
+        return resample(y, sr_in=int(sr), sr_out=self.sample_rate)
+
+    def features(self, y: np.ndarray, sr: int) -> np.ndarray:
+        """Raw per-frame features of mono audio ``y`` at ``sr`` Hz (resampled if needed)."""
+        return audio_features(self.at_model_rate(y, sr), sr=self.sample_rate, fps=self.fps, n_mfcc=self.n_mfcc,
                               deltas=self.deltas)
 
     def predict_audio(self, y: np.ndarray, sr: int, expression: str = "neutral") -> np.ndarray:

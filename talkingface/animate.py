@@ -133,14 +133,11 @@ def stream_file(wav, *, expression: str = "neutral", model: str | None = None, r
     Latency of frame k = the wall-clock time it was emitted minus the time its instant k / fps
     was reached in the (paced) input, so it includes the look-ahead and the compute.
     """
-    from face_model.audio import resample
     from mapping.animator import StreamingAnimator
 
     animator, tfmap = load_animator(model, runs_dir)
     y, sr, warn = read_speech(wav)
-    if sr != animator.mapping.sample_rate:
-        y, sr = resample(y, sr_in=sr, sr_out=animator.mapping.sample_rate), \
-            animator.mapping.sample_rate
+    y, sr = animator.mapping.at_model_rate(y, sr), animator.mapping.sample_rate
     warm = StreamingAnimator(animator, expression)  # first calls load code paths: not latency
     warm.push(np.zeros(sr // 5, np.float32))
     warm.flush()

@@ -7,6 +7,7 @@ same config reuses completed stages, and a different config for an existing run 
 from __future__ import annotations
 
 import json
+from contextlib import nullcontext
 import shutil
 import time
 from dataclasses import replace
@@ -120,7 +121,7 @@ def stage_ablate(paths: RunPaths, cfg, grid_path, *, workers: int = 0, progress:
 
     grid = load_grid(grid_path, cfg)
     with (mlf.start_run(run_name=f"ablations:{Path(grid_path).stem}", nested=True)
-          if mlf is not None and nested else _null()):
+          if mlf is not None and nested else nullcontext()):
         if mlf is not None:
             mlf.set_tags({"stage": "ablate", "grid": str(grid_path)})
         rows = run_ablations(grid, paths.corpus, paths.units_model, paths.ablations,
@@ -128,14 +129,6 @@ def stage_ablate(paths: RunPaths, cfg, grid_path, *, workers: int = 0, progress:
         if mlf is not None:
             mlf.log_artifact(str(paths.ablations / "results.csv"), "ablations")
     return rows
-
-
-class _null:
-    def __enter__(self):
-        return None
-
-    def __exit__(self, *exc):
-        return False
 
 
 def stage_report(paths: RunPaths, cfg) -> Path:

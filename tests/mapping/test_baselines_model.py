@@ -21,16 +21,6 @@ A0, AK, N_FEAT = 3, 2, 4
 SPOKEN = ("iy", "aa", "m", "sil")
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    """Tiny networks train fastest on one thread; two workers on two cores with two torch
-    threads each oversubscribe the CPU (100× slower under load). Restored afterwards."""
-    import torch
-
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
 
 
 def config(**changes) -> MappingConfig:

@@ -22,16 +22,6 @@ RARE = "ih"
 OFFSET = {"smile": np.array([1.5, -1.0]), "sad": np.array([-1.2, 0.8])}
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    """Tiny networks train fastest on one thread; two workers on two cores with two torch
-    threads each oversubscribe the CPU (100× slower under load). Restored afterwards."""
-    import torch
-
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
 
 
 def synthetic_data(seed: int = 0, n_utt: int = 4, expressions=("neutral", "smile"),
