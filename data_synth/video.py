@@ -309,6 +309,26 @@ def render_marker_video(markers, *, size: tuple = DEFAULT_SIZE, scale: float = 1
     return np.clip(np.rint(frames), 0, 255).astype(np.uint8), mapping
 
 
+INITS = ("markers", "corners", "image")
+
+
+def first_frame_markers(frame, truth, units, expression: str, neutral, init: str) -> np.ndarray:
+    """The tracker's starting markers (79, 2, image pixels) on the first ``frame``: the true
+    ones (``truth``), the neutral face placed by the true mouth corners, or the markers found in
+    the image (see :func:`tracking_error_curve`)."""
+    from face_model.detect import initial_markers_from_image
+    from face_model.tracker import init_from_mouth_corners
+
+    if init == "markers":
+        return np.asarray(truth, dtype=np.float64)
+    if init == "corners":
+        return init_from_mouth_corners(neutral, truth[LEFT_OUTER_CORNER],
+                                       truth[RIGHT_OUTER_CORNER])
+    if init == "image":
+        return initial_markers_from_image(frame, units, expression, neutral=neutral)
+    raise ParameterError(f"init {init!r}; allowed: {', '.join(INITS)}")
+
+
 @dataclass(frozen=True)
 class TrackingErrorCurve:
     """Mean marker error (marker pixels) against the ground truth, one entry per noise level.
@@ -356,10 +376,11 @@ def tracking_error_curve(utterances, units, *, neutrals, noise_levels=(0.0, 10.0
         Other difficulty settings; its ``noise_sd`` is replaced by each level.
     tracker : MUTracker, optional
         Default: ``MUTracker()``.
-    init : {"markers", "corners"}
-        Start from the true first-frame markers, or from the neutral face placed by the true
+    init : {"markers", "corners", "image"}
+        Start from the true first-frame markers; from the neutral face placed by the true
         mouth corners (:func:`face_model.tracker.init_from_mouth_corners`, the paper's manual
-        initialisation; its placement error then stays in both tracks).
+        initialisation; its placement error then stays in both tracks); or from the markers
+        found in the first image (:func:`face_model.detect.initial_markers_from_image`).
 
     Returns
     -------
@@ -367,14 +388,14 @@ def tracking_error_curve(utterances, units, *, neutrals, noise_levels=(0.0, 10.0
     """
     from dataclasses import replace
 
-    from face_model.tracker import MUTracker, init_from_mouth_corners, track_points_lk
+    from face_model.tracker import MUTracker, track_points_lk
 
     tracker = MUTracker() if tracker is None else tracker
     base = VideoDifficulty() if difficulty is None else difficulty
     levels = np.asarray(noise_levels, dtype=np.float64)
     utterances = list(utterances)
-    if init not in ("markers", "corners"):
-        raise ParameterError(f"init {init!r}; allowed: markers, corners")
+    if init not in INITS:
+        raise ParameterError(f"init {init!r}; allowed: {', '.join(INITS)}")
     if levels.ndim != 1 or len(levels) == 0 or not utterances:
         raise ParameterError("tracking_error_curve needs at least one noise level and one "
                              "utterance")
@@ -390,8 +411,8 @@ def tracking_error_curve(utterances, units, *, neutrals, noise_levels=(0.0, 10.0
             frames, mapping = render_marker_video(u.markers, size=size, scale=scale, seed=int(s),
                                                   difficulty=replace(base, noise_sd=float(sd)))
             truth = mapping.to_image(u.markers)
-            p0 = truth[0] if init == "markers" else init_from_mouth_corners(
-                neutrals[u.speaker], truth[0, LEFT_OUTER_CORNER], truth[0, RIGHT_OUTER_CORNER])
+            p0 = first_frame_markers(frames[0], truth[0], units, u.expression,
+                                     neutrals[u.speaker], init)
             lk, _ = track_points_lk(frames, p0, win_size=tracker.win_size,
                                     max_level=tracker.max_level,
                                     lk_iterations=tracker.lk_iterations,

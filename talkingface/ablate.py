@@ -65,6 +65,10 @@ def load_grid(path, cfg) -> dict:
             child = apply_overrides(apply_overrides(cfg, base), settings(name, d))
         except ParameterError as e:
             raise ParameterError(f"{path}: child {name!r}: {e}") from None
+        if child.mapping.visual_source != cfg.mapping.visual_source or child.tracker != cfg.tracker:
+            raise ParameterError(f"{path}: child {name!r} changes the visual source or the "
+                                 "tracker; the children share the run's training corpus, so set "
+                                 "these for the whole run (--visual-source, --set tracker.…)")
         out[name] = child
     return out
 

@@ -23,12 +23,21 @@ def _config_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, help="the run seed (same as --set seed=N)")
 
 
+def _visual_source_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--visual-source", choices=("markers", "tracked"),
+                   help="MUPs the mapping learns from: the corpus markers, or the corpus "
+                   "rendered as marker video and tracked by the MU-constrained tracker, as the "
+                   "paper did (same as --set mapping.visual_source=...)")
+
+
 def _load(args):
     from talkingface.config import load_config
 
     overrides = list(args.overrides)
     if getattr(args, "seed", None) is not None:
         overrides.append(f"seed={args.seed}")
+    if getattr(args, "visual_source", None) is not None:
+        overrides.append(f"mapping.visual_source={args.visual_source}")
     return load_config(args.config, overrides)
 
 
@@ -117,6 +126,20 @@ def cmd_train(args) -> int:
         for x in rk:
             print(f"  {x['rank']}. {x['method']:<15} R={x['R']:.3f}  MSE={x['MSE']:.4f}")
     print(f"tables and models: {paths.mapping}")
+    return 0
+
+
+def cmd_track(args) -> int:
+    from talkingface.motion_stage import stage_track_corpus
+
+    args.visual_source = "tracked"  # a tracked run: train, ablate, replicate then reuse it
+    cfg, paths = _prepared(args)
+    done = stage_track_corpus(paths.corpus, paths.units_model, paths.tracked, cfg)
+    print(f"{done['utterances']} utterances ({done['frames']} frames) rendered at image noise sd "
+          f"{cfg.tracker.corpus_noise_sd:g} and tracked from the {cfg.tracker.init} placement: "
+          f"marker error mean {done['error_px_mean']:.3f} px, 95th percentile "
+          f"{done['error_px_p95']:.3f} px")
+    print(f"tracked corpus: {paths.tracked} (train on it with --visual-source tracked)")
     return 0
 
 
@@ -219,6 +242,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--overwrite", action="store_true",
                    help="replace an existing run made with a different config")
     _config_args(s)
+    _visual_source_arg(s)
     s.set_defaults(func=cmd_replicate)
 
     s.add_argument("--ablations", default=None, metavar="GRID",
@@ -233,7 +257,18 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--overwrite", action="store_true",
                    help="replace an existing run made with a different config")
     _config_args(s)
+    _visual_source_arg(s)
     s.set_defaults(func=cmd_train)
+
+    s = sub.add_parser("track", help="render the run's corpus as marker video and track it with "
+                       "the MU-constrained tracker (runs/<name>/tracked, a corpus); the run "
+                       "trains on it (its config gets mapping.visual_source=tracked)")
+    s.add_argument("--name", required=True, help="run name (its corpus and MUs are made if "
+                   "missing)")
+    s.add_argument("--overwrite", action="store_true",
+                   help="replace an existing run made with a different config")
+    _config_args(s)
+    s.set_defaults(func=cmd_track)
 
     s = sub.add_parser("ablate", help="one MLflow child run per setting of an ablation grid")
     s.add_argument("--grid", required=True, type=Path, help="grid file, e.g. "
@@ -243,6 +278,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--overwrite", action="store_true",
                    help="replace an existing run made with a different config")
     _config_args(s)
+    _visual_source_arg(s)
     s.set_defaults(func=cmd_ablate)
 
     s = sub.add_parser("animate", help="animate a face from a WAV file into an MP4 (H.264, "

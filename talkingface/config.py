@@ -103,6 +103,9 @@ class MappingConfig:
     # expressions: cascade (Υ_k on the bank's estimates) or a bank retrained per expression
     expression_model: str = "cascade"
     cascade_hidden: int = 30
+    # the MUPs the mapping learns: from the corpus markers, or from the MU-constrained tracker
+    # run on the corpus rendered as marker video (§V: how the paper collected its data)
+    visual_source: str = "markers"
     # training of every network
     validation_fraction: float = 0.15
     max_epochs: int = 600
@@ -117,7 +120,12 @@ class TrackerConfig:
 
     n_utterances: int = 6  # a subset of the corpus, spread over the expressions
     noise_levels: tuple = (0.0, 10.0, 20.0, 40.0)  # image noise sd, grey levels
-    init: str = "markers"  # markers (true first frame) | corners (the paper's mouth corners)
+    # first-frame placement: image (mouth corners found in the image, then refined on the dots) |
+    # corners (the true mouth corners, the paper's manual selection) | markers (true markers)
+    init: str = "image"
+    # --visual-source tracked: the whole corpus rendered at this image noise and tracked
+    corpus_noise_sd: float = 10.0
+    workers: int = 0  # processes for tracking the corpus (0: all cores)
 
 
 @dataclass(frozen=True)
@@ -143,8 +151,21 @@ def _section_names(cfg) -> dict:
     return {f.name: f for f in fields(cfg)}
 
 
+# string settings with a closed set of values (checked when a config is read)
+CHOICES = {
+    ("units", "alignment"): ("similarity", "affine"),
+    ("mapping", "visual_source"): ("markers", "tracked"),
+    ("mapping", "expression_model"): ("cascade", "bank"),
+    ("mapping", "gate_covariance"): ("diag", "full", "tied", "spherical"),
+    ("tracker", "init"): ("image", "corners", "markers"),
+}
+
+
 def _coerce(section: str, key: str, current, value):
     where = f"{section}.{key}" if section else key
+    allowed = CHOICES.get((section, key))
+    if allowed is not None and value not in allowed:
+        raise ParameterError(f"{where} is {value!r}; allowed: {', '.join(allowed)}")
     if isinstance(current, bool):
         if not isinstance(value, bool):
             raise ParameterError(f"{where} must be true or false, got {value!r}")

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from talkingface.config import dump_config
+from talkingface.config import dump_config, to_dict
 
 
 def stage_keyframes(corpus_dir: Path, units_path: Path, out_dir: Path, cfg) -> dict:
@@ -94,6 +94,35 @@ def stage_render(run_root: Path, out_dir: Path, cfg) -> dict:
     return summary
 
 
+def tracked_by(c: dict) -> tuple:
+    """What determines a tracked corpus (a config as a dict; workers only set the speed)."""
+    return (c["seed"], {k: v for k, v in c["synth"].items() if k != "workers"}, c["units"],
+            c["tracker"]["init"], c["tracker"]["corpus_noise_sd"])
+
+
+def stage_track_corpus(corpus_dir: Path, units_path: Path, out_dir: Path, cfg, *,
+                       progress: bool = True) -> dict:
+    """The whole corpus rendered as marker video and tracked (``mapping.visual_source:
+    tracked``); reused when done for this config. See :mod:`data_synth.tracked`."""
+    from data_synth.tracked import track_corpus
+    from face_model.corpus import load_corpus
+    from face_model.motion_units import MotionUnits
+
+    done_path = out_dir / "done.json"
+    if done_path.is_file():
+        done = json.loads(done_path.read_text())
+        if tracked_by(done["config"]) == tracked_by(to_dict(cfg)):
+            return done
+    t = cfg.tracker
+    summary = track_corpus(load_corpus(corpus_dir), MotionUnits.load(units_path), out_dir,
+                           noise_sd=t.corpus_noise_sd, init=t.init, seed=cfg.seed,
+                           workers=t.workers, progress=progress, overwrite=True)
+    done = {"config": to_dict(cfg), **summary}
+    dump_config(cfg, out_dir / "config.yaml")
+    done_path.write_text(json.dumps(done, indent=1))
+    return done
+
+
 def stage_tracking(corpus_dir: Path, units_path: Path, out_dir: Path, cfg) -> dict:
     """Track rendered video of a corpus subset at several noise levels (raw Lucas–Kanade vs
     the MU-constrained fit) and plot the error curve."""
@@ -128,7 +157,7 @@ def stage_tracking(corpus_dir: Path, units_path: Path, out_dir: Path, cfg) -> di
     worst = rows[-1]
     summary = (f"Tracker (§V, Eq. 5 solved as in Appendix A): {len(subset)} utterances "
                f"({curve.n_frames} frames) rendered as marker video and tracked from the "
-               f"{'true first-frame markers' if t.init == 'markers' else 'mouth corners'}. Mean "
+               f"{INIT_WORDS[t.init]}. Mean "
                f"marker error at image noise sd {worst['noise_sd']:.0f}: raw Lucas-Kanade "
                f"{worst['lk_px']:.2f} px, MU-constrained {worst['constrained_px']:.2f} px.")
     done = {"rows": rows, "utterances": [u.utt_id for u in subset], "summary": summary,
@@ -138,6 +167,11 @@ def stage_tracking(corpus_dir: Path, units_path: Path, out_dir: Path, cfg) -> di
     dump_config(cfg, out_dir / "config.yaml")
     (out_dir / "done.json").write_text(json.dumps(done, indent=1))
     return done
+
+
+INIT_WORDS = {"markers": "true first-frame markers",
+              "corners": "neutral face placed by the true mouth corners",
+              "image": "markers found in the first image (mouth corners, then the dots)"}
 
 
 def _held_out(corpus, done: dict):

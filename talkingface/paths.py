@@ -6,6 +6,8 @@
       config.yaml           the resolved config of the last invocation
       corpus/               data_synth output (the corpus contract)
       units/                motion_units.npz, variance.csv, summary.json, config.yaml
+      tracked/              the corpus as the MU-constrained tracker sees it (visual_source
+                            tracked): the corpus contract plus tracking.csv
       mapping/              trained mappings, Tables I-II (CSV), ranking, gate accuracy, plots
       ablations/            one folder per ablation setting and results.csv
       report/               figures and the summary the PDF is built from
@@ -56,6 +58,10 @@ class RunPaths:
     @property
     def units_model(self) -> Path:
         return self.units / "motion_units.npz"
+
+    @property
+    def tracked(self) -> Path:
+        return self.root / "tracked"
 
     @property
     def mapping(self) -> Path:

@@ -91,8 +91,22 @@ def stage_units(corpus_dir: Path, out_dir: Path, cfg) -> dict:
 
 
 def _trained_by(c: dict) -> tuple:  # what determines the mapping results
+    from talkingface.motion_stage import tracked_by
+
+    tracked = tracked_by(c) if c["mapping"].get("visual_source") == "tracked" else None
     return (c["seed"], {k: v for k, v in c["synth"].items() if k != "workers"}, c["units"],
-            c["mapping"])
+            c["mapping"], tracked)
+
+
+def training_corpus(paths: RunPaths, cfg, *, progress: bool = True) -> Path:
+    """The corpus the mapping learns from: the run's corpus (``mapping.visual_source:
+    markers``) or its tracked copy (``tracked``, made here when missing)."""
+    if cfg.mapping.visual_source == "markers":
+        return paths.corpus
+    from talkingface.motion_stage import stage_track_corpus
+
+    stage_track_corpus(paths.corpus, paths.units_model, paths.tracked, cfg, progress=progress)
+    return paths.tracked
 
 
 def stage_train(paths: RunPaths, cfg, *, progress: bool = True, mlf=None) -> dict:
@@ -101,8 +115,9 @@ def stage_train(paths: RunPaths, cfg, *, progress: bool = True, mlf=None) -> dic
 
     done = _done(paths.mapping)
     if not (done and _trained_by(done["config"]) == _trained_by(to_dict(cfg))):
+        corpus_dir = training_corpus(paths, cfg, progress=progress)
         t0 = time.perf_counter()
-        train_and_evaluate(paths.corpus, paths.units_model, paths.mapping, cfg,
+        train_and_evaluate(corpus_dir, paths.units_model, paths.mapping, cfg,
                            progress=progress)
         done = _done(paths.mapping)
         done["seconds"] = time.perf_counter() - t0
@@ -124,7 +139,8 @@ def stage_ablate(paths: RunPaths, cfg, grid_path, *, workers: int = 0, progress:
           if mlf is not None and nested else nullcontext()):
         if mlf is not None:
             mlf.set_tags({"stage": "ablate", "grid": str(grid_path)})
-        rows = run_ablations(grid, paths.corpus, paths.units_model, paths.ablations,
+        rows = run_ablations(grid, training_corpus(paths, cfg, progress=progress),
+                             paths.units_model, paths.ablations,
                              workers=workers, progress=progress, mlf=mlf)
         if mlf is not None:
             mlf.log_artifact(str(paths.ablations / "results.csv"), "ablations")
@@ -195,6 +211,7 @@ def replicate(name: str, cfg, *, overwrite: bool = False, progress: bool = True,
         from talkingface.motion_stage import stage_keyframes, stage_render, stage_tracking
         stage_keyframes(paths.corpus, paths.units_model, paths.root / "keyframes", cfg)
         stage_tracking(paths.corpus, paths.units_model, paths.root / "tracking", cfg)
+        training_corpus(paths, cfg, progress=progress)  # tracked copy (visual_source tracked)
         stage_train(paths, cfg, progress=progress, mlf=mlf)
         stage_render(paths.root, paths.root / "render", cfg)
         if ablation_grid:

@@ -155,7 +155,7 @@ def test_error_curve_rejects_bad_input(small_corpus):
     u = small_corpus.utterances[0]
     with pytest.raises(ParameterError, match="no neutral face for speaker 's00'"):
         tracking_error_curve([u], object(), neutrals={}, noise_levels=(0.0,))
-    with pytest.raises(ParameterError, match="init 'truth'; allowed: markers, corners"):
+    with pytest.raises(ParameterError, match="init 'truth'; allowed: markers, corners, image"):
         tracking_error_curve([u], object(), neutrals={}, init="truth")
     with pytest.raises(ParameterError, match="at least one noise level and one utterance"):
         tracking_error_curve([], object(), neutrals={})

@@ -143,6 +143,16 @@ def test_constrained_tracking_beats_raw_lucas_kanade_on_noisy_video(model, utter
     assert [r["noise_sd"] for r in curve.rows()] == [10.0, 30.0]
 
 
+def test_started_from_the_image_alone_the_tracker_is_as_good(model, utterances):
+    """No ground truth at the start: the first-frame markers are found in the image (mouth
+    corners, then the dots), and the constrained tracker still stays within half a pixel."""
+    units, neutral, _ = model
+    curve = tracking_error_curve(utterances, units, neutrals={"s00": neutral},
+                                 noise_levels=(10.0, 30.0), seed=3, init="image")
+    assert np.all(curve.constrained_px < curve.lk_px)
+    assert np.all(curve.constrained_px < 0.5), curve.rows()
+
+
 def test_tracker_outputs_and_recovery_after_occlusion(model, utterances):
     units, neutral, _ = model
     u = utterances[1]

@@ -1,0 +1,180 @@
+"""A tracked copy of a corpus: its markers as the MU-constrained tracker sees them (paper §V).
+
+The paper did not have marker positions; it had video, and its tracker's output was the
+audio-visual training data. :func:`track_corpus` does the same to a synthetic corpus: every
+utterance is rendered as marker video (:func:`data_synth.video.render_marker_video`, sensor
+noise ``noise_sd``), its first-frame markers are placed (found in the image by default), and
+:class:`face_model.tracker.MUTracker` tracks it. The tracked markers are written as a corpus in
+the contract of DESIGN.md — same manifest, audio and phones, the tracked markers in the original
+marker coordinates — so every stage can read it; training the mapping on it is
+``mapping.visual_source: tracked``.
+
+Beside the corpus files: ``tracking.csv`` (per utterance: frames, mean and max marker error of
+the tracked against the original markers, pixels; mean fit residual) and ``corpus.json`` with
+``source: tracked``, the tracker settings and the original corpus's hash.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import multiprocessing as mp
+import os
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from data_synth.video import INITS, VideoDifficulty, first_frame_markers, render_marker_video
+from face_model.errors import ParameterError
+
+
+@dataclass(frozen=True)
+class TrackedUtterance:
+    """One utterance tracked: ``markers`` (n, 79, 2) float32 in marker pixels, ``mups``
+    (n, A_0 + A_k), ``error_px`` (n,) mean distance to the original markers per frame,
+    ``residual_px`` (n,) the fit's RMS residual."""
+
+    utt_id: str
+    markers: np.ndarray
+    mups: np.ndarray
+    error_px: np.ndarray
+    residual_px: np.ndarray
+
+
+def track_utterance(utt, units, neutral, *, noise_sd: float = 10.0, init: str = "image",
+                    seed: int = 0, tracker=None) -> TrackedUtterance:
+    """Render one corpus utterance as marker video and track it (see the module text)."""
+    from face_model.tracker import MUTracker
+
+    tracker = MUTracker() if tracker is None else tracker
+    frames, mapping = render_marker_video(utt.markers, seed=seed,
+                                          difficulty=VideoDifficulty(noise_sd=float(noise_sd)))
+    truth = mapping.to_image(utt.markers)
+    p0 = first_frame_markers(frames[0], truth[0], units, utt.expression, neutral, init)
+    res = tracker.track(frames, units, utt.expression, neutral=neutral, init_markers=p0)
+    markers = mapping.to_markers(res.markers)
+    err = np.linalg.norm(markers - utt.markers, axis=-1).mean(1)
+    return TrackedUtterance(utt.utt_id, markers.astype(np.float32), res.mups, err,
+                            res.residual_px)
+
+
+_JOB: dict = {}
+
+
+def _track_one(i: int) -> TrackedUtterance:
+    import cv2
+
+    cv2.setNumThreads(1)
+    j = _JOB
+    u = j["corpus"].utterances[i]
+    return track_utterance(u, j["units"], j["neutrals"][u.speaker], noise_sd=j["noise_sd"],
+                           init=j["init"], seed=int(j["seeds"][i]))
+
+
+def track_corpus(corpus, units, out_dir, *, noise_sd: float = 10.0, init: str = "image",
+                 seed: int = 0, workers: int = 0, progress: bool = True,
+                 overwrite: bool = False) -> dict:
+    """Track every utterance of ``corpus`` and write the tracked corpus to ``out_dir``.
+
+    Parameters
+    ----------
+    corpus : Corpus
+        A loaded corpus (``face_model.corpus.load_corpus``) with its ``root``.
+    units : MotionUnits
+        The tracker's MU model.
+    noise_sd : float
+        Image sensor noise of the rendered video, grey levels.
+    init : {"image", "corners", "markers"}
+        How the first frame's markers are placed (:func:`data_synth.video.first_frame_markers`).
+    seed : int
+        Seeds each utterance's video (skin texture, noise).
+    workers : int
+        Processes (0: all cores; 1: this process).
+    overwrite : bool
+        Replace an existing ``out_dir``; otherwise an existing folder is refused.
+
+    Returns
+    -------
+    dict
+        Summary: utterances, frames, mean and 95th-percentile marker error (pixels), seconds.
+    """
+    import time
+
+    from face_model.alignment import speaker_neutrals
+    from face_model.corpus import corpus_hash, write_manifest
+
+    if init not in INITS:
+        raise ParameterError(f"init {init!r}; allowed: {', '.join(INITS)}")
+    if not (np.isfinite(noise_sd) and noise_sd >= 0):
+        raise ParameterError(f"noise_sd must be a finite number >= 0, got {noise_sd!r}")
+    out = Path(out_dir)
+    if out.exists():
+        if not overwrite:
+            raise ParameterError(f"{out} exists; pass overwrite=True to replace it")
+        shutil.rmtree(out)
+    t0 = time.perf_counter()
+    neutrals = speaker_neutrals(corpus, model=units.metadata_.get("alignment", "similarity"))
+    seeds = np.random.SeedSequence(seed).generate_state(len(corpus.utterances))
+    _JOB.update(corpus=corpus, units=units, neutrals=neutrals, noise_sd=float(noise_sd),
+                init=init, seeds=seeds)
+    n = len(corpus.utterances)
+    workers = min(os.cpu_count() or 1, n) if workers <= 0 else min(workers, n)
+    tmp = out.with_name(out.name + ".partial")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    (tmp / "markers").mkdir(parents=True)
+    results = []
+    try:
+        with (mp.get_context("fork").Pool(workers) if workers > 1 else _Serial()) as pool, \
+                tqdm(total=n, desc="tracking corpus", unit="utt", disable=not progress) as bar:
+            for r in pool.imap(_track_one, range(n)):
+                np.save(tmp / "markers" / f"{r.utt_id}.npy", r.markers, allow_pickle=False)
+                results.append(r)
+                bar.update()
+    finally:
+        _JOB.clear()
+    src = Path(corpus.root)
+    with open(src / "manifest.csv", newline="") as f:
+        listed = {row["utt_id"]: row for row in csv.DictReader(f)}
+    manifest = []
+    for r in results:  # the utterances tracked, in corpus order, with their audio and phones
+        row = dict(listed[r.utt_id])
+        for key in ("audio", "phones"):
+            (tmp / row[key]).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src / row[key], tmp / row[key])
+        row["markers"] = f"markers/{r.utt_id}.npy"
+        manifest.append(row)
+    write_manifest(tmp, manifest)
+    with open(tmp / "tracking.csv", "w", newline="") as f:
+        w = csv.writer(f, lineterminator="\n")
+        w.writerow(["utt_id", "frames", "error_px_mean", "error_px_max", "residual_px_mean"])
+        for r in results:
+            w.writerow([r.utt_id, len(r.error_px), f"{r.error_px.mean():.4f}",
+                        f"{r.error_px.max():.4f}", f"{np.nanmean(r.residual_px):.4f}"])
+    all_err = np.concatenate([r.error_px for r in results])
+    summary = {"utterances": n, "frames": int(len(all_err)),
+               "error_px_mean": float(all_err.mean()),
+               "error_px_p95": float(np.percentile(all_err, 95)),
+               "seconds": time.perf_counter() - t0}
+    info = dict(corpus.info)
+    info.update(source="tracked", source_corpus_hash=corpus_hash(src),
+                tracker={"noise_sd": float(noise_sd), "init": init, "seed": int(seed)},
+                tracking=summary)
+    (tmp / "corpus.json").write_text(json.dumps(info, indent=1))
+    tmp.rename(out)
+    return summary
+
+
+class _Serial:
+    """``Pool``'s ``imap`` in this process (workers=1)."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def imap(self, fn, items):
+        return map(fn, items)

@@ -1,0 +1,79 @@
+"""--visual-source tracked: the mapping learns from the corpus as the MU-constrained tracker
+sees it (paper §V), and the setting is validated wherever it is given."""
+import json
+
+import numpy as np
+import pytest
+
+from face_model.corpus import corpus_hash, load_corpus
+from face_model.errors import ParameterError
+from mapping.model import AudioMapping
+from talkingface.cli import main
+from talkingface.config import Config, load_config
+
+TINY = ["--set", "synth.n_sentences=4", "--set", "synth.workers=2"]
+SMALL_TRAIN = ["--set", "mapping.baselines=[linear]", "--set", "mapping.splits=[utterance]"]
+
+
+@pytest.fixture
+def workdir(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'mlflow.db'}")
+    return tmp_path
+
+
+def test_train_on_tracked_mups(workdir, capsys):
+    assert main(["track", "--name", "v", *TINY, *SMALL_TRAIN]) == 0
+    out = capsys.readouterr().out
+    assert "utterances" in out and "marker error mean" in out
+    run = workdir / "runs" / "v"
+    tracked = load_corpus(run / "tracked")
+    original = load_corpus(run / "corpus")
+    assert [u.utt_id for u in tracked.utterances] == [u.utt_id for u in original.utterances]
+    stamp = (run / "tracked" / "done.json").stat().st_mtime_ns
+
+    assert main(["train", "--name", "v", *TINY, *SMALL_TRAIN, "--visual-source", "tracked"]) == 0
+    assert (run / "tracked" / "done.json").stat().st_mtime_ns == stamp  # reused, not redone
+    done = json.loads((run / "mapping" / "done.json").read_text())
+    assert done["config"]["mapping"]["visual_source"] == "tracked"
+    model = AudioMapping.load(run / "mapping" / "gated_mlp_utterance.tfmap")
+    assert model.metadata["corpus_hash"] == corpus_hash(run / "tracked")
+    assert model.metadata["corpus_hash"] != corpus_hash(run / "corpus")
+
+
+def test_the_tracked_mups_differ_from_the_marker_mups_by_the_tracking_error(workdir):
+    """Through the same MUs, the tracked corpus gives MUPs close to, not equal to, the
+    markers': the large utterance MUPs follow the markers' closely; the small ones carry the
+    tracking error (a quarter-pixel is a good part of their range)."""
+    from face_model.motion_units import MotionUnits
+    from mapping import build_dataset
+
+    assert main(["track", "--name", "w", *TINY]) == 0
+    run = workdir / "runs" / "w"
+    units = MotionUnits.load(run / "units" / "motion_units.npz")
+    a = build_dataset(load_corpus(run / "corpus"), units)
+    b = build_dataset(load_corpus(run / "tracked"), units)
+    ya = np.concatenate([u.mups for u in a])
+    yb = np.concatenate([u.mups for u in b])
+    assert ya.shape == yb.shape and not np.array_equal(ya, yb)
+    r = [np.corrcoef(ya[:, i], yb[:, i])[0, 1] for i in range(ya.shape[1])]
+    assert min(r[:3]) > 0.97, r
+
+
+@pytest.mark.parametrize("assignment, message", [
+    ("mapping.visual_source=video", r"mapping\.visual_source is 'video'; allowed: markers, "
+                                    r"tracked"),
+    ("tracker.init=nose", r"tracker\.init is 'nose'; allowed: image, corners, markers"),
+])
+def test_closed_choices_are_checked_when_the_config_is_read(assignment, message):
+    with pytest.raises(ParameterError, match=message):
+        load_config(None, [assignment])
+
+
+def test_an_ablation_child_may_not_change_the_visual_source(tmp_path):
+    from talkingface.ablate import load_grid
+
+    grid = tmp_path / "g.yaml"
+    grid.write_text("children:\n  t: {mapping.visual_source: tracked}\n")
+    with pytest.raises(ParameterError, match=r"child 't' changes the visual source"):
+        load_grid(grid, Config())
