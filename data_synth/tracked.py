@@ -60,17 +60,24 @@ def track_utterance(utt, units, neutral, *, noise_sd: float = 10.0, init: str = 
                             res.residual_px)
 
 
-_JOB: dict = {}
+_WORKER: dict = {}
 
 
-def _track_one(i: int) -> TrackedUtterance:
+def _init_worker(units, neutrals, noise_sd: float, init: str) -> None:
     import cv2
 
-    cv2.setNumThreads(1)
-    j = _JOB
-    u = j["corpus"].utterances[i]
-    return track_utterance(u, j["units"], j["neutrals"][u.speaker], noise_sd=j["noise_sd"],
-                           init=j["init"], seed=int(j["seeds"][i]))
+    cv2.setNumThreads(1)  # one core per process: the pool gives the parallelism
+    _WORKER.update(units=units, neutrals=neutrals, noise_sd=noise_sd, init=init)
+
+
+def _track_one(job) -> TrackedUtterance:
+    from types import SimpleNamespace
+
+    utt_id, speaker, expression, markers, seed = job
+    w = _WORKER
+    u = SimpleNamespace(utt_id=utt_id, speaker=speaker, expression=expression, markers=markers)
+    return track_utterance(u, w["units"], w["neutrals"][speaker], noise_sd=w["noise_sd"],
+                           init=w["init"], seed=seed)
 
 
 def track_corpus(corpus, units, out_dir, *, noise_sd: float = 10.0, init: str = "image",
@@ -117,24 +124,25 @@ def track_corpus(corpus, units, out_dir, *, noise_sd: float = 10.0, init: str = 
     t0 = time.perf_counter()
     neutrals = speaker_neutrals(corpus, model=units.metadata_.get("alignment", "similarity"))
     seeds = np.random.SeedSequence(seed).generate_state(len(corpus.utterances))
-    _JOB.update(corpus=corpus, units=units, neutrals=neutrals, noise_sd=float(noise_sd),
-                init=init, seeds=seeds)
     n = len(corpus.utterances)
+    jobs = [(u.utt_id, u.speaker, u.expression, np.asarray(u.markers), int(sd))
+            for u, sd in zip(corpus.utterances, seeds)]
+    setup = (units, neutrals, float(noise_sd), init)
     workers = min(os.cpu_count() or 1, n) if workers <= 0 else min(workers, n)
     tmp = out.with_name(out.name + ".partial")
     if tmp.exists():
         shutil.rmtree(tmp)
     (tmp / "markers").mkdir(parents=True)
     results = []
-    try:
-        with (mp.get_context("fork").Pool(workers) if workers > 1 else _Serial()) as pool, \
-                tqdm(total=n, desc="tracking corpus", unit="utt", disable=not progress) as bar:
-            for r in pool.imap(_track_one, range(n)):
-                np.save(tmp / "markers" / f"{r.utt_id}.npy", r.markers, allow_pickle=False)
-                results.append(r)
-                bar.update()
-    finally:
-        _JOB.clear()
+    # spawn, not fork: a process that has run OpenCV or torch holds thread pools that a forked
+    # child inherits half-locked (it hangs)
+    with (mp.get_context("spawn").Pool(workers, initializer=_init_worker, initargs=setup)
+          if workers > 1 else _Serial(setup)) as pool, \
+            tqdm(total=n, desc="tracking corpus", unit="utt", disable=not progress) as bar:
+        for r in pool.imap(_track_one, jobs):
+            np.save(tmp / "markers" / f"{r.utt_id}.npy", r.markers, allow_pickle=False)
+            results.append(r)
+            bar.update()
     src = Path(corpus.root)
     with open(src / "manifest.csv", newline="") as f:
         listed = {row["utt_id"]: row for row in csv.DictReader(f)}
@@ -170,10 +178,17 @@ def track_corpus(corpus, units, out_dir, *, noise_sd: float = 10.0, init: str = 
 class _Serial:
     """``Pool``'s ``imap`` in this process (workers=1)."""
 
+    def __init__(self, setup):
+        self.setup = setup
+
     def __enter__(self):
+        self.saved = dict(_WORKER)
+        _WORKER.update(zip(("units", "neutrals", "noise_sd", "init"), self.setup))
         return self
 
     def __exit__(self, *exc):
+        _WORKER.clear()
+        _WORKER.update(self.saved)
         return False
 
     def imap(self, fn, items):

@@ -124,58 +124,53 @@ def animate_file(wav, out_mp4, *, expression: str = "neutral", model: str | None
             "model": str(tfmap), "warning": warn}
 
 
+def _streaming(model, expression, runs_dir):
+    """A warmed-up StreamingAnimator (the first calls load code paths: not latency)."""
+    from mapping.animator import StreamingAnimator
+
+    animator, tfmap = load_animator(model, runs_dir)
+    warm = StreamingAnimator(animator, expression)
+    warm.push(np.zeros(animator.mapping.sample_rate // 5, np.float32))
+    warm.flush()
+    return StreamingAnimator(animator, expression), animator, tfmap
+
+
+def _summary(stats, tfmap, warn) -> dict:
+    from dataclasses import asdict
+
+    return {**asdict(stats), "model": str(tfmap), "warning": warn}
+
+
 def stream_file(wav, *, expression: str = "neutral", model: str | None = None, runs_dir="runs",
                 chunk_s: float = 0.01, paced: bool = True, show: bool = False,
                 on_frame=None) -> dict:
     """Play a WAV through the :class:`~mapping.animator.StreamingAnimator` in chunks of
-    ``chunk_s`` seconds, paced in real time unless ``paced`` is False; returns latency figures.
+    ``chunk_s`` seconds, paced in real time unless ``paced`` is False; returns the figures of
+    :func:`talkingface.live.run_stream`."""
+    from talkingface.live import run_stream, wav_chunks
 
-    Latency of frame k = the wall-clock time it was emitted minus the time its instant k / fps
-    was reached in the (paced) input, so it includes the look-ahead and the compute.
-    """
-    from mapping.animator import StreamingAnimator
-
-    animator, tfmap = load_animator(model, runs_dir)
+    stream, animator, tfmap = _streaming(model, expression, runs_dir)
     y, sr, warn = read_speech(wav)
-    y, sr = animator.mapping.at_model_rate(y, sr), animator.mapping.sample_rate
-    warm = StreamingAnimator(animator, expression)  # first calls load code paths: not latency
-    warm.push(np.zeros(sr // 5, np.float32))
-    warm.flush()
-    stream = StreamingAnimator(animator, expression)
-    renderer = None
-    if show:
-        import cv2
+    y = animator.mapping.at_model_rate(y, sr)
+    stats = run_stream(stream, wav_chunks(y, stream.sr, chunk_s=chunk_s, paced=paced),
+                       show=show, on_frame=on_frame)
+    return _summary(stats, tfmap, warn)
 
-        from face_model.render import FaceRenderer
-        renderer = FaceRenderer()
-    step = max(1, int(round(chunk_s * sr)))
-    latencies, compute, frames = [], [], 0
-    t_start = time.perf_counter()
-    for i in range(0, len(y) + step, step):
-        chunk = y[i:i + step]
-        if paced:
-            wait = t_start + (i + len(chunk)) / sr - time.perf_counter()
-            if wait > 0:
-                time.sleep(wait)
-        c0 = time.perf_counter()
-        out = stream.push(chunk) if len(chunk) else stream.flush()
-        compute.append((time.perf_counter() - c0) / max(len(out), 1))
-        now = time.perf_counter() - t_start
-        for f in out:
-            latencies.append(now - f.time_s)
-            frames += 1
-            if on_frame is not None:
-                on_frame(f)
-            if renderer is not None:
-                cv2.imshow("talkingface", cv2.cvtColor(renderer.render(f.markers),
-                                                       cv2.COLOR_RGB2BGR))
-                cv2.waitKey(1)
-        if not len(chunk):
-            break
-    lat = np.array(latencies) if latencies else np.zeros(1)
-    return {"frames": frames, "audio_s": len(y) / sr, "model": str(tfmap), "paced": paced,
-            "compute_p50_s": float(np.percentile(compute, 50)),
-            "compute_p99_s": float(np.percentile(compute, 99)),
-            "algorithmic_latency_s": stream.latency_s,
-            "latency_p50_s": float(np.percentile(lat, 50)),
-            "latency_p99_s": float(np.percentile(lat, 99)), "warning": warn}
+
+def stream_microphone(*, expression: str = "neutral", model: str | None = None,
+                      runs_dir="runs", seconds: float | None = None, device=None,
+                      chunk_s: float = 0.01, show: bool = False, on_frame=None) -> dict:
+    """Animate live from an input device (see :mod:`talkingface.live`) for ``seconds`` of
+    audio or until Ctrl-C; returns the figures of :func:`talkingface.live.run_stream` plus the
+    device, its rate and the number of input overflows (samples the device dropped)."""
+    from talkingface.live import MicrophoneStats, microphone_chunks, run_stream
+
+    stream, _, tfmap = _streaming(model, expression, runs_dir)
+    mic = MicrophoneStats()
+    stats = run_stream(stream, microphone_chunks(stream.sr, seconds=seconds, device=device,
+                                                 chunk_s=chunk_s, stats=mic),
+                       show=show, on_frame=on_frame)
+    stats.overflows = mic.overflows
+    warn = (f"the input overflowed {mic.overflows} times: audio was lost"
+            if mic.overflows else None)
+    return {**_summary(stats, tfmap, warn), "device": mic.device, "device_rate": mic.rate}

@@ -201,19 +201,40 @@ def cmd_animate(args) -> int:
 def cmd_stream(args) -> int:
     import os
 
-    from talkingface.animate import stream_file
+    from talkingface.animate import stream_file, stream_microphone
 
+    if args.list_devices:
+        from talkingface.live import input_devices
+
+        devices = input_devices()
+        for d in devices:
+            print(f"{d['index']}: {d['name']} ({d['channels']} in, {d['rate']:.0f} Hz)")
+        if not devices:
+            print("no audio input devices")
+        return 0
+    if (args.wav is None) == (not args.mic):
+        raise TalkingFaceError("give a WAV file or --mic (one of them)")
     show = args.show and bool(os.environ.get("DISPLAY"))
-    res = stream_file(args.wav, expression=args.expression, model=args.model,
-                      paced=not args.fast, show=show)
+    if args.mic:
+        device = int(args.device) if args.device and args.device.isdigit() else args.device
+        res = stream_microphone(expression=args.expression, model=args.model,
+                                seconds=args.seconds, device=device, show=show)
+        source = f"the microphone ({res['device']}, {res['device_rate']} Hz)"
+    else:
+        res = stream_file(args.wav, expression=args.expression, model=args.model,
+                          paced=not args.fast, show=show)
+        source = str(args.wav)
     if res["warning"]:
         print(f"warning: {res['warning']}", file=sys.stderr)
-    line = (f"{res['frames']} frames streamed from {res['audio_s']:.2f} s of audio; algorithmic "
-            f"latency {1000 * res['algorithmic_latency_s']:.0f} ms; compute per frame p50 "
-            f"{1000 * res['compute_p50_s']:.2f} ms, p99 {1000 * res['compute_p99_s']:.2f} ms")
+    line = (f"{res['frames']} frames streamed from {res['audio_s']:.2f} s of audio from "
+            f"{source}; algorithmic latency {1000 * res['algorithmic_latency_s']:.0f} ms; "
+            f"compute per frame p50 {1000 * res['compute_p50_s']:.2f} ms, p99 "
+            f"{1000 * res['compute_p99_s']:.2f} ms")
     if res["paced"]:  # wall-clock latency only means something when the input is real time
         line += (f"; measured latency p50 {1000 * res['latency_p50_s']:.0f} ms, p99 "
                  f"{1000 * res['latency_p99_s']:.0f} ms")
+    else:
+        line += "; the audio arrived faster than real time, so no latency is measured"
     print(line)
     return 0
 
@@ -294,7 +315,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("stream", help="stream a WAV through the real-time animator, paced in "
                        "real time, and report the latency")
-    s.add_argument("wav", type=Path)
+    s.add_argument("wav", type=Path, nargs="?", help="speech to stream (or --mic)")
+    s.add_argument("--mic", action="store_true", help="stream from the microphone (the default "
+                   "input device, or --device) until Ctrl-C or --seconds")
+    s.add_argument("--device", help="input device index or name (see --list-devices)")
+    s.add_argument("--seconds", type=float, help="with --mic: stop after this much audio")
+    s.add_argument("--list-devices", action="store_true", help="list the audio input devices")
     s.add_argument("--expression", default="neutral")
     s.add_argument("--model", help="run name, run folder or .tfmap (default: the latest run)")
     s.add_argument("--show", action="store_true", help="show the face in a window (needs a "

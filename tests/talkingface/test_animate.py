@@ -2,6 +2,7 @@
 import json
 import subprocess
 import wave
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -130,3 +131,107 @@ def test_stream_reports_the_latency(trained, tmp_path, monkeypatch, capsys):
     out = capsys.readouterr().out
     assert "30 frames streamed" in out and "algorithmic latency 112 ms" in out
     assert "compute per frame" in out
+
+
+def test_a_paced_stream_never_beats_its_look_ahead(trained, tmp_path, monkeypatch):
+    """Paced in real time, no frame can be emitted before its look-ahead has been captured:
+    every measured latency is at least the algorithmic latency (less a chunk, 10 ms)."""
+    from talkingface.animate import stream_file
+
+    monkeypatch.chdir(trained)
+    wav = _write(tmp_path / "p.wav", _speech(trained, 22050, False)[:22050], 22050)
+    res = stream_file(wav, paced=True)
+    assert res["paced"] and res["frames"] == 30
+    assert res["latency_p50_s"] >= res["algorithmic_latency_s"] - 0.0105
+    assert res["latency_p50_s"] <= res["latency_p99_s"]
+
+
+def test_stream_from_the_microphone(trained, tmp_path):
+    """The real PortAudio path on ALSA's null device (no sound card here): one second of what
+    it delivers streams into 30 frames; the null device is not paced, so no latency is
+    claimed."""
+    import os
+    import sys
+
+    home = tmp_path / "home"
+    home.mkdir()
+    (home / ".asoundrc").write_text("pcm.!default { type null }\n")
+    repo = str(Path(__file__).resolve().parents[2])
+    env = {**os.environ, "HOME": str(home),
+           "PYTHONPATH": os.pathsep.join(filter(None, [repo, os.environ.get("PYTHONPATH")]))}
+    run = subprocess.run([sys.executable, "-m", "talkingface.cli", "stream", "--mic",
+                          "--seconds", "1"], cwd=trained, env=env, capture_output=True,
+                         text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    assert "30 frames streamed from 1.00 s of audio from the microphone (default" in run.stdout
+    assert "no latency is measured" in run.stdout
+    listed = subprocess.run([sys.executable, "-m", "talkingface.cli", "stream",
+                             "--list-devices"], env=env, capture_output=True, text=True)
+    assert listed.returncode == 0 and "default" in listed.stdout
+
+
+class _FakeSoundDevice:
+    """Stands in for the sounddevice module: a 48 kHz device that refuses other rates and
+    reads a 440 Hz tone."""
+
+    class PortAudioError(Exception):
+        pass
+
+    def __init__(self, devices):
+        self.devices = devices
+        self.t = 0
+
+    def query_devices(self, device=None, kind=None):
+        if kind is None:
+            return self.devices
+        return next(d for d in self.devices if d["max_input_channels"] > 0)
+
+    def check_input_settings(self, *, samplerate, **kw):
+        if samplerate != 48000:
+            raise self.PortAudioError(f"Invalid sample rate {samplerate}")
+
+    def InputStream(self, *, samplerate, blocksize, **kw):
+        fake = self
+
+        class Stream:
+            def __enter__(self):
+                return self
+
+            def __exit__(self, *exc):
+                return False
+
+            def read(self, n):
+                t = (fake.t + np.arange(n)) / samplerate
+                fake.t += n
+                tone = 0.3 * np.sin(2 * np.pi * 440 * t)
+                return np.round(32767 * tone)[:, None].astype(np.int16), False
+
+        assert samplerate == 48000
+        return Stream()
+
+
+def test_a_device_at_another_rate_is_resampled(monkeypatch):
+    import talkingface.live as live
+
+    fake = _FakeSoundDevice([{"name": "fake mic", "max_input_channels": 1,
+                              "default_samplerate": 48000.0}])
+    monkeypatch.setattr(live, "_sounddevice", lambda: fake)
+    stats = live.MicrophoneStats()
+    chunks = list(live.microphone_chunks(22050, seconds=0.5, stats=stats))
+    y = np.concatenate([c for c, _ in chunks])
+    assert stats.rate == 48000 and stats.device == "fake mic"
+    assert abs(len(y) - 11025) <= 2
+    spectrum = np.abs(np.fft.rfft(y[2000:2000 + 8192] * np.hanning(8192)))
+    assert abs(np.argmax(spectrum) * 22050 / 8192 - 440) < 3
+
+
+def test_microphone_errors_are_clear(trained, monkeypatch, capsys):
+    import talkingface.live as live
+
+    monkeypatch.setattr(live, "_sounddevice", lambda: _FakeSoundDevice(
+        [{"name": "speakers", "max_input_channels": 0, "default_samplerate": 48000.0}]))
+    monkeypatch.chdir(trained)
+    assert main(["stream", "--mic", "--seconds", "1"]) == 2
+    assert "no audio input device found" in capsys.readouterr().err
+    assert main(["stream"]) == 2
+    assert "give a WAV file or --mic" in capsys.readouterr().err

@@ -1,0 +1,184 @@
+"""``talkingface stream``: the real-time animator fed from a WAV file or a microphone.
+
+Both sources deliver audio in chunks, each with the wall-clock time its last sample was
+captured; :func:`run_stream` pushes them through a :class:`~mapping.animator.StreamingAnimator`,
+shows the face if asked and measures:
+
+* compute per frame (the animator's work for a chunk divided by the frames it emitted);
+* latency of frame k: the wall-clock time it was emitted minus the time the instant ``k / fps``
+  was captured. Capture times come from a clock origin fitted to the chunks (the earliest origin
+  consistent with every chunk: a read can return late, never early), so the latency includes
+  the look-ahead, the device buffering that delays reads, and the compute. It is only meaningful
+  when the audio arrived in real time: a WAV played with ``--fast``, or a virtual device (the
+  ALSA null device delivers silence as fast as it is read), is reported as not paced and its
+  latency is not claimed.
+
+The microphone is read with ``sounddevice`` (PortAudio; the Debian package ``libportaudio2``)
+in blocking reads of 16-bit samples at the mapping's sample rate, or at the device's own rate with streaming
+resampling (``soxr``) when the device refuses that rate.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from face_model.errors import ParameterError
+
+
+@dataclass
+class StreamStats:
+    frames: int
+    audio_s: float
+    wall_s: float
+    paced: bool
+    compute_p50_s: float
+    compute_p99_s: float
+    algorithmic_latency_s: float
+    latency_p50_s: float | None
+    latency_p99_s: float | None
+    overflows: int = 0
+
+
+def wav_chunks(y: np.ndarray, sr: int, *, chunk_s: float = 0.01, paced: bool = True):
+    """``(chunk, capture_end_wall)`` pairs of a signal, slept to real time when ``paced``."""
+    step = max(1, int(round(chunk_s * sr)))
+    t0 = time.perf_counter()
+    for i in range(0, len(y), step):
+        chunk = y[i:i + step]
+        due = t0 + (i + len(chunk)) / sr
+        if paced:
+            wait = due - time.perf_counter()
+            if wait > 0:
+                time.sleep(wait)
+        yield chunk, (due if paced else time.perf_counter())
+
+
+def _sounddevice():
+    try:
+        import sounddevice
+    except OSError as exc:  # the wheel is there but PortAudio is not
+        raise ParameterError("the microphone needs the PortAudio library (Debian package "
+                             "libportaudio2; `make test` and `make replicate` install it): "
+                             f"{exc}") from None
+    return sounddevice
+
+
+def input_devices() -> list[dict]:
+    """The audio input devices PortAudio sees: ``{"index", "name", "channels", "rate"}``."""
+    sd = _sounddevice()
+    return [{"index": i, "name": d["name"], "channels": d["max_input_channels"],
+             "rate": d["default_samplerate"]}
+            for i, d in enumerate(sd.query_devices()) if d["max_input_channels"] > 0]
+
+
+class MicrophoneStats:
+    """Counts what the device reported while it was read."""
+
+    def __init__(self):
+        self.overflows = 0
+        self.rate = None
+        self.device = None
+
+
+def microphone_chunks(sr: int, *, seconds: float | None, device=None, chunk_s: float = 0.01,
+                      stats: MicrophoneStats | None = None):
+    """``(chunk, capture_end_wall)`` pairs from an input device, at ``sr`` Hz, mono.
+
+    ``seconds``: stop after this much captured audio (None: until KeyboardInterrupt).
+    ``device``: a PortAudio device index or name (default: the system's default input).
+    """
+    sd = _sounddevice()
+    devices = input_devices()
+    if not devices:
+        raise ParameterError("no audio input device found (PortAudio lists none with input "
+                             "channels); stream a WAV file instead: talkingface stream in.wav")
+    if seconds is not None and not (np.isfinite(seconds) and seconds > 0):
+        raise ParameterError(f"--seconds must be > 0, got {seconds!r}")
+    try:
+        info = sd.query_devices(device, kind="input")
+    except (ValueError, sd.PortAudioError) as exc:
+        names = ", ".join(f"{d['index']}: {d['name']}" for d in devices)
+        raise ParameterError(f"input device {device!r}: {exc}; available: {names}") from None
+    stats = MicrophoneStats() if stats is None else stats
+    stats.device = info["name"]
+    rate, resampler = sr, None
+    try:
+        sd.check_input_settings(device=device, channels=1, dtype="int16", samplerate=sr)
+    except sd.PortAudioError:
+        import soxr
+
+        rate = int(info["default_samplerate"])
+        resampler = soxr.ResampleStream(rate, sr, 1, dtype="float32")
+    stats.rate = rate
+    block = max(1, int(round(chunk_s * rate)))
+    wanted = None if seconds is None else int(round(seconds * rate))
+    got = 0
+    with sd.InputStream(device=device, channels=1, samplerate=rate, dtype="int16",
+                        blocksize=block) as stream:
+        while wanted is None or got < wanted:
+            n = block if wanted is None else min(block, wanted - got)
+            data, overflowed = stream.read(n)
+            now = time.perf_counter()
+            stats.overflows += int(bool(overflowed))
+            got += len(data)
+            chunk = data[:, 0].astype(np.float32) / 32768.0  # PCM16, as devices deliver it
+            if resampler is not None:
+                chunk = resampler.resample_chunk(chunk, last=wanted is not None and got >= wanted)
+            yield np.ascontiguousarray(chunk, dtype=np.float32), now
+
+
+def run_stream(stream, chunks, *, show: bool = False, on_frame=None) -> StreamStats:
+    """Push ``(chunk, capture_end_wall)`` pairs through ``stream`` (a StreamingAnimator), then
+    flush it; see the module text for the figures."""
+    renderer = None
+    if show:
+        import cv2
+
+        from face_model.render import FaceRenderer
+        renderer = FaceRenderer()
+    fps, sr = stream.fps, stream.sr
+    compute, emitted = [], []  # emitted: (frame index, wall time)
+    origin, n_samples = np.inf, 0
+    t_first = None
+    try:
+        for chunk, t_end in chunks:
+            if t_first is None:
+                t_first = t_end - len(chunk) / sr
+            n_samples += len(chunk)
+            origin = min(origin, t_end - n_samples / sr)
+            c0 = time.perf_counter()
+            out = stream.push(chunk)
+            now = time.perf_counter()
+            compute.append((now - c0) / max(len(out), 1))
+            for f in out:
+                emitted.append((f.index, now))
+                _deliver(f, on_frame, renderer)
+    except KeyboardInterrupt:
+        pass  # Ctrl-C ends a microphone session; what was captured is still flushed
+    for f in stream.flush():
+        emitted.append((f.index, time.perf_counter()))
+        _deliver(f, on_frame, renderer)
+    audio_s = n_samples / sr
+    wall_s = (time.perf_counter() - t_first) if t_first is not None else 0.0
+    paced = audio_s > 0 and wall_s >= 0.8 * audio_s
+    lat = np.array([t - (origin + k / fps) for k, t in emitted]) if emitted and paced else None
+    comp = np.array(compute) if compute else np.zeros(1)
+    return StreamStats(
+        frames=len(emitted), audio_s=audio_s, wall_s=wall_s, paced=paced,
+        compute_p50_s=float(np.percentile(comp, 50)), compute_p99_s=float(np.percentile(comp, 99)),
+        algorithmic_latency_s=stream.latency_s,
+        latency_p50_s=None if lat is None else float(np.percentile(lat, 50)),
+        latency_p99_s=None if lat is None else float(np.percentile(lat, 99)))
+
+
+def _deliver(frame, on_frame, renderer) -> None:
+    if on_frame is not None:
+        on_frame(frame)
+    if renderer is not None:
+        import cv2
+
+        cv2.imshow("talkingface", cv2.cvtColor(renderer.render(frame.markers),
+                                               cv2.COLOR_RGB2BGR))
+        cv2.waitKey(1)
