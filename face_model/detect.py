@@ -14,8 +14,9 @@ selection itself, in three steps:
    by a trimmed similarity ICP started from the dots' centroid and spread, with no rotation (the
    first frame is frontal). The mouth corners are the dots matched to markers 46 and 55.
 3. The neutral mesh is placed by those two corners
-   (:func:`face_model.tracker.init_from_mouth_corners`, the paper's step), then refined by the MU
-   model: markers are matched to their nearest dot (both ways nearest, within ``match_px``) and
+   (:func:`face_model.tracker.init_from_mouth_corners`, the paper's step); the similarity is
+   re-fitted to all the dots from there (two points fix it loosely: a corner one pixel off tilts
+   the forehead by three), then refined by the MU model: markers are matched to their nearest dot (both ways nearest, within ``match_px``) and
    Eq. 5 is fitted to the matches (:func:`face_model.mu_fit.fit_linear`), a few times. This also
    handles a first frame that is not neutral (a sentence spoken smiling from its start). A marker
    that owns a dot alone starts on the dot's centre; markers sharing a merged dot, or with none,
@@ -232,7 +233,7 @@ def find_mouth_corners(image, neutral, *, response: DotResponse | None = None,
 
     ``neutral`` is the subject's neutral face (79, 2) in any frame of similar proportions. The
     face is registered to the confident dots (:func:`register_layout`); each corner is then the
-    strongest response peak within ``search_px`` of the registered corner (the registered
+    strongest confident dot within ``search_px`` of the registered corner (the registered
     corner itself when noise hides its dot). ``response`` (an already computed
     :func:`dot_response`) and ``detect`` (``min_contrast``, ``z`` of :meth:`DotResponse.dots`)
     are optional. Raises ParameterError naming the figures when too few dots fit the face.
@@ -245,8 +246,8 @@ def find_mouth_corners(image, neutral, *, response: DotResponse | None = None,
                              f"face layout (at least {N_MARKERS // 4} of {N_MARKERS} needed): "
                              "is the face frontal, fully in view and marked like the layout?")
     corners = match.placed[[LEFT_OUTER_CORNER, RIGHT_OUTER_CORNER]]
-    owner = _strongest_within(corners, resp.peaks, resp.strength, search_px)
-    found = np.where((owner >= 0)[:, None], resp.peaks[np.maximum(owner, 0)], corners)
+    owner = _strongest_within(corners, dots, np.arange(len(dots), 0, -1.0), search_px)
+    found = np.where((owner >= 0)[:, None], dots[np.maximum(owner, 0)], corners)
     return found[0], found[1]
 
 
@@ -282,6 +283,12 @@ def initial_markers_from_image(image, units, expression: str = "neutral", *, neu
     placed = init_from_mouth_corners(s0, left, right)
     confident = resp.strength >= max(detect.get("min_contrast", 35.0),
                                      detect.get("z", 6.0) * resp.noise)
+    # two points fix the similarity loosely (a corner 1 px off tilts the forehead by 3 px):
+    # the similarity is re-fitted to all the confident dots, from the corner placement
+    A, t = _umeyama(s0, placed)
+    n_keep = max(3, int(round(0.8 * min(int(confident.sum()), N_MARKERS))))
+    A, t, _, _ = _icp(s0, resp.peaks[confident], A, t, n_keep, 100, 1.5)
+    placed = s0 @ A.T + t
     rounds = [(r, confident) for r in radii] + [(snap_px, np.ones(len(resp.peaks), bool))]
     for radius, pool in rounds:
         peaks, strength = resp.peaks[pool], resp.strength[pool]
