@@ -328,6 +328,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--fast", action="store_true", help="do not pace the input in real time")
     s.set_defaults(func=cmd_stream)
 
+    from talkingface.study_cli import add_parser as add_study_parser
+
+    add_study_parser(sub)
+
     s = sub.add_parser("report", help="rebuild reports/<name>.pdf from runs/<name>")
     s.add_argument("--name", required=True)
     s.set_defaults(func=cmd_report)

@@ -129,6 +129,19 @@ class TrackerConfig:
 
 
 @dataclass(frozen=True)
+class StudyConfig:
+    """The perception study (paper §VII-C); its seed is derived from the run seed."""
+
+    n_participants: int = 20  # slots of the allocation list (two groups of ten)
+    keys: tuple = ("n", "h", "s", "u")  # neutral, happy, sad, not sure
+    practice: bool = True  # one practice trial (not in the data) before the blocks
+    fixation_s: float = 0.5
+    iti_s: float = 0.5
+    fullscreen: bool = False
+    audio_backend: str = "sounddevice"  # sounddevice | ptb | none (no sound: tests only)
+
+
+@dataclass(frozen=True)
 class TrackingConfig:
     """Experiment tracking (MLflow). Empty uri: $MLFLOW_TRACKING_URI, else ./mlflow.db."""
 
@@ -144,6 +157,7 @@ class Config:
     units: UnitsConfig = field(default_factory=UnitsConfig)
     mapping: MappingConfig = field(default_factory=MappingConfig)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    study: StudyConfig = field(default_factory=StudyConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
 
 
@@ -158,6 +172,7 @@ CHOICES = {
     ("mapping", "expression_model"): ("cascade", "bank"),
     ("mapping", "gate_covariance"): ("diag", "full", "tied", "spherical"),
     ("tracker", "init"): ("image", "corners", "markers"),
+    ("study", "audio_backend"): ("sounddevice", "ptb", "none"),
 }
 
 

@@ -1,0 +1,327 @@
+"""The study data contract (DESIGN.md) and the rules that keep it safe.
+
+::
+
+    study_data/
+      dataset_description.json            psych-DS metadata (written once)
+      allocation.csv                      the pre-generated sequence list and who holds each slot
+      allocation_log.csv                  every allocation event, append-only
+      sub-<id>/
+        sub-<id>_task-emotion_beh.csv     one row per judgment, appended and fsync'ed per trial
+        sub-<id>_task-emotion_beh.json    sidecar: versions, seeds, allocation, sessions, QC
+        psychopy/                         PsychoPy's own files (the primary record of a lab run)
+
+Rules (:class:`SessionFile`): a complete session (27 rows) is never opened for writing again; a
+partial one is continued only with ``resume=True``, after its rows are checked against the
+planned trial order; a row cut short by a crash (no final newline) is the trial that was in
+progress and is dropped on resume. :class:`Allocation` hands out the sequences of the
+pre-generated list under a file lock; an aborted session keeps its slot (so it can resume in the
+same order) until a researcher releases it, and every change is logged.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import tempfile
+import time
+from pathlib import Path
+
+from face_model.errors import ParameterError
+from study.design import (
+    N_TRIALS,
+    RESPONSES,
+    Trial,
+    allocation_sequences,
+    check_participant_id,
+    group_of,
+)
+
+TASK = "emotion"
+COLUMNS = ("participant_id", "group", "sequence", "block", "period", "trial_index", "face",
+           "expression", "audio", "response", "response_key", "rt_s", "stimulus_id",
+           "simulated", "responder_model", "session", "n_frames", "frames_late",
+           "frame_interval_ms_mean", "frame_interval_ms_max", "audio_onset_s", "timestamp")
+ALLOCATION_COLUMNS = ("slot", "sequence", "participant_id", "status", "updated")
+LOG_COLUMNS = ("time", "event", "slot", "sequence", "participant_id", "note")
+
+
+def now_iso() -> str:
+    return time.strftime("%Y-%m-%dT%H:%M:%S%z")
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file, fsync'ed, then renamed."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    try:
+        with os.fdopen(fd, "w", newline="") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def subject_dir(study_dir, pid: str) -> Path:
+    return Path(study_dir) / f"sub-{check_participant_id(pid)}"
+
+
+def data_path(study_dir, pid: str) -> Path:
+    return subject_dir(study_dir, pid) / f"sub-{pid}_task-{TASK}_beh.csv"
+
+
+def sidecar_path(study_dir, pid: str) -> Path:
+    return subject_dir(study_dir, pid) / f"sub-{pid}_task-{TASK}_beh.json"
+
+
+def write_dataset_description(study_dir, *, name: str, simulated: bool) -> Path:
+    """psych-DS ``dataset_description.json`` (kept if present)."""
+    path = Path(study_dir) / "dataset_description.json"
+    if path.is_file():
+        return path
+    desc = {
+        "@context": "https://schema.org/",
+        "@type": "Dataset",
+        "name": name,
+        "description": "Emotion judgments of a synthetic and a real talking face, visual-only, "
+                       "audio-only and bimodal (Hong, Wen & Huang 2002, section VII-C), one row "
+                       "per judgment." + (" Simulated participants." if simulated else ""),
+        "variableMeasured": list(COLUMNS),
+        "keywords": ["talking face", "emotion perception", "audio-visual", "psych-DS"],
+    }
+    write_atomic(path, json.dumps(desc, indent=1) + "\n")
+    return path
+
+
+def read_rows(path: Path) -> tuple[list[dict], bool]:
+    """The complete rows of a data file and whether a cut-short last line was found."""
+    raw = Path(path).read_bytes()
+    torn = bool(raw) and not raw.endswith(b"\n")
+    if torn:
+        raw = raw[:raw.rfind(b"\n") + 1]
+    rows = list(csv.DictReader(io.StringIO(raw.decode("utf-8"), newline="")))
+    return rows, torn
+
+
+class SessionFile:
+    """The data file of one participant: opened for a new session or to resume one.
+
+    Parameters
+    ----------
+    study_dir : path
+    participant_id : str
+    trials : list of Trial
+        The planned order (``study.design.session_trials``).
+    resume : bool
+        Continue a partial session (refused otherwise); a complete one is always refused.
+    """
+
+    def __init__(self, study_dir, participant_id: str, trials: list[Trial], *,
+                 resume: bool = False):
+        self.pid = check_participant_id(participant_id)
+        self.path = data_path(study_dir, self.pid)
+        self.trials = list(trials)
+        if len(self.trials) != N_TRIALS:
+            raise ParameterError(f"a session has {N_TRIALS} trials, got {len(self.trials)}")
+        self.done: list[dict] = []
+        self.dropped_partial = False
+        if self.path.is_file():
+            rows, torn = read_rows(self.path)
+            if len(rows) >= N_TRIALS:
+                raise ParameterError(
+                    f"participant {self.pid} has a complete session ({len(rows)} judgments in "
+                    f"{self.path}); it is never overwritten or extended. Use a new participant "
+                    "id.")
+            if not resume:
+                raise ParameterError(
+                    f"participant {self.pid} has an interrupted session ({len(rows)} of "
+                    f"{N_TRIALS} judgments in {self.path}); continue it with --resume, or use "
+                    "a new participant id")
+            for i, row in enumerate(rows):
+                t = self.trials[i]
+                if (int(row["trial_index"]), row["stimulus_id"], row["block"]) != \
+                        (t.trial_index, t.stimulus_id, t.block):
+                    raise ParameterError(
+                        f"{self.path}, row {i + 2}: trial {row['trial_index']} "
+                        f"({row['stimulus_id']}) does not match the planned order (trial "
+                        f"{t.trial_index}, {t.stimulus_id}); was the study seed or the "
+                        "allocation changed? Nothing was written.")
+            if torn:  # the trial in progress when the session died: it is asked again
+                with open(self.path, "r+b") as f:
+                    data = f.read()
+                    f.seek(0)
+                    f.truncate(data.rfind(b"\n") + 1)
+                    f.flush()
+                    os.fsync(f.fileno())
+                self.dropped_partial = True
+            self.done = rows
+        elif resume:
+            raise ParameterError(f"--resume: participant {self.pid} has no session to resume "
+                                 f"({self.path} not found)")
+
+    @property
+    def remaining(self) -> list[Trial]:
+        return self.trials[len(self.done):]
+
+    @property
+    def complete(self) -> bool:
+        return len(self.done) >= N_TRIALS
+
+    def append(self, row: dict) -> None:
+        """Append one judgment and fsync it before returning."""
+        missing = [c for c in COLUMNS if c not in row]
+        if missing:
+            raise ParameterError(f"a data row lacks {missing}")
+        if row["response"] not in RESPONSES:
+            raise ParameterError(f"response {row['response']!r}; allowed: "
+                                 f"{', '.join(RESPONSES)}")
+        expected = self.trials[len(self.done)]
+        if int(row["trial_index"]) != expected.trial_index:
+            raise ParameterError(f"trial {row['trial_index']} written out of order (expected "
+                                 f"{expected.trial_index})")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        new = not self.path.is_file() or self.path.stat().st_size == 0
+        buf = io.StringIO()
+        w = csv.DictWriter(buf, fieldnames=COLUMNS, lineterminator="\n")
+        if new:
+            w.writeheader()
+        w.writerow({c: row[c] for c in COLUMNS})
+        fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+        try:
+            os.write(fd, buf.getvalue().encode("utf-8"))
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        self.done.append({c: str(row[c]) for c in COLUMNS})
+
+
+def trial_row(trial: Trial, *, participant_id: str, sequence: str, response: str,
+              response_key: str, rt_s: float, simulated: bool, responder_model: str,
+              session: int, qc: dict | None = None) -> dict:
+    """A data row for one judgment (``qc``: the frame-timing columns)."""
+    qc = qc or {}
+    return {"participant_id": participant_id, "group": group_of(sequence), "sequence": sequence,
+            **{k: v for k, v in trial.as_dict().items()},
+            "response": response, "response_key": response_key, "rt_s": f"{rt_s:.4f}",
+            "simulated": str(bool(simulated)).lower(), "responder_model": responder_model,
+            "session": session,
+            "n_frames": qc.get("n_frames", ""), "frames_late": qc.get("frames_late", ""),
+            "frame_interval_ms_mean": _fmt(qc.get("frame_interval_ms_mean")),
+            "frame_interval_ms_max": _fmt(qc.get("frame_interval_ms_max")),
+            "audio_onset_s": _fmt(qc.get("audio_onset_s")), "timestamp": now_iso()}
+
+
+def _fmt(v) -> str:
+    return "" if v is None else f"{float(v):.4f}"
+
+
+class Allocation:
+    """The pre-generated allocation list of a study folder (see the module text)."""
+
+    def __init__(self, study_dir):
+        self.dir = Path(study_dir)
+        self.path = self.dir / "allocation.csv"
+        self.log_path = self.dir / "allocation_log.csv"
+        self.meta_path = self.dir / "allocation.json"
+
+    def _lock(self):
+        from filelock import FileLock
+
+        self.dir.mkdir(parents=True, exist_ok=True)
+        return FileLock(str(self.dir / ".allocation.lock"), timeout=30)
+
+    def create(self, n: int, seed: int) -> list[dict]:
+        """Write the list of ``n`` slots (refused if a different list exists)."""
+        seqs = allocation_sequences(n, seed)
+        with self._lock():
+            if self.path.is_file():
+                meta = json.loads(self.meta_path.read_text()) if self.meta_path.is_file() else {}
+                if (meta.get("n"), meta.get("seed")) != (n, seed):
+                    raise ParameterError(
+                        f"{self.path} already holds an allocation list (n={meta.get('n')}, "
+                        f"seed={meta.get('seed')}); it is never replaced. Use another study "
+                        "folder for a different list.")
+                return self.rows()
+            rows = [{"slot": i + 1, "sequence": s, "participant_id": "", "status": "free",
+                     "updated": ""} for i, s in enumerate(seqs)]
+            write_atomic(self.meta_path, json.dumps({"n": n, "seed": seed,
+                                                     "block_size": 4,
+                                                     "created": now_iso()}, indent=1) + "\n")
+            self._write(rows)
+            self._log("created", "", "", "", f"n={n} seed={seed}")
+            return rows
+
+    def rows(self) -> list[dict]:
+        if not self.path.is_file():
+            raise ParameterError(f"no allocation list in {self.dir} ({self.path.name} missing): "
+                                 "create one with `talkingface study allocate`")
+        with open(self.path, newline="") as f:
+            return list(csv.DictReader(f))
+
+    def _write(self, rows: list[dict]) -> None:
+        buf = io.StringIO()
+        w = csv.DictWriter(buf, fieldnames=ALLOCATION_COLUMNS, lineterminator="\n")
+        w.writeheader()
+        w.writerows(rows)
+        write_atomic(self.path, buf.getvalue())
+
+    def _log(self, event, slot, sequence, pid, note="") -> None:
+        new = not self.log_path.is_file()
+        with open(self.log_path, "a", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=LOG_COLUMNS, lineterminator="\n")
+            if new:
+                w.writeheader()
+            w.writerow({"time": now_iso(), "event": event, "slot": slot, "sequence": sequence,
+                        "participant_id": pid, "note": note})
+            f.flush()
+            os.fsync(f.fileno())
+
+    def assign(self, pid: str) -> dict:
+        """The participant's slot: the one they hold, else the first free one (logged)."""
+        check_participant_id(pid)
+        with self._lock():
+            rows = self.rows()
+            held = [r for r in rows if r["participant_id"] == pid]
+            if held:
+                return held[0]
+            free = [r for r in rows if r["status"] == "free"]
+            if not free:
+                raise ParameterError(f"every slot of {self.path} is taken ({len(rows)} "
+                                     "participants); extend the study with a new list in "
+                                     "another folder, or release an aborted slot")
+            slot = free[0]
+            slot.update(participant_id=pid, status="assigned", updated=now_iso())
+            self._write(rows)
+            self._log("assigned", slot["slot"], slot["sequence"], pid)
+            return slot
+
+    def set_status(self, pid: str, status: str) -> None:
+        with self._lock():
+            rows = self.rows()
+            for r in rows:
+                if r["participant_id"] == pid:
+                    r.update(status=status, updated=now_iso())
+                    self._write(rows)
+                    self._log(status, r["slot"], r["sequence"], pid)
+                    return
+            raise ParameterError(f"participant {pid} holds no slot in {self.path}")
+
+    def release(self, pid: str, note: str = "") -> dict:
+        """Give an aborted participant's slot back to the pool (their data stay; logged)."""
+        with self._lock():
+            rows = self.rows()
+            for r in rows:
+                if r["participant_id"] == pid:
+                    if r["status"] == "complete":
+                        raise ParameterError(f"participant {pid} completed their session; "
+                                             "a complete slot is not released")
+                    self._log("released", r["slot"], r["sequence"], pid, note)
+                    r.update(participant_id="", status="free", updated=now_iso())
+                    self._write(rows)
+                    return r
+            raise ParameterError(f"participant {pid} holds no slot in {self.path}")

@@ -1,0 +1,199 @@
+"""``talkingface study …``: stimuli, allocation, sessions with people, simulated participants.
+
+    talkingface study stimuli  --name RUN            runs/RUN/stimuli from the run's mapping
+    talkingface study allocate --study-dir D         the pre-generated SR/RS list (seeded)
+    talkingface study run --participant P01          one PsychoPy session (--resume, --fullscreen)
+    talkingface study release --participant P01      give an aborted session's slot back
+    talkingface study simulate --n 20                simulated participants (FLMP observers)
+
+The study seed is the run seed (``--seed``/``--set seed=``); the study folder defaults to
+``study_data`` and the stimuli to ``runs/<name>/stimuli`` of the latest run.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from face_model.errors import ParameterError
+
+DEFAULT_STUDY_DIR = Path("study_data")
+
+
+def _cfg(args):
+    from talkingface.cli import _load
+
+    return _load(args)
+
+
+def _stimuli_dir(args) -> Path:
+    if args.stimuli:
+        return Path(args.stimuli)
+    runs = sorted(Path("runs").glob("*/stimuli/manifest.csv"), key=lambda p: p.stat().st_mtime)
+    if not runs:
+        raise ParameterError("no stimuli found under runs/: make them with `talkingface study "
+                             "stimuli --name RUN` (or `make replicate`), or pass --stimuli DIR")
+    return runs[-1].parent
+
+
+def stage_stimuli(run_root: Path, cfg, *, progress: bool = True) -> dict:
+    """``runs/<name>/stimuli`` from the run's trained mapping (reused when present)."""
+    from study.stimuli import MANIFEST, build_stimuli
+    from talkingface.animate import load_animator
+
+    out = Path(run_root) / "stimuli"
+    if (out / MANIFEST).is_file() and (out / "stimuli.json").is_file():
+        return json.loads((out / "stimuli.json").read_text())
+    if out.exists():  # an interrupted build: nothing in it was ever used
+        import shutil
+
+        shutil.rmtree(out)
+    animator, _ = load_animator(str(run_root))
+    build_stimuli(out, animator=animator, synth_cfg=cfg.synth, seed=cfg.seed, progress=progress)
+    return json.loads((out / "stimuli.json").read_text())
+
+
+def cmd_stimuli(args) -> int:
+    from talkingface.cli import _prepared
+    from talkingface.pipeline import stage_train
+
+    cfg, paths = _prepared(args)
+    if not (paths.mapping / "done.json").is_file():
+        stage_train(paths, cfg)
+    info = stage_stimuli(paths.root, cfg)
+    print(f"{info['n_stimuli']} stimuli in {paths.root / 'stimuli'} (manifest.csv, "
+          "contact_sheet.png)")
+    return 0
+
+
+def cmd_allocate(args) -> int:
+    from study.data import Allocation
+
+    cfg = _cfg(args)
+    n = args.n or cfg.study.n_participants
+    rows = Allocation(args.study_dir).create(n, cfg.seed)
+    counts = {s: sum(r["sequence"] == s for r in rows) for s in ("SR", "RS")}
+    print(f"{args.study_dir / 'allocation.csv'}: {len(rows)} slots (SR {counts['SR']}, RS "
+          f"{counts['RS']}), seed {cfg.seed}")
+    return 0
+
+
+def _injected(args, stimuli_dir: Path, cfg, pid: str):
+    """``(responder, model name)`` for ``--inject``: ``flmp`` or a CSV of responses."""
+    if not args.inject:
+        return None, "human"
+    from study.runner import scripted_responder
+
+    if args.inject != "flmp":
+        return scripted_responder(args.inject), f"script:{Path(args.inject).name}"
+    from study.design import participant_seed
+    from study.simulate import (
+        RESPONDER_MODEL,
+        ExpressionClassifier,
+        make_observers,
+        responder,
+        visual_evidence,
+    )
+    from study.stimuli import load_manifest
+    from face_model.corpus import load_corpus
+
+    source = load_corpus(stimuli_dir.parent / "corpus")
+    clf = ExpressionClassifier().fit(source, seed=cfg.seed)
+    observer = make_observers(1, participant_seed(cfg.seed, pid))[0]
+    return responder(observer, visual_evidence(clf, load_manifest(stimuli_dir))), RESPONDER_MODEL
+
+
+def cmd_run(args) -> int:
+    from study.runner import run_session
+
+    cfg = _cfg(args)
+    stim = _stimuli_dir(args)
+    resp, model = _injected(args, stim, cfg, args.participant)
+    s = cfg.study
+    res = run_session(args.study_dir, stim, args.participant, study_seed=cfg.seed,
+                      n_slots=s.n_participants, resume=args.resume,
+                      fullscreen=args.fullscreen or s.fullscreen, keys=tuple(s.keys),
+                      practice=s.practice, fixation_s=s.fixation_s, iti_s=s.iti_s,
+                      audio_backend=s.audio_backend, responder=resp, responder_model=model,
+                      screenshot=args.screenshot)
+    state = "complete" if res["complete"] else ("aborted" if res["aborted"] else "stopped")
+    print(f"participant {res['participant_id']} ({res['sequence']}): {res['rows']} of 27 "
+          f"judgments, {state}; data: {res['data']}")
+    if not res["complete"]:
+        print(f"continue with: talkingface study run --participant {res['participant_id']} "
+              "--resume")
+    return 0 if res["complete"] else 3
+
+
+def cmd_release(args) -> int:
+    from study.data import Allocation
+
+    slot = Allocation(args.study_dir).release(args.participant, note=args.note or "")
+    print(f"slot {slot['slot']} ({slot['sequence']}) is free again; {args.participant}'s data "
+          "stay where they are")
+    return 0
+
+
+def cmd_simulate(args) -> int:
+    from face_model.corpus import load_corpus
+    from study.simulate import ExpressionClassifier, simulate_study
+    from study.stimuli import load_manifest
+
+    cfg = _cfg(args)
+    stim = _stimuli_dir(args)
+    clf = ExpressionClassifier().fit(load_corpus(stim.parent / "corpus"), seed=cfg.seed)
+    res = simulate_study(args.study_dir, load_manifest(stim), clf, n=args.n, seed=cfg.seed,
+                         study_seed=cfg.seed, progress=True)
+    print(json.dumps(res, indent=1, default=str))
+    return 0
+
+
+def add_parser(sub) -> None:
+    from talkingface.cli import _config_args
+
+    p = sub.add_parser("study", help="the perception study: stimuli, allocation, PsychoPy "
+                       "sessions, simulated participants")
+    ss = p.add_subparsers(dest="study_command", required=True)
+
+    s = ss.add_parser("stimuli", help="make runs/<name>/stimuli from the run's trained mapping")
+    s.add_argument("--name", required=True, help="run (trained first if needed)")
+    s.add_argument("--overwrite", action="store_true",
+                   help="replace an existing run made with a different config")
+    _config_args(s)
+    s.set_defaults(func=cmd_stimuli)
+
+    def study_dir(q):
+        q.add_argument("--study-dir", type=Path, default=DEFAULT_STUDY_DIR,
+                       help="the study data folder (default: study_data)")
+
+    s = ss.add_parser("allocate", help="write the seeded SR/RS allocation list")
+    study_dir(s)
+    s.add_argument("--n", type=int, help="slots (default: study.n_participants)")
+    _config_args(s)
+    s.set_defaults(func=cmd_allocate)
+
+    s = ss.add_parser("run", help="one PsychoPy session for a participant")
+    s.add_argument("--participant", required=True, help="id: letters and digits only, no "
+                   "personal data (e.g. P01)")
+    study_dir(s)
+    s.add_argument("--stimuli", type=Path, help="stimulus folder (default: the latest run's)")
+    s.add_argument("--resume", action="store_true", help="continue an interrupted session")
+    s.add_argument("--fullscreen", action="store_true")
+    s.add_argument("--inject", help="answer automatically: 'flmp' (a simulated observer) or a "
+                   "CSV of stimulus_id,response[,rt_s] (tests and demonstrations)")
+    s.add_argument("--screenshot", type=Path, help="save a PNG of the first bimodal trial")
+    _config_args(s)
+    s.set_defaults(func=cmd_run)
+
+    s = ss.add_parser("release", help="free an aborted participant's allocation slot")
+    s.add_argument("--participant", required=True)
+    s.add_argument("--note", help="why (kept in allocation_log.csv)")
+    study_dir(s)
+    s.set_defaults(func=cmd_release)
+
+    s = ss.add_parser("simulate", help="simulated participants (FLMP observers)")
+    s.add_argument("--n", type=int, default=20)
+    study_dir(s)
+    s.add_argument("--stimuli", type=Path, help="stimulus folder (default: the latest run's)")
+    _config_args(s)
+    s.set_defaults(func=cmd_simulate)
+
