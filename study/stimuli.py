@@ -177,7 +177,7 @@ def build_stimuli(out_dir, *, animator, synth_cfg, seed: int, progress: bool = T
         w.writerows(rows)
     from analysis.figures import face_grid
 
-    face_grid(stills, titles, out / "contact_sheet.png", ncols=2 * len(EXPRESSIONS) // 2)
+    face_grid(stills, titles, out / "contact_sheet.png", ncols=len(FACES))
     (out / "stimuli.json").write_text(json.dumps(
         {"seed": seed, "speaker": speaker, "sentences": SENTENCES,
          "model": str(animator.mapping.metadata.get("split", "")),

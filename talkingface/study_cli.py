@@ -35,6 +35,40 @@ def _stimuli_dir(args) -> Path:
     return runs[-1].parent
 
 
+def classifier_corpus(stimuli_dir: Path) -> Path:
+    """The corpus the simulated observers' expression classifier learns from: the run's corpus
+    beside ``runs/<name>/stimuli``, else the stimuli's own source sentences."""
+    stimuli_dir = Path(stimuli_dir)
+    for c in (stimuli_dir.parent / "corpus", stimuli_dir / "source"):
+        if (c / "manifest.csv").is_file():
+            return c
+    raise ParameterError(f"no corpus to train the observers' expression classifier: neither "
+                         f"{stimuli_dir.parent / 'corpus'} nor {stimuli_dir / 'source'} exists")
+
+
+def stage_simulate(run_root: Path, cfg, *, n: int | None = None) -> dict:
+    """``runs/<name>/study_data``: the simulated participants of the replication (reused when
+    complete)."""
+    from face_model.corpus import load_corpus
+    from study.simulate import ExpressionClassifier, simulate_study
+    from study.stimuli import load_manifest
+
+    out = Path(run_root) / "study_data"
+    done = out / "simulated.json"
+    if done.is_file():
+        return json.loads(done.read_text())
+    if out.exists():  # an interrupted simulation: simulated data are remade, never mixed
+        import shutil
+
+        shutil.rmtree(out)
+    stim = Path(run_root) / "stimuli"
+    clf = ExpressionClassifier().fit(load_corpus(classifier_corpus(stim)), seed=cfg.seed)
+    res = simulate_study(out, load_manifest(stim), clf, n=n or cfg.study.n_participants,
+                         seed=cfg.seed, study_seed=cfg.seed)
+    done.write_text(json.dumps(res, indent=1, default=str))
+    return json.loads(done.read_text())
+
+
 def stage_stimuli(run_root: Path, cfg, *, progress: bool = True) -> dict:
     """``runs/<name>/stimuli`` from the run's trained mapping (reused when present)."""
     from study.stimuli import MANIFEST, build_stimuli
@@ -96,8 +130,7 @@ def _injected(args, stimuli_dir: Path, cfg, pid: str):
     from study.stimuli import load_manifest
     from face_model.corpus import load_corpus
 
-    source = load_corpus(stimuli_dir.parent / "corpus")
-    clf = ExpressionClassifier().fit(source, seed=cfg.seed)
+    clf = ExpressionClassifier().fit(load_corpus(classifier_corpus(stimuli_dir)), seed=cfg.seed)
     observer = make_observers(1, participant_seed(cfg.seed, pid))[0]
     return responder(observer, visual_evidence(clf, load_manifest(stimuli_dir))), RESPONDER_MODEL
 
@@ -140,7 +173,7 @@ def cmd_simulate(args) -> int:
 
     cfg = _cfg(args)
     stim = _stimuli_dir(args)
-    clf = ExpressionClassifier().fit(load_corpus(stim.parent / "corpus"), seed=cfg.seed)
+    clf = ExpressionClassifier().fit(load_corpus(classifier_corpus(stim)), seed=cfg.seed)
     res = simulate_study(args.study_dir, load_manifest(stim), clf, n=args.n, seed=cfg.seed,
                          study_seed=cfg.seed, progress=True)
     print(json.dumps(res, indent=1, default=str))
