@@ -10,8 +10,9 @@ VENV=${VENV:-.venv}
 PY=${PYTHON:-python3}
 # Debian packages: Python with venv and pip; flite (the optional second speech backend, tested);
 # libgl1 (OpenCV, the tracker); ffmpeg (ffprobe checks the MP4s that animate writes, in tests);
-# libportaudio2 (sounddevice: `talkingface stream --mic`; tested on ALSA's null device).
-DEB_PKGS="python3 python3-venv python3-pip flite libgl1 ffmpeg libportaudio2"
+# libportaudio2 (sounddevice: `talkingface stream --mic`, PsychoPy sound; tested on ALSA's null
+# device; it brings ALSA); libjack-jackd2-0 (PsychoPy audio); xvfb, xauth (headless sessions).
+DEB_PKGS="python3 python3-venv python3-pip flite libgl1 ffmpeg libportaudio2 libjack-jackd2-0 xvfb xauth"
 
 missing=()
 for p in $DEB_PKGS; do
