@@ -180,6 +180,9 @@ class SessionFile:
         if row["response"] not in RESPONSES:
             raise ParameterError(f"response {row['response']!r}; allowed: "
                                  f"{', '.join(RESPONSES)}")
+        if row["participant_id"] != self.pid:
+            raise ParameterError(f"a row of participant {row['participant_id']!r} cannot go to "
+                                 f"{self.path}")
         expected = self.trials[len(self.done)]
         if int(row["trial_index"]) != expected.trial_index:
             raise ParameterError(f"trial {row['trial_index']} written out of order (expected "
@@ -202,8 +205,9 @@ class SessionFile:
 
 def trial_row(trial: Trial, *, participant_id: str, sequence: str, response: str,
               response_key: str, rt_s: float, simulated: bool, responder_model: str,
-              session: int, qc: dict | None = None) -> dict:
-    """A data row for one judgment (``qc``: the frame-timing columns)."""
+              session: int, qc: dict | None = None, timestamp: str | None = None) -> dict:
+    """A data row for one judgment (``qc``: the frame-timing columns; ``timestamp``: the
+    wall-clock time of the answer, now by default; simulated rows pass "")."""
     qc = qc or {}
     return {"participant_id": participant_id, "group": group_of(sequence), "sequence": sequence,
             **{k: v for k, v in trial.as_dict().items()},
@@ -213,7 +217,8 @@ def trial_row(trial: Trial, *, participant_id: str, sequence: str, response: str
             "n_frames": qc.get("n_frames", ""), "frames_late": qc.get("frames_late", ""),
             "frame_interval_ms_mean": _fmt(qc.get("frame_interval_ms_mean")),
             "frame_interval_ms_max": _fmt(qc.get("frame_interval_ms_max")),
-            "audio_onset_s": _fmt(qc.get("audio_onset_s")), "timestamp": now_iso()}
+            "audio_onset_s": _fmt(qc.get("audio_onset_s")),
+            "timestamp": now_iso() if timestamp is None else timestamp}
 
 
 def _fmt(v) -> str:
@@ -301,6 +306,8 @@ class Allocation:
             return slot
 
     def set_status(self, pid: str, status: str) -> None:
+        if status not in ("assigned", "complete"):
+            raise ParameterError(f"allocation status {status!r}; allowed: assigned, complete")
         with self._lock():
             rows = self.rows()
             for r in rows:

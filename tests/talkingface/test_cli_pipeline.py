@@ -57,6 +57,17 @@ def test_replicate_writes_runs_report_and_mlflow(workdir, capsys):
                - summary["units"]["explained"]["neutral"]) < 1e-12
     assert len(r.data.tags["corpus_hash"]) == 64 and "git_commit" in r.data.tags
     assert (workdir / "mlartifacts").is_dir()
+    # the perception study: the stimuli and twenty simulated participants, ten per sequence
+    from study.stimuli import load_manifest
+
+    assert len(load_manifest(run / "stimuli")) == 21
+    subjects = sorted((run / "study_data").glob("sub-*/sub-*_task-emotion_beh.csv"))
+    assert len(subjects) == 20
+    with open(run / "study_data" / "allocation.csv", newline="") as f:
+        slots = list(csv.DictReader(f))
+    assert sorted(s["sequence"] for s in slots) == ["RS"] * 10 + ["SR"] * 10
+    assert all(s["status"] == "complete" for s in slots)
+    assert "Perception study" in text and "simulated FLMP observers" in text
 
 
 def test_replicate_refuses_a_different_config_under_the_same_name(workdir, capsys):
