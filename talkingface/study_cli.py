@@ -132,7 +132,25 @@ def _injected(args, stimuli_dir: Path, cfg, pid: str):
 
     clf = ExpressionClassifier().fit(load_corpus(classifier_corpus(stimuli_dir)), seed=cfg.seed)
     observer = make_observers(1, participant_seed(cfg.seed, pid))[0]
-    return responder(observer, visual_evidence(clf, load_manifest(stimuli_dir))), RESPONDER_MODEL
+    answer = responder(observer, visual_evidence(clf, load_manifest(stimuli_dir)))
+    if args.resume:
+        _replay_answers(answer, args.study_dir, pid, cfg.seed)
+    return answer, RESPONDER_MODEL
+
+
+def _replay_answers(answer, study_dir: Path, pid: str, seed: int) -> None:
+    """On --resume, let a simulated observer answer the judgments already on file again (and
+    discard them), so its random stream continues where the interrupted session left it."""
+    from study.data import Allocation, data_path, read_rows
+    from study.design import session_trials
+
+    path = data_path(study_dir, pid)
+    if not path.is_file():
+        return
+    held = [r for r in Allocation(study_dir).rows() if r["participant_id"] == pid]
+    if held:
+        for trial in session_trials(pid, held[0]["sequence"], seed)[:len(read_rows(path)[0])]:
+            answer(trial)
 
 
 def cmd_run(args) -> int:
