@@ -161,9 +161,18 @@ def cmd_ablate(args) -> int:
 
 def cmd_report(args) -> int:
     from talkingface.config import load_config
-    from talkingface.paths import RunPaths
+    from talkingface.paths import RunPaths, check_run_name
     from talkingface.pipeline import stage_report
 
+    if args.study_data is not None:
+        from talkingface.study_cli import study_report
+
+        name = check_run_name(args.name or Path(args.study_data).resolve().name)
+        print(f"report: {study_report(args.study_data, name, seed=args.seed or 0)}")
+        return 0
+    if not args.name:
+        raise TalkingFaceError("give --name RUN (a replication's report) or --study-data DIR "
+                               "(a study's report from its data alone)")
     paths = RunPaths.create(args.name)
     if not paths.config.is_file():
         raise TalkingFaceError(f"{paths.config} not found: run 'talkingface replicate --name "
@@ -332,8 +341,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_study_parser(sub)
 
-    s = sub.add_parser("report", help="rebuild reports/<name>.pdf from runs/<name>")
-    s.add_argument("--name", required=True)
+    s = sub.add_parser("report", help="rebuild reports/<name>.pdf from runs/<name>, or a study "
+                       "report from study data alone (--study-data)")
+    s.add_argument("--name", help="run name (with --study-data: the PDF's name; default: the "
+                   "data folder's name)")
+    s.add_argument("--study-data", type=Path, help="a study data folder (real or simulated)")
+    s.add_argument("--seed", type=int, help="seed of the Monte Carlo parts (default 0)")
     s.set_defaults(func=cmd_report)
 
     s = sub.add_parser("ui", help="start the MLflow UI on 127.0.0.1 against the same store")

@@ -181,6 +181,11 @@ def stage_report(paths: RunPaths, cfg) -> Path:
         from analysis.study_report import study_section
 
         study_section(rep, paths.root / "stimuli", paths.root / "study_data")
+    if (paths.root / "analysis" / "analysis.json").is_file():
+        from analysis.perception_report import perception_section
+
+        perception_section(rep, json.loads((paths.root / "analysis" / "analysis.json")
+                                           .read_text()), paths.root / "analysis")
     methods_section(rep, cfg, corpus.info)
     return rep.build(paths.pdf)
 
@@ -218,9 +223,10 @@ def replicate(name: str, cfg, *, overwrite: bool = False, progress: bool = True,
         training_corpus(paths, cfg, progress=progress)  # tracked copy (visual_source tracked)
         stage_train(paths, cfg, progress=progress, mlf=mlf)
         stage_render(paths.root, paths.root / "render", cfg)
-        from talkingface.study_cli import stage_simulate, stage_stimuli
+        from talkingface.study_cli import stage_analyze, stage_simulate, stage_stimuli
         stage_stimuli(paths.root, cfg, progress=progress)
         stage_simulate(paths.root, cfg)
+        stage_analyze(paths.root, cfg)
         if ablation_grid:
             stage_ablate(paths, cfg, ablation_grid, workers=workers, progress=progress, mlf=mlf)
         pdf = stage_report(paths, cfg)

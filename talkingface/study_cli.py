@@ -69,6 +69,45 @@ def stage_simulate(run_root: Path, cfg, *, n: int | None = None) -> dict:
     return json.loads(done.read_text())
 
 
+def stage_analyze(run_root: Path, cfg) -> dict:
+    """``runs/<name>/analysis``: Tables III–VII, statistics and model fits of the run's study
+    data."""
+    from analysis.perception_report import analyze_study
+
+    return analyze_study(Path(run_root) / "study_data", Path(run_root) / "analysis",
+                         seed=cfg.seed)
+
+
+def study_report(study_dir, name: str, *, seed: int = 0, reports_dir="reports") -> Path:
+    """``reports/<name>.pdf`` from a study's data alone: the analysis and how it was made."""
+    from analysis.perception_report import analyze_study, perception_section
+    from analysis.report import Report
+    from talkingface.tracking import git_commit
+
+    out = Path(reports_dir) / f"{name}_analysis"
+    summary = analyze_study(study_dir, out, seed=seed)
+    rep = Report(f"talkingface perception study: {name}",
+                 "Emotion judgments of a synthetic and a real talking face (Hong, Wen &amp; "
+                 "Huang 2002, §VII-C)")
+    perception_section(rep, summary, out)
+    rep.heading("Methods")
+    rep.paragraph(f"Analysed by talkingface (source commit {git_commit()}) from {study_dir}; "
+                  f"Monte Carlo and bootstrap seed {seed}. Participants: {summary['participants']}"
+                  f" ({'simulated' if summary['simulated'] else 'real'}).")
+    return rep.build(Path(reports_dir) / f"{name}.pdf")
+
+
+def cmd_analyze(args) -> int:
+    from analysis.perception_report import analyze_study
+
+    out = args.out or Path(args.study_data) / "analysis"
+    summary = analyze_study(args.study_data, out, seed=args.seed or 0)
+    for k, t in summary["tallies"].items():
+        print(f"Table {k}: {t['counts']}")
+    print(f"{summary['participants']} participants; tables, statistics and fits in {out}")
+    return 0
+
+
 def stage_stimuli(run_root: Path, cfg, *, progress: bool = True) -> dict:
     """``runs/<name>/stimuli`` from the run's trained mapping (reused when present)."""
     from study.stimuli import MANIFEST, build_stimuli
@@ -200,6 +239,13 @@ def cmd_simulate(args) -> int:
 
 def add_parser(sub) -> None:
     from talkingface.cli import _config_args
+
+    a = sub.add_parser("analyze", help="Tables III–VII, statistics and FLMP/WTAV fits of study "
+                       "data (real or simulated)")
+    a.add_argument("study_data", type=Path, help="a study data folder")
+    a.add_argument("--out", type=Path, help="where to write (default: <study_data>/analysis)")
+    a.add_argument("--seed", type=int, help="seed of the Monte Carlo parts (default 0)")
+    a.set_defaults(func=cmd_analyze)
 
     p = sub.add_parser("study", help="the perception study: stimuli, allocation, PsychoPy "
                        "sessions, simulated participants")

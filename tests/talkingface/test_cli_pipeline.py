@@ -68,6 +68,9 @@ def test_replicate_writes_runs_report_and_mlflow(workdir, capsys):
     assert sorted(s["sequence"] for s in slots) == ["RS"] * 10 + ["SR"] * 10
     assert all(s["status"] == "complete" for s in slots)
     assert "Perception study" in text and "simulated FLMP observers" in text
+    for table in ("TABLE III", "TABLE IV", "TABLE V", "TABLE VI", "TABLE VII"):
+        assert f"{table}:" in text  # ours beside the paper's, all seven tables in one PDF
+    assert "Model comparison" in text and "Synthetic vs real face: paired tests" in text
 
 
 def test_replicate_refuses_a_different_config_under_the_same_name(workdir, capsys):

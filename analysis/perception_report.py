@@ -1,0 +1,155 @@
+"""The perception study's analysis in the PDF: Tables III–VII beside the paper's, the tallies as
+bars with Wilson intervals, the statistics and the FLMP/WTAV fits. Works on any study folder —
+simulated participants from a replication or a real study's data alone
+(``talkingface report --study-data DIR``)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from analysis.models import face_counts, fit_study  # noqa: E402
+from analysis.stats import summary as stats_summary  # noqa: E402
+from analysis.study_data import (  # noqa: E402
+    PAPER_TALLIES,
+    RESPONSE_LABEL,
+    load_study_data,
+    tallies,
+)
+
+TITLES = {"III": "TABLE III: emotion inference based on the animation sequences without audio",
+          "IV": "TABLE IV: emotion inference based on the audio",
+          "V": "TABLE V: bimodal emotion inference using audio track 1 (\"It is normal.\")",
+          "VI": "TABLE VI: bimodal emotion inference using audio track 2 (\"It is good.\")",
+          "VII": "TABLE VII: bimodal emotion inference using audio track 3 (\"It is bad.\")"}
+AUDIO_LABEL = {"normal": "Audio 1", "good": "Audio 2", "bad": "Audio 3"}
+
+
+def tally_rows(t, paper: np.ndarray | None) -> tuple[list, list]:
+    """Header and rows of one table: each cell 'ours (paper)'."""
+    if t.name == "IV":
+        header = ["Emotion"] + [AUDIO_LABEL[a] for a in t.columns]
+    else:
+        header = ["Emotion"] + [f"{e.capitalize()} {f}" for e, f in t.columns]
+    rows = []
+    for i, r in enumerate(t.rows):
+        cells = [str(int(c)) if paper is None else f"{int(c)} ({int(paper[i, j])})"
+                 for j, c in enumerate(t.counts[i])]
+        rows.append([RESPONSE_LABEL[r], *cells])
+    return header, rows
+
+
+def tally_figure(tabs: dict, path: Path) -> Path:
+    """Proportions of each response with Wilson 95 % intervals, synthetic vs real."""
+    from statsmodels.stats.proportion import proportion_confint
+
+    fig, axes = plt.subplots(1, 4, figsize=(13, 3.4), sharey=True)
+    colors = {"neutral": "#8c8c8c", "happy": "#e0a030", "sad": "#3b6fb6", "not_sure": "#c04040"}
+    for ax, name in zip(axes, ("III", "V", "VI", "VII")):
+        t = tabs[name]
+        n = t.column_totals()
+        width = 0.2
+        x = np.arange(len(t.columns))
+        for k, r in enumerate(t.rows):
+            p = t.counts[k] / np.maximum(n, 1)
+            lo, hi = proportion_confint(t.counts[k], np.maximum(n, 1), method="wilson")
+            ax.bar(x + (k - 1.5) * width, p, width, color=colors[r], label=RESPONSE_LABEL[r],
+                   yerr=[np.clip(p - lo, 0, 1), np.clip(hi - p, 0, 1)], capsize=2,
+                   error_kw={"lw": 0.7})
+        ax.set_xticks(x, [f"{e[:3]}\n{f}" for e, f in t.columns], fontsize=8)
+        ax.set_title(f"Table {name}", fontsize=10)
+        ax.set_ylim(0, 1.05)
+    axes[0].set_ylabel("proportion of participants")
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+    return path
+
+
+def analyze_study(study_dir, out_dir, *, seed: int = 0, bootstrap: int = 200) -> dict:
+    """Tallies, statistics and model fits of a study folder into ``out_dir`` (JSON, CSV, PNG);
+    returns the summary the report is built from."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    df = load_study_data(study_dir)
+    tabs = tallies(df)
+    summary = {"study_dir": str(study_dir), "participants": int(df["participant_id"].nunique()),
+               "sequences": {s: int(df[df["sequence"] == s]["participant_id"].nunique())
+                             for s in ("SR", "RS")},
+               "simulated": bool(df["simulated"].all()),
+               "any_simulated": bool(df["simulated"].any()),
+               "tallies": {k: {"rows": list(t.rows), "columns": [list(c) if isinstance(c, tuple)
+                                                                 else c for c in t.columns],
+                               "counts": t.counts.tolist()} for k, t in tabs.items()}}
+    for k, t in tabs.items():
+        header, rows = tally_rows(t, None)
+        (out / f"table_{k}.csv").write_text(
+            "\n".join(",".join(map(str, r)) for r in [header, *rows]) + "\n")
+    summary["figure"] = tally_figure(tabs, out / "tallies.png").name
+    summary["stats"] = stats_summary(df, seed=seed)
+    models = fit_study(df, seed=seed, bootstrap=bootstrap)
+    for face, fc in face_counts(df).items():  # observed proportions, for the fit figure
+        bim = fc.cells()[2].astype(float)
+        models["faces"][face]["observed"] = {
+            "bimodal": (bim / np.maximum(bim.sum(-1, keepdims=True), 1)).tolist()}
+    summary["models"] = models
+    (out / "analysis.json").write_text(json.dumps(summary, indent=1, default=_json))
+    return json.loads((out / "analysis.json").read_text())
+
+
+def _json(v):
+    if isinstance(v, (np.integer,)):
+        return int(v)
+    if isinstance(v, (np.floating,)):
+        return float(v)
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    if isinstance(v, (np.bool_,)):
+        return bool(v)
+    if hasattr(v, "__dataclass_fields__"):
+        from dataclasses import asdict
+
+        return asdict(v)
+    return str(v)
+
+
+def perception_section(report, summary: dict, out_dir: Path) -> None:
+    """Tables III–VII (ours beside the paper's), the tally figure, statistics and models."""
+    from analysis.study_data import Tally
+
+    n, seqs = summary["participants"], summary["sequences"]
+    who = ("simulated participants (FLMP observers, study/simulate.py)" if summary["simulated"]
+           else "participants (real)" if not summary["any_simulated"]
+           else "participants, some of them simulated")
+    report.heading("6. Perception study results (Tables III–VII)")
+    report.paragraph(
+        f"{n} {who}: {seqs['SR']} saw the synthetic face first in the bimodal blocks (SR), "
+        f"{seqs['RS']} the real face first (RS). Each cell below is our count and, in "
+        "parentheses, the paper's count of its 20 subjects. S: synthetic face; R: real face. "
+        "Data: " + summary["study_dir"].replace("&", "&amp;") + ".")
+    for k in ("III", "IV", "V", "VI", "VII"):
+        t = summary["tallies"][k]
+        tally = Tally(k, TITLES[k], tuple(t["rows"]),
+                      tuple(tuple(c) if isinstance(c, list) else c for c in t["columns"]),
+                      np.array(t["counts"]))
+        header, rows = tally_rows(tally, PAPER_TALLIES[k])
+        report.table(TITLES[k] + " — ours (paper)", header, rows,
+                     note="Paper: Hong, Wen &amp; Huang (2002), Table " + k + ".")
+    report.figure(out_dir / summary["figure"], "Tallies as proportions with Wilson 95 % "
+                  "intervals: visual-only (Table III) and bimodal with audio tracks 1–3 "
+                  "(Tables V–VII); each expression for the synthetic (S) and real (R) face.")
+    if "stats" in summary:
+        from analysis.perception_stats_report import stats_section
+
+        stats_section(report, summary["stats"])
+    if "models" in summary:
+        from analysis.perception_stats_report import models_section
+
+        models_section(report, summary["models"], out_dir)

@@ -1,0 +1,31 @@
+"""`talkingface analyze` and `talkingface report --study-data`: a study's tables, statistics
+and model fits from its data alone, here the paper's own tallies turned into trial data."""
+import json
+
+import numpy as np
+
+from analysis.study_data import PAPER_TALLIES, trials_from_tallies, write_study_data
+from pypdf import PdfReader
+
+from talkingface.cli import main
+
+
+def pdf_text(path) -> str:
+    return "\n".join(page.extract_text() for page in PdfReader(path).pages)
+
+
+def test_a_study_report_from_data_alone(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    data = write_study_data(trials_from_tallies(PAPER_TALLIES, seed=2), tmp_path / "lab_study")
+    assert main(["analyze", str(data), "--seed", "1"]) == 0
+    assert "20 participants" in capsys.readouterr().out
+    summary = json.loads((data / "analysis" / "analysis.json").read_text())
+    for name, counts in PAPER_TALLIES.items():
+        np.testing.assert_array_equal(summary["tallies"][name]["counts"], counts)
+    assert summary["models"]["faces"]["real"]["comparison"]["preferred"] in ("flmp", "wtav")
+    assert main(["report", "--study-data", str(data)]) == 0
+    text = pdf_text(tmp_path / "reports" / "lab_study.pdf")
+    for table in ("TABLE III", "TABLE IV", "TABLE V", "TABLE VI", "TABLE VII"):
+        assert f"{table}:" in text
+    assert "8 (8)" in text and "5 (5)" in text  # Table VI's confused subjects, ours = paper
+    assert "Model comparison" in text and "McNemar" in text and "Hu" in text
