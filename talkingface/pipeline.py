@@ -186,16 +186,28 @@ def stage_report(paths: RunPaths, cfg) -> Path:
 
         perception_section(rep, json.loads((paths.root / "analysis" / "analysis.json")
                                            .read_text()), paths.root / "analysis")
-    methods_section(rep, cfg, corpus.info)
+    methods_section(rep, cfg, corpus.info, study=_done_json(paths.root / "analysis",
+                                                           "analysis.json"))
     return rep.build(paths.pdf)
 
 
-def methods_section(rep, cfg, corpus_info: dict) -> None:
+def _done_json(folder: Path, name: str) -> dict | None:
+    p = folder / name
+    return json.loads(p.read_text()) if p.is_file() else None
+
+
+def methods_section(rep, cfg, corpus_info: dict, *, study: dict | None = None) -> None:
     from talkingface.tracking import git_commit
 
     rep.heading("Settings and versions")
     rep.paragraph(f"Source commit {git_commit()}; run seed {cfg.seed}. Every table and figure "
                   "above was computed by the pipeline from this run's folders.")
+    if study is not None:
+        who = "simulated (FLMP observers)" if study["simulated"] else (
+            "real people" if not study["any_simulated"] else "partly simulated")
+        rep.paragraph(f"Perception study: {study['participants']} participants, {who}; study "
+                      f"seed {cfg.seed} (allocation list and trial orders), Monte Carlo, "
+                      f"bootstrap and power simulations seeded with {cfg.seed}.")
     versions = corpus_info.get("versions", {})
     rep.table("Package versions", ["package", "version"], sorted(versions.items()))
     flat = [[f"{sec}.{k}", json.dumps(v)] for sec, vals in to_dict(cfg).items()
