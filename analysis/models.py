@@ -42,24 +42,19 @@ Choices
   own-emotion visual support — the model-based form of the paper's "comparable". A cell in
   which every participant gave the same answer does not vary under resampling: its interval
   reflects λ only and is too narrow.
-* **Simulation and planning**: :func:`simulate_counts` draws participants who answer each of
-  a face's 15 cells once; :func:`model_recovery` attributes data simulated from each model
-  (default generators: the fits to the paper's synthetic face) by BIC and by CV;
-  :func:`power_visual_drop` simulates the visual-only block (assumptions in its text).
+* **Simulation and planning**: :mod:`analysis.planning` (model recovery, power).
 """
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from scipy import optimize, special, stats
+from scipy import optimize, special
 from threadpoolctl import ThreadpoolController
 
-from analysis.study_data import EMOTION_OF, PAPER_TALLIES, trials_from_tallies
 from face_model.errors import ParameterError
-from study.design import AUDIO, EXPRESSIONS, FACES, RESPONSES
+from study.design import AUDIO, EMOTION_OF, EXPRESSIONS, FACES, RESPONSES
 
 MODELS = ("flmp", "wtav")
 K = len(RESPONSES)
@@ -67,17 +62,17 @@ L = 3  # levels of each source: sentences AUDIO, expressions EXPRESSIONS
 OWN = np.array([RESPONSES.index(EMOTION_OF[e]) for e in EXPRESSIONS])  # own emotion per expr.
 N_PARAMS = {"flmp": 2 * L * (K - 1), "wtav": 2 * L * (K - 1) + 1}
 BOUND = 30.0  # |logit| bound (only reached without a penalty)
-_TAGS = {"start": 11, "boot": 12, "sim": 13, "recovery": 14, "power": 15}
+TAGS = {"start": 11, "boot": 12, "sim": 13, "recovery": 14, "power": 15}
 _BLOCKS = ("visual", "audio", "bimodal")
 # These problems are tiny: OpenBLAS threads inside L-BFGS-B make a fit ~100x slower on a
 # busy machine, so every optimisation runs with BLAS limited to one thread.
 _BLAS = ThreadpoolController()
 
 
-def _rng(seed, tag: str) -> np.random.Generator:
+def seeded_rng(seed, tag: str) -> np.random.Generator:
     if isinstance(seed, np.random.SeedSequence):
         return np.random.default_rng(seed)
-    return np.random.default_rng(np.random.SeedSequence([int(seed), _TAGS[tag]]))
+    return np.random.default_rng(np.random.SeedSequence([int(seed), TAGS[tag]]))
 
 
 def _check_model(model) -> str:
@@ -94,7 +89,7 @@ def _check_lam(lam) -> float:
     return float(lam)
 
 
-def _check_count(name, value, lo=1) -> int:
+def check_count(name, value, lo=1) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < lo:
         raise ParameterError(f"{name} must be an integer >= {lo}, got {value!r}")
     return int(value)
@@ -323,13 +318,13 @@ def fit_model(model: str, counts, *, lam: float = 0.05, n_starts: int = 3, seed:
     (a FitResult or Params) if given, the empirical unimodal proportions, then seeded
     perturbations — ``n_starts`` in all; the best penalised likelihood is kept."""
     _check_model(model)
-    lam, n_starts = _check_lam(lam), _check_count("n_starts", n_starts)
+    lam, n_starts = _check_lam(lam), check_count("n_starts", n_starts)
     cells = _cells(counts)
     wtav = model == "wtav"
     base = np.concatenate([_logits(cells[1], True), _logits(cells[0], True)]
                           + ([[0.0]] if wtav else []))
     starts = ([_theta(model, init)] if init is not None else []) + [base]
-    rng = _rng(seed, "start")
+    rng = seeded_rng(seed, "start")
     weights = special.logit([0.25, 0.75, 0.1, 0.9])
     while len(starts) < n_starts:
         t = base + rng.normal(0.0, 1.0, base.size)
@@ -401,12 +396,12 @@ def bootstrap_intervals(counts: dict, *, B: int = 200, lam: float = 0.05, seed: 
     ``visual[face][model]`` supports, ``w[face]``, and ``own_difference[model][expression]``
     (synthetic − real support of the expression's own emotion; ``mean`` over expressions).
     ``fits[face][model]`` (full-data fits) give the estimates and the first start."""
-    B, lam = _check_count("B", B), _check_lam(lam)
+    B, lam = check_count("B", B), _check_lam(lam)
     if set(counts) != set(FACES) or len({c.n for c in counts.values()}) != 1:
         raise ParameterError("bootstrap needs FaceCounts of both faces for the same participants")
     fits = fits or {f: {m: fit_model(m, counts[f], lam=lam, seed=seed) for m in MODELS}
                     for f in FACES}
-    n, rng = counts[FACES[0]].n, _rng(seed, "boot")
+    n, rng = counts[FACES[0]].n, seeded_rng(seed, "boot")
     vis = {f: {m: np.empty((B, L, K)) for m in MODELS} for f in FACES}
     w = {f: np.empty(B) for f in FACES}
     for b in range(B):
@@ -431,122 +426,13 @@ def bootstrap_intervals(counts: dict, *, B: int = 200, lam: float = 0.05, seed: 
             "own_difference": diff}
 
 
-def simulate_counts(model: str, params: Params, n_participants: int, seed) -> FaceCounts:
-    """Participants answering one face's 15 cells once each, drawn from ``model``."""
-    n = _check_count("n_participants", n_participants)
-    pred = predict(model, params)
-    probs = np.concatenate([pred["visual"], pred["audio"], pred["bimodal"].reshape(-1, K)])
-    cum = np.cumsum(probs, -1)
-    cum[:, -1] = 1.0
-    u = _rng(seed, "sim").random((n, len(probs)))
-    onehot = np.eye(K)[(u[..., None] > cum[None]).sum(-1)]
-    return FaceCounts(onehot[:, :L], onehot[:, L:2 * L], onehot[:, 2 * L:].reshape(n, L, L, K),
-                      tuple(f"S{i + 1:03d}" for i in range(n)))
-
-
-@functools.lru_cache(maxsize=8)
-def paper_fits(face: str = "synthetic", lam: float = 0.05) -> dict[str, FitResult]:
-    """Both models fitted to the paper's tallies (Tables III–VII as 20 participants)."""
-    if face not in FACES:
-        raise ParameterError(f"face {face!r}; allowed: {', '.join(FACES)}")
-    counts = face_counts(trials_from_tallies(PAPER_TALLIES))[face]
-    return {m: fit_model(m, counts, lam=lam) for m in MODELS}
-
-
-def model_recovery(generators: dict | None = None, *, n_sims: int = 10,
-                   n_participants: int = 20, lam: float = 0.05, cv: bool = True,
-                   seed: int = 0) -> dict:
-    """Simulate ``n_sims`` data sets from each model (``generators[model]`` a Params; default
-    the fits to the paper's synthetic face) and attribute each by BIC (and LOPO-CV).
-    ``confusion[criterion][g][c]``: data from ``MODELS[g]`` attributed to ``MODELS[c]``."""
-    n_sims = _check_count("n_sims", n_sims)
-    gens = generators or {m: f.params for m, f in paper_fits("synthetic", lam).items()}
-    children = np.random.SeedSequence([int(seed), _TAGS["recovery"]]).spawn(len(MODELS) * n_sims)
-    crits = ("bic", "cv") if cv else ("bic",)
-    conf = {c: np.zeros((len(MODELS), len(MODELS)), int) for c in crits}
-    for g, model in enumerate(MODELS):
-        for s in range(n_sims):
-            data = simulate_counts(model, gens[model], n_participants, children[g * n_sims + s])
-            _, comp = compare_models(data, lam=lam, cv=cv, seed=seed)
-            for c in crits:
-                conf[c][g, MODELS.index(comp[f"preferred_{c}"])] += 1
-    return {"models": list(MODELS), "n_sims": n_sims, "n_participants": n_participants,
-            "lam": lam, "seed": seed, "generators": {m: gens[m].to_dict() for m in MODELS},
-            "confusion": {c: conf[c].tolist() for c in crits},
-            "recovered": {c: {m: int(conf[c][i, i]) for i, m in enumerate(MODELS)}
-                          for c in crits}}
-
-
-def mcnemar_exact(b, c) -> np.ndarray:
-    """Exact two-sided McNemar p-value from the discordant counts (elementwise): the binomial
-    test of ``b`` successes in ``b + c`` trials with p = 1/2."""
-    b, c = np.asarray(b), np.asarray(c)
-    return np.minimum(1.0, 2 * stats.binom.cdf(np.minimum(b, c), b + c, 0.5))
-
-
-def power_visual_drop(drop: float = 0.15, *, n_grid=tuple(range(5, 105, 5)),
-                      n_sims: int = 2000, alpha: float = 0.05, target: float = 0.8,
-                      base=None, unit: str = "participant", seed: int = 0) -> dict:
-    """Power of the paired synthetic-vs-real test of visual-only recognition, by simulation.
-
-    Assumptions: the real face recognises expression j with its fitted own-emotion support
-    ``r_j`` (``base``: a FitResult, Params or (3, K) visual supports; default the FLMP fit to
-    the paper's real face); the synthetic face has the same supports shrunk toward uniform —
-    logits multiplied by one factor t in [0, 1] (t = 0: uniform) — with t chosen so mean
-    recognition over the three expressions drops by ``drop``. Each participant sees each
-    expression of each face once, independently (no participant differences: real
-    participants who differ make S and R correlated and the paired test somewhat stronger).
-    Test: ``unit='participant'`` — the exact sign test on participants whose number correct
-    (of 3) differs between faces, McNemar's test generalised to three trials;
-    ``unit='pair'`` — exact McNemar on (participant, expression) pairs, correct vs not. Two
-    sided at ``alpha``. All n of the grid share the simulated participants (the first n of
-    n_max). ``n_required``: the smallest grid n from which power stays >= ``target``.
-    """
-    n_sims, grid = _check_count("n_sims", n_sims), np.array(sorted(set(n_grid)), int)
-    if grid.size == 0 or grid[0] < 1:
-        raise ParameterError(f"n_grid must hold positive integers, got {n_grid!r}")
-    if unit not in ("participant", "pair"):
-        raise ParameterError(f"unit {unit!r}; allowed: participant, pair")
-    if not (0 < alpha < 1 and 0 < target < 1):
-        raise ParameterError(f"alpha and target must lie in (0, 1), got {alpha!r}, {target!r}")
-    if base is None:
-        base = paper_fits("real")["flmp"]
-    v = base.params.visual if isinstance(base, FitResult) else \
-        base.visual if isinstance(base, Params) else Params(np.ones((L, K)), base).visual
-    log_v, r = np.log(np.maximum(v, 1e-300)), v[np.arange(L), OWN]
-
-    def recog(t):  # own-emotion support with the logits multiplied by t
-        return special.softmax(t * log_v, -1)[np.arange(L), OWN]
-
-    if not 0 <= drop < r.mean() - 1 / K:
-        raise ParameterError(f"drop must lie in [0, {r.mean() - 1 / K:.3f}) (the real face's "
-                             f"mean recognition {r.mean():.3f} minus chance 1/{K}), got {drop!r}")
-    t = 1.0 if drop == 0 else optimize.brentq(lambda t: recog(t).mean() - (r.mean() - drop),
-                                              0.0, 1.0, xtol=1e-12)
-    s = recog(t)
-    u = _rng(seed, "power").random((n_sims, int(grid[-1]), 2, L))
-    c_s, c_r = u[:, :, 0] < s, u[:, :, 1] < r
-    if unit == "participant":
-        d = c_s.sum(-1) - c_r.sum(-1)
-        worse, better = np.cumsum(d < 0, 1), np.cumsum(d > 0, 1)
-    else:
-        worse, better = np.cumsum((c_r & ~c_s).sum(-1), 1), np.cumsum((c_s & ~c_r).sum(-1), 1)
-    p = mcnemar_exact(worse[:, grid - 1], better[:, grid - 1])
-    power = (p <= alpha).mean(0)
-    reach = [i for i in range(grid.size) if (power[i:] >= target).all()]
-    return {"drop": float(drop), "shrink_t": float(t), "recognition_real": r.tolist(),
-            "recognition_synthetic": s.tolist(), "n_grid": grid.tolist(),
-            "power": power.tolist(), "n_required": int(grid[reach[0]]) if reach else None,
-            "target": target, "alpha": alpha, "unit": unit, "n_sims": n_sims, "seed": seed}
-
-
 def fit_study(df: pd.DataFrame, *, lam: float = 0.05, bootstrap: int = 200,
               seed: int = 0) -> dict:
     """Both models for both faces with their comparison (LOPO-CV included), bootstrap
     intervals (``bootstrap`` resamples; 0 skips them) and the power of the 15-point visual
     drop from the data's real-face FLMP fit. JSON-ready."""
     lam = _check_lam(lam)
-    bootstrap = _check_count("bootstrap", bootstrap, lo=0)
+    bootstrap = check_count("bootstrap", bootstrap, lo=0)
     counts = face_counts(df)
     fits, faces = {}, {}
     for f in FACES:
@@ -560,6 +446,8 @@ def fit_study(df: pd.DataFrame, *, lam: float = 0.05, bootstrap: int = 200,
     if bootstrap:
         out["bootstrap"] = bootstrap_intervals(counts, B=bootstrap, lam=lam, seed=seed,
                                                fits=fits)
+    from analysis.planning import power_visual_drop
+
     try:
         out["power"] = power_visual_drop(0.15, base=fits["real"]["flmp"], seed=seed)
     except ParameterError as err:  # the real face is recognised too rarely for a 15-point drop

@@ -28,8 +28,6 @@ from face_model.errors import ParameterError
 from study.data import COLUMNS
 from study.design import AUDIO, EXPRESSIONS, FACES, N_TRIALS, RESPONSES, SEQUENCES
 
-EMOTION_OF = {"neutral": "neutral", "smile": "happy", "sad": "sad"}
-AUDIO_EMOTION = {"normal": "neutral", "good": "happy", "bad": "sad"}
 FACE_CODE = {"synthetic": "S", "real": "R"}
 RESPONSE_LABEL = {"neutral": "Neutral", "happy": "Happy", "sad": "Sad", "not_sure": "Not sure"}
 TABLE_OF_AUDIO = {"normal": "V", "good": "VI", "bad": "VII"}

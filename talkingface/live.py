@@ -134,8 +134,6 @@ def run_stream(stream, chunks, *, show: bool = False, on_frame=None) -> StreamSt
     flush it; see the module text for the figures."""
     renderer = None
     if show:
-        import cv2
-
         from face_model.render import FaceRenderer
         renderer = FaceRenderer()
     fps, sr = stream.fps, stream.sr

@@ -21,8 +21,8 @@ from talkingface.tracking import mlflow_run
 from face_model.errors import ParameterError
 
 
-def _done(stage_dir: Path) -> dict | None:
-    p = stage_dir / "done.json"
+def _done(stage_dir: Path, name: str = "done.json") -> dict | None:
+    p = stage_dir / name
     return json.loads(p.read_text()) if p.is_file() else None
 
 
@@ -181,19 +181,13 @@ def stage_report(paths: RunPaths, cfg) -> Path:
         from analysis.study_report import study_section
 
         study_section(rep, paths.root / "stimuli", paths.root / "study_data")
-    if (paths.root / "analysis" / "analysis.json").is_file():
+    study = _done(paths.root / "analysis", "analysis.json")
+    if study is not None:
         from analysis.perception_report import perception_section
 
-        perception_section(rep, json.loads((paths.root / "analysis" / "analysis.json")
-                                           .read_text()), paths.root / "analysis")
-    methods_section(rep, cfg, corpus.info, study=_done_json(paths.root / "analysis",
-                                                           "analysis.json"))
+        perception_section(rep, study, paths.root / "analysis")
+    methods_section(rep, cfg, corpus.info, study=study)
     return rep.build(paths.pdf)
-
-
-def _done_json(folder: Path, name: str) -> dict | None:
-    p = folder / name
-    return json.loads(p.read_text()) if p.is_file() else None
 
 
 def methods_section(rep, cfg, corpus_info: dict, *, study: dict | None = None) -> None:

@@ -17,8 +17,6 @@ import json
 import time
 from pathlib import Path
 
-import numpy as np
-
 from talkingface.config import dump_config, to_dict
 
 

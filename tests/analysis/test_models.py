@@ -17,11 +17,13 @@ from analysis.models import (
     fit_study,
     g_squared,
     loglik,
+    predict,
+)
+from analysis.planning import (
     mcnemar_exact,
     model_recovery,
     paper_fits,
     power_visual_drop,
-    predict,
     simulate_counts,
 )
 from analysis.study_data import PAPER_TALLIES, trials_from_tallies

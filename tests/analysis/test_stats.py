@@ -13,10 +13,10 @@ from scipy import stats as sps
 from statsmodels.stats.contingency_tables import SquareTable, Table, mcnemar
 from statsmodels.stats.proportion import proportion_confint
 
-from analysis import stats
-from analysis.study_data import EMOTION_OF, PAPER_TALLIES, trials_from_tallies
+from analysis import crossover, stats
+from analysis.study_data import PAPER_TALLIES, trials_from_tallies
 from face_model.errors import ParameterError
-from study.design import AUDIO, EXPRESSIONS, FACES, RESPONSES
+from study.design import AUDIO, EMOTION_OF, EXPRESSIONS, FACES, RESPONSES
 
 
 @pytest.fixture(scope="module")
@@ -257,7 +257,7 @@ def test_mainland_gart_on_a_hand_made_crossover():
     # RS: 1 better in period 1 (real), 2 ties, 5 better in period 2 (synthetic).
     spec = {"SR": [(9, 5)] * 5 + [(7, 7)] * 2 + [(5, 9)],
             "RS": [(9, 5)] + [(7, 7)] * 2 + [(5, 9)] * 5}
-    r = stats.crossover_tests(_crossover_df(spec))
+    r = crossover.crossover_tests(_crossover_df(spec))
     assert r["table_period"] == [[5, 2, 1], [1, 2, 5]]
     assert r["table_face"] == [[5, 2, 1], [5, 2, 1]]
     assert (r["synthetic_better"], r["ties"], r["real_better"]) == (10, 4, 2)
@@ -273,10 +273,10 @@ def test_mainland_gart_on_a_hand_made_crossover():
 
 def test_crossover_single_cell_is_binary():
     spec = {"SR": [(9, 0), (9, 0), (0, 9)], "RS": [(0, 9), (9, 9), (0, 0)]}
-    r = stats.crossover_tests(_crossover_df(spec), cell=("neutral", "normal"))
+    r = crossover.crossover_tests(_crossover_df(spec), cell=("neutral", "normal"))
     assert r["table_period"] == [[2, 0, 1], [0, 2, 1]]
     with pytest.raises(ParameterError, match="expression"):
-        stats.crossover_tests(_crossover_df(spec), cell=("angry", "normal"))
+        crossover.crossover_tests(_crossover_df(spec), cell=("angry", "normal"))
 
 
 def _prescott_reference(table, scores=(1, 0, -1)):
@@ -296,7 +296,7 @@ def _prescott_reference(table, scores=(1, 0, -1)):
 @pytest.mark.parametrize("table", [[[5, 2, 1], [1, 2, 5]], [[1, 3, 6], [4, 3, 3]],
                                    [[3, 0, 4], [6, 0, 1]], [[2, 5, 3], [2, 5, 3]]])
 def test_prescott_exact_matches_multivariate_hypergeometric(table):
-    r = stats.prescott(table)
+    r = crossover.prescott(table)
     assert r["defined"] and r["p"] == pytest.approx(_prescott_reference(table), abs=1e-12)
     # asymptotic version = statsmodels' linear-by-linear association test, same scores
     ref = Table(np.asarray(table), shift_zeros=False).test_ordinal_association(
@@ -307,7 +307,7 @@ def test_prescott_exact_matches_multivariate_hypergeometric(table):
 
 def test_prescott_without_ties_is_a_hypergeometric_test():
     # no ties: T = x − (7 − x) with x ~ Hypergeom(N=14, K=9 period-1 wins, n=7 SR)
-    r = stats.prescott([[3, 0, 4], [6, 0, 1]])
+    r = crossover.prescott([[3, 0, 4], [6, 0, 1]])
     h = sps.hypergeom(14, 9, 7)
     mean = 7 * 9 / 14
     ref = sum(h.pmf(x) for x in range(0, 8) if abs(x - mean) >= abs(3 - mean) - 1e-9)
@@ -315,7 +315,7 @@ def test_prescott_without_ties_is_a_hypergeometric_test():
 
 
 def test_crossover_on_paper_tallies(paper_df):
-    r = stats.crossover_tests(paper_df)
+    r = crossover.crossover_tests(paper_df)
     assert r["n"] == 20 and r["synthetic_better"] + r["ties"] + r["real_better"] == 20
     for key in ("mainland_gart_face", "mainland_gart_period", "prescott_face",
                 "prescott_period"):

@@ -17,13 +17,6 @@ from talkingface.cli import main
 TINY = ["--set", "synth.n_sentences=4", "--set", "synth.workers=2"]
 
 
-@pytest.fixture
-def workdir(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
-    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'mlflow.db'}")
-    return tmp_path
-
-
 def test_gated_mlp_beats_linear_and_vq_on_held_out_sentences(default_corpus):
     from analysis.evaluation import ranking, run_experiment
     from face_model.motion_units import fit_corpus_units

@@ -15,13 +15,6 @@ TINY = ["--set", "synth.n_sentences=4", "--set", "synth.workers=2"]
 SMALL_TRAIN = ["--set", "mapping.baselines=[linear]", "--set", "mapping.splits=[utterance]"]
 
 
-@pytest.fixture
-def workdir(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
-    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'mlflow.db'}")
-    return tmp_path
-
-
 def test_train_on_tracked_mups(workdir, capsys):
     assert main(["track", "--name", "v", *TINY, *SMALL_TRAIN]) == 0
     out = capsys.readouterr().out
