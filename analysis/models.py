@@ -51,9 +51,9 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 from scipy import optimize, special
-from threadpoolctl import ThreadpoolController
 
 from face_model.errors import ParameterError
+from face_model.numerics import one_blas_thread
 from study.design import AUDIO, EMOTION_OF, EXPRESSIONS, FACES, RESPONSES
 
 MODELS = ("flmp", "wtav")
@@ -66,7 +66,6 @@ TAGS = {"start": 11, "boot": 12, "sim": 13, "recovery": 14, "power": 15}
 _BLOCKS = ("visual", "audio", "bimodal")
 # These problems are tiny: OpenBLAS threads inside L-BFGS-B make a fit ~100x slower on a
 # busy machine, so every optimisation runs with BLAS limited to one thread.
-_BLAS = ThreadpoolController()
 
 
 def seeded_rng(seed, tag: str) -> np.random.Generator:
@@ -331,7 +330,7 @@ def fit_model(model: str, counts, *, lam: float = 0.05, n_starts: int = 3, seed:
         if wtav:
             t[-1] = weights[len(starts) % len(weights)]
         starts.append(t)
-    with _BLAS.limit(limits=1, user_api="blas"):
+    with one_blas_thread():
         runs = [optimize.minimize(_objective, np.clip(t0, -BOUND, BOUND), jac=True,
                                   args=(model, cells, lam), method="L-BFGS-B",
                                   bounds=[(-BOUND, BOUND)] * base.size, options={"maxiter": 5000})

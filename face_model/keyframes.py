@@ -41,6 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
+from face_model import numerics
 from face_model.errors import NotFittedError, ParameterError
 from face_model.motion_units import N_DIM, MotionUnits
 from face_model.phones import BILABIALS, PHONE_INDEX, PHONES, dominance_matrix, viseme
@@ -124,6 +125,7 @@ class KeyframeModel:
         return self.shapes_.T
 
     # -- fitting ---------------------------------------------------------------------------
+    @numerics.single_threaded
     def fit(self, corpus, units: MotionUnits, *, deformations: dict | None = None):
         """Pick the keyframes from ``corpus`` and build K.
 
@@ -217,12 +219,12 @@ class KeyframeModel:
         return chosen
 
     def _set_matrix(self) -> None:
-        s = np.linalg.svd(self.shapes_, compute_uv=False)
+        s = numerics.svd(self.shapes_, compute_uv=False)
         if s[-1] <= 1e-9 * s[0]:
             raise ParameterError("the keyframes are linearly dependent (K has rank < 8); "
                                  "(KᵀK)⁻¹ of Eq. 4 does not exist")
         self.condition_ = float(s[0] / s[-1])
-        self.pinv_ = np.linalg.pinv(self.shapes_.T)
+        self.pinv_ = numerics.pinv(self.shapes_.T)
 
     def _check_fitted(self) -> None:
         if not hasattr(self, "shapes_"):

@@ -19,6 +19,7 @@ import numpy as np
 
 from face_model.errors import NotFittedError, ParameterError
 from face_model.layout import LAYOUT_VERSION, N_MARKERS
+from face_model.numerics import single_threaded, svd
 
 N_DIM = 2 * N_MARKERS
 FORMAT = "talkingface.motion_units/1"
@@ -28,7 +29,7 @@ def _pca(X: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Mean (d,), the first ``n`` axes (n, d) with deterministic signs, and the variance of every
     axis (all eigenvalues, descending)."""
     mean = X.mean(0)
-    _, s, vt = np.linalg.svd(X - mean, full_matrices=False)
+    _, s, vt = svd(X - mean, full_matrices=False)  # one BLAS thread, gesvd if gesdd fails
     # Deterministic signs: the largest-magnitude loading of each axis is positive (svd_flip).
     signs = np.sign(vt[np.arange(len(vt)), np.abs(vt).argmax(1)])
     vt *= signs[:, None]
@@ -71,6 +72,7 @@ class MotionUnits:
         self.n_expression = n_expression
 
     # -- fitting ---------------------------------------------------------------------------
+    @single_threaded
     def fit(self, deformations: dict, metadata: dict | None = None) -> "MotionUnits":
         """Learn the MUs from ``{"neutral": D_0, "smile": D_1, ...}``, each (n_frames, 158)."""
         if "neutral" not in deformations:

@@ -31,6 +31,7 @@ from scipy.optimize import least_squares
 
 from face_model.errors import ParameterError
 from face_model.layout import N_MARKERS, default_layout
+from face_model.numerics import lstsq, one_blas_thread
 
 
 def as_points(x, name: str, shape: tuple, *, stacked: bool | None = None) -> np.ndarray:
@@ -222,11 +223,11 @@ def fit_linear(zeta, units, expression: str = "neutral", *, neutral=None,
     X = _design(base - centre, basis)
     Z = z.reshape(len(z), -1)
     if weights is None:
-        v = np.linalg.lstsq(X, Z.T, rcond=None)[0].T
+        v = lstsq(X, Z.T).T
     else:
         rw = np.sqrt(np.repeat(w, 2, axis=1))
-        v = np.stack([np.linalg.lstsq(X * r[:, None], zz * r, rcond=None)[0]
-                      for r, zz in zip(rw, Z)])
+        with one_blas_thread():
+            v = np.stack([lstsq(X * r[:, None], zz * r) for r, zz in zip(rw, Z)])
     A = _rotation_scale(v[:, 0], v[:, 1])
     t, c = _translation_and_mups(A, z, w, base - centre, basis)
     beta = np.concatenate([A.reshape(-1, 4), t - A @ centre], axis=1)

@@ -27,6 +27,7 @@ from sklearn.linear_model import Ridge
 from sklearn.mixture import GaussianMixture
 
 from face_model.errors import NotFittedError, ParameterError
+from face_model.numerics import single_threaded
 from mapping.features import ContextFeatures
 from mapping.nets import GRUNet, MLP, TDNN, NetRegressor, TrainSettings
 
@@ -42,6 +43,7 @@ class VQRegressor:
     def __init__(self, n_codes: int = 64, seed: int = 0):
         self.n_codes, self.seed = n_codes, seed
 
+    @single_threaded
     def fit(self, X, Y):
         k = int(min(self.n_codes, len(X)))
         self.km_ = KMeans(k, n_init=4, random_state=self.seed).fit(X)
@@ -59,6 +61,7 @@ class GMMRegressor:
     def __init__(self, n_components: int = 8, seed: int = 0):
         self.n_components, self.seed = n_components, seed
 
+    @single_threaded
     def fit(self, X, Y):
         self.d_ = X.shape[1]
         k = int(max(1, min(self.n_components, len(X) // (4 * (X.shape[1] + Y.shape[1])))))

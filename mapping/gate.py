@@ -18,6 +18,7 @@ import numpy as np
 from sklearn.mixture import GaussianMixture
 
 from face_model.errors import NotFittedError, ParameterError
+from face_model.numerics import single_threaded
 from face_model.phones import PHONES, viseme
 
 N_CLASS_CHOICES = (1, 8, 44)
@@ -87,6 +88,7 @@ class PhoneGate:
         self.covariance_type = covariance_type
         self.random_state = random_state
 
+    @single_threaded
     def fit(self, X: np.ndarray, y: np.ndarray, classes) -> "PhoneGate":
         """Fit one mixture per entry of ``classes`` on the rows of ``X`` labelled with it.
 

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from face_model.errors import NotFittedError, ParameterError
+from face_model.numerics import single_threaded
 from study.design import AUDIO, EXPRESSIONS, FACES, stimulus_id
 
 
@@ -56,6 +57,7 @@ class ExpressionClassifier:
 
         return flatten(align_markers(markers) - neutral[None])
 
+    @single_threaded
     def fit(self, corpus, *, seed: int) -> "ExpressionClassifier":
         """Train on every utterance of ``corpus`` (a loaded :class:`face_model.corpus.Corpus`)."""
         from sklearn.decomposition import PCA
