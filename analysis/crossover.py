@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from analysis.stats import check_frame, correct
+from analysis.scoring import check_frame, correct
 from face_model.errors import ParameterError
 from study.design import AUDIO, EXPRESSIONS, SEQUENCES
 

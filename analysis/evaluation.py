@@ -1,5 +1,7 @@
 """The mapping's evaluation exactly as §VII-A, over methods and splits (Tables I and II).
 
+The methods are trained by :mod:`mapping.experiment`; this module only measures them.
+
 For every utterance, the true MUPs (the tracked MUP sequence) and the estimated MUPs are both
 turned back into marker displacements with the Motion Units (Eq. 2). Each displacement value is
 divided by the maximum absolute ground-truth displacement of that marker coordinate over the whole
@@ -8,16 +10,14 @@ on the training frames (Table I) and on the test frames (Table II) of a split.
 """
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from analysis.metrics import METRIC_NAMES, PAPER_TABLES, normalization_scale, paper_metrics
+from face_model.corpus import EXPRESSIONS
 from face_model.errors import ParameterError
-from mapping import make_mapper
-from mapping.dataset import split_masks
-from mapping.gate import confusion
+from mapping.experiment import TrainedMethod
 
 PARTS = ("train", "test")
 
@@ -59,78 +59,30 @@ def evaluate_predictions(data: list, masks: list, predictions: list, units,
 
 
 def _expr_order(e: str) -> tuple:
-    order = ("neutral", "smile", "sad")
-    return (order.index(e) if e in order else len(order), e)
-
-
-def gate_accuracy(mapper, data: list, masks: list) -> dict:
-    """Frame accuracy of the gate (after the small-class rule) on neutral training and test
-    frames and on all test frames, with the confusion matrix of the neutral test frames."""
-    n = len(mapper.class_names_)
-    hits = {f"{s}_{p}": [0, 0] for p in PARTS for s in ("neutral", "all")}
-    conf = np.zeros((n, n), int)
-    for d, m in zip(data, masks):
-        pred = mapper.gate_classes(d.features)  # once per utterance, both parts
-        true = mapper.group_of_phone_[d.phones]
-        for part, sel in (("train", m), ("test", ~m)):
-            scopes = ("neutral", "all") if d.expression == "neutral" else ("all",)
-            for scope in scopes:
-                hits[f"{scope}_{part}"][0] += int((pred[sel] == true[sel]).sum())
-                hits[f"{scope}_{part}"][1] += int(sel.sum())
-            if part == "test" and d.expression == "neutral":
-                conf += confusion(true[sel], pred[sel], n)
-    out = {k: h / t if t else float("nan") for k, (h, t) in hits.items()}
-    out["confusion"] = conf
-    out["class_names"] = list(mapper.class_names_)
-    out["merges"] = dict(mapper.merges_)
-    return out
+    return (EXPRESSIONS.index(e) if e in EXPRESSIONS else len(EXPRESSIONS), e)
 
 
 @dataclass
 class MethodResult:
+    """One trained method × split with its Tables I–II figures: ``tables[expression][part]`` is
+    a :class:`analysis.metrics.PaperMetrics`; ``trained`` holds the mapper, its predictions, the
+    split's masks and the gate diagnostics (:class:`mapping.experiment.TrainedMethod`)."""
+
     method: str
     split: str
-    tables: dict  # expression → part → PaperMetrics
     fit_seconds: float
     reference: str
-    mapper: object = field(repr=False, default=None)
-    predictions: list = field(repr=False, default_factory=list)
-    gate: dict | None = None
-    masks: list = field(repr=False, default_factory=list)
+    tables: dict
+    trained: TrainedMethod = field(repr=False)
 
 
-def run_method(method: str, data: list, masks: list, units, mcfg, *, split: str, seed: int,
-               scale: np.ndarray) -> MethodResult:
-    """Train one method on a split's training frames and evaluate both parts."""
-    mapper = make_mapper(method, mcfg, n_utterance=units.n_utterance, seed=seed)
-    t0 = time.perf_counter()
-    mapper.fit(data, masks)
-    seconds = time.perf_counter() - t0
-    preds = [mapper.predict(d.features, d.expression) for d in data]
-    tables = evaluate_predictions(data, masks, preds, units, scale)
-    gate = gate_accuracy(mapper, data, masks) if hasattr(mapper, "gate_") else None
-    return MethodResult(method, split, tables, seconds, mapper.reference, mapper, preds, gate,
-                        masks)
-
-
-def run_experiment(data: list, units, mcfg, *, seed: int, methods=None, splits=None,
-                   progress: bool = False) -> list[MethodResult]:
-    """Every method × split; the split of a given seed is the same for every method."""
-    methods = list(methods or [mcfg.method, *[b for b in mcfg.baselines if b != mcfg.method]])
-    splits = list(splits or mcfg.splits)
+def evaluate_experiment(trained: list, data: list, units) -> list[MethodResult]:
+    """The paper's metrics of every trained method × split, each value normalised by the
+    database's maximum displacement of its marker coordinate (:func:`database_scale`)."""
     scale = database_scale(data, units)
-    jobs = [(s, m) for s in splits for m in methods]
-    try:
-        from tqdm import tqdm
-        it = tqdm(jobs, desc="training", unit="model", disable=not progress)
-    except ImportError:  # pragma: no cover - tqdm is a dependency
-        it = jobs
-    out = []
-    for split, method in it:
-        masks = split_masks(data, split, train_fraction=mcfg.train_fraction, seed=seed + 17)
-        out.append(run_method(method, data, masks, units, mcfg, split=split, seed=seed,
-                              scale=scale))
-    return out
+    return [MethodResult(t.method, t.split, t.fit_seconds, t.reference,
+                         evaluate_predictions(data, t.masks, t.predictions, units, scale), t)
+            for t in trained]
 
 
 def table_rows(results: list[MethodResult]) -> list[dict]:

@@ -1,6 +1,7 @@
 """Report figures, one function per figure; each takes arrays and writes one PNG.
 
-Faces are drawn in image coordinates (y down), so every face plot inverts its y axis.
+Faces are drawn in image coordinates (y down), so every face plot inverts its y axis. Grids of
+rendered faces are drawn by :func:`face_model.render.face_grid`.
 """
 from __future__ import annotations
 
@@ -190,21 +191,6 @@ def confusion_matrix(counts: np.ndarray, names: list, path, *, title: str = "") 
     if title:
         ax.set_title(title, fontsize=9)
     fig.colorbar(im, ax=ax, shrink=0.7, label="fraction of the true class's frames")
-    return _save(fig, path)
-
-
-def face_grid(images: list, titles: list, path, *, ncols: int = 5) -> Path:
-    """Rendered faces (RGB arrays) in a grid with a title under each (Figs. 4, 6, 7 style)."""
-    n = len(images)
-    nrows = int(np.ceil(n / ncols))
-    h, w = images[0].shape[:2]
-    fig, axes = plt.subplots(nrows, ncols, figsize=(1.9 * ncols, 1.9 * nrows * h / w + 0.3),
-                             squeeze=False, layout="constrained")
-    for ax in axes.ravel():
-        ax.axis("off")
-    for ax, img, title in zip(axes.ravel(), images, titles):
-        ax.imshow(img)
-        ax.set_title(title, fontsize=8, y=-0.12)
     return _save(fig, path)
 
 

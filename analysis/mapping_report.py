@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from analysis.metrics import PAPER_TABLES
+from analysis.report import escape
 
 _TABLE_NAME = {"train": "TABLE I", "test": "TABLE II"}
 _PART_NAME = {"train": "training set", "test": "testing set"}
@@ -113,7 +114,7 @@ def mapping_section(report, summary: dict, mapping_dir: Path, ablations_csv: Pat
     for split, rk in summary["ranking"].items():
         report.table(f"Methods ranked by mean test R ({split} split)",
                      ["rank", "method", "related work", "R", "MSE", "fit (s)"],
-                     [[x["rank"], x["method"], x["reference"].replace("&", "&amp;"), _f(x["R"]),
+                     [[x["rank"], x["method"], escape(x["reference"]), _f(x["R"]),
                        _f(x["MSE"], 4), f"{x['fit_seconds']:.1f}"] for x in rk],
                      note="Mean over expressions of the test-set figures. Baselines are trained "
                           "per expression on the same frames and evaluated the same way.")

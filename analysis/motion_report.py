@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from analysis.report import escape
+
 
 def motion_section(report, keyframes_dir: Path, render_dir: Path | None,
                    tracking_dir: Path | None = None) -> None:
@@ -29,7 +31,7 @@ def motion_section(report, keyframes_dir: Path, render_dir: Path | None,
                   "drawn on the neutral face.", width=0.8)
     if render_dir is not None and (render_dir / "done.json").is_file():
         r = json.loads((render_dir / "done.json").read_text())
-        text = r["text"].replace("&", "&amp;")
+        text = escape(r["text"])
         report.figure(render_dir / r["fig6"], f"Fig. 6 style: a held-out sentence animated from "
                       f"its audio alone by the trained mapping ({r['utterance']}: \"{text}\"), "
                       "ten frames with the phone under way.", width=0.95)

@@ -5,6 +5,7 @@ simulated participants from a replication or a real study's data alone
 from __future__ import annotations
 
 import json
+from dataclasses import asdict
 from pathlib import Path
 
 import matplotlib
@@ -12,12 +13,17 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from statsmodels.stats.proportion import proportion_confint  # noqa: E402
 
-from analysis.models import face_counts, fit_study  # noqa: E402
+from analysis.perception_models import face_counts  # noqa: E402
+from analysis.perception_stats_report import models_section, stats_section  # noqa: E402
+from analysis.planning import fit_study  # noqa: E402
+from analysis.report import escape  # noqa: E402
 from analysis.stats import summary as stats_summary  # noqa: E402
 from analysis.study_data import (  # noqa: E402
     PAPER_TALLIES,
     RESPONSE_LABEL,
+    Tally,
     load_study_data,
     tallies,
 )
@@ -46,8 +52,6 @@ def tally_rows(t, paper: np.ndarray | None) -> tuple[list, list]:
 
 def tally_figure(tabs: dict, path: Path) -> Path:
     """Proportions of each response with Wilson 95 % intervals, synthetic vs real."""
-    from statsmodels.stats.proportion import proportion_confint
-
     fig, axes = plt.subplots(1, 4, figsize=(13, 3.4), sharey=True)
     colors = {"neutral": "#8c8c8c", "happy": "#e0a030", "sad": "#3b6fb6", "not_sure": "#c04040"}
     for ax, name in zip(axes, ("III", "V", "VI", "VII")):
@@ -114,16 +118,12 @@ def _json(v):
     if isinstance(v, (np.bool_,)):
         return bool(v)
     if hasattr(v, "__dataclass_fields__"):
-        from dataclasses import asdict
-
         return asdict(v)
     return str(v)
 
 
 def perception_section(report, summary: dict, out_dir: Path) -> None:
     """Tables III–VII (ours beside the paper's), the tally figure, statistics and models."""
-    from analysis.study_data import Tally
-
     n, seqs = summary["participants"], summary["sequences"]
     who = ("simulated participants (FLMP observers, study/simulate.py)" if summary["simulated"]
            else "participants (real)" if not summary["any_simulated"]
@@ -133,7 +133,7 @@ def perception_section(report, summary: dict, out_dir: Path) -> None:
         f"{n} {who}: {seqs['SR']} saw the synthetic face first in the bimodal blocks (SR), "
         f"{seqs['RS']} the real face first (RS). Each cell below is our count and, in "
         "parentheses, the paper's count of its 20 subjects. S: synthetic face; R: real face. "
-        "Data: " + summary["study_dir"].replace("&", "&amp;") + ".")
+        "Data: " + escape(summary["study_dir"]) + ".")
     for k in ("III", "IV", "V", "VI", "VII"):
         t = summary["tallies"][k]
         tally = Tally(k, TITLES[k], tuple(t["rows"]),
@@ -146,10 +146,6 @@ def perception_section(report, summary: dict, out_dir: Path) -> None:
                   "intervals: visual-only (Table III) and bimodal with audio tracks 1–3 "
                   "(Tables V–VII); each expression for the synthetic (S) and real (R) face.")
     if "stats" in summary:
-        from analysis.perception_stats_report import stats_section
-
         stats_section(report, summary["stats"])
     if "models" in summary:
-        from analysis.perception_stats_report import models_section
-
         models_section(report, summary["models"], out_dir)

@@ -1,5 +1,5 @@
 """Statistics and model fits of the perception study, as report text, tables and a figure
-(from the dicts of :func:`analysis.stats.summary` and :func:`analysis.models.fit_study`)."""
+(from the dicts of :func:`analysis.stats.summary` and :func:`analysis.planning.fit_study`)."""
 from __future__ import annotations
 
 from pathlib import Path

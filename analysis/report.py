@@ -2,15 +2,24 @@
 
 The builder only lays out what it is given; every number comes from a stage's saved results.
 Tables are reportlab ``Table`` flowables, so their text is real, searchable PDF text.
+
+Every text the builder takes — titles, headings, paragraphs, captions, notes, table headers and
+cells — is reportlab paragraph markup, so a caller passes data through :func:`escape` (``&``,
+``<``, ``>``) and writes a literal ampersand as ``&amp;``. reportlab draws the string of a table
+cell as it is, without parsing it, so :meth:`Report.table` turns the entities of headers and
+cells back into characters; tags (``<b>``) are not supported there.
 """
 from __future__ import annotations
 
 from pathlib import Path
+from xml.sax.saxutils import escape as _xml_escape
+from xml.sax.saxutils import unescape as _xml_unescape
 
 from reportlab.lib import colors
 from reportlab.lib.pagesizes import A4
 from reportlab.lib.styles import getSampleStyleSheet
 from reportlab.lib.units import cm
+from reportlab.lib.utils import ImageReader
 from reportlab.platypus import (
     Image,
     KeepTogether,
@@ -24,6 +33,17 @@ from reportlab.platypus import (
 
 _STYLES = getSampleStyleSheet()
 _WIDTH = A4[0] - 4 * cm
+_ENTITIES = {"&quot;": '"', "&#39;": "'", "&apos;": "'"}  # beyond &amp; &lt; &gt;
+
+
+def escape(text) -> str:
+    """``text`` as markup that prints it verbatim: ``&``, ``<`` and ``>`` escaped."""
+    return _xml_escape(str(text))
+
+
+def _cell(markup) -> str:
+    """The characters a table cell's markup stands for (its entities decoded)."""
+    return _xml_unescape(str(markup), _ENTITIES)
 
 
 class Report:
@@ -44,8 +64,12 @@ class Report:
 
     def table(self, caption: str, header: list, rows: list, *, note: str = "",
               col_widths: list | None = None) -> None:
-        """A captioned table; ``rows`` hold strings or numbers (formatted by the caller)."""
-        data = [header] + [[str(c) for c in r] for r in rows]
+        """A captioned table; ``rows`` hold markup strings or numbers (formatted by the caller).
+
+        reportlab draws a cell's string without parsing it, so the entities are decoded here:
+        ``&amp;`` prints as ``&``, as it does in a paragraph.
+        """
+        data = [[_cell(c) for c in header]] + [[_cell(c) for c in r] for r in rows]
         t = Table(data, colWidths=col_widths, hAlign="LEFT", repeatRows=1)
         t.setStyle(TableStyle([
             ("FONT", (0, 0), (-1, 0), "Helvetica-Bold", 8.5),
@@ -64,8 +88,6 @@ class Report:
 
     def figure(self, path, caption: str, *, width: float = 1.0) -> None:
         """A PNG scaled to ``width`` × the text width, with its caption underneath."""
-        from reportlab.lib.utils import ImageReader
-
         w, h = ImageReader(str(path)).getSize()
         draw_w = _WIDTH * width
         img = Image(str(path), width=draw_w, height=draw_w * h / w)

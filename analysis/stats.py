@@ -4,9 +4,9 @@ Every function takes the validated judgments of :func:`analysis.study_data.load_
 counts) and returns numbers in plain dicts or dataclasses; labels and ``method``/``reason``
 strings only say which test produced a number.
 
-Scoring. A response is *correct* (:func:`correct`) when it equals the emotion of the face's
-expression (``EMOTION_OF``) in visual-only and bimodal trials — "face-consistent" — and the
-sentence's emotion (``AUDIO_EMOTION``) in audio-only trials. "Not sure" is never correct.
+Scoring (:func:`analysis.scoring.correct`). A response is *correct* when it equals the emotion of
+the face's expression (``EMOTION_OF``) in visual-only and bimodal trials — "face-consistent" —
+and the sentence's emotion (``AUDIO_EMOTION``) in audio-only trials. "Not sure" is never correct.
 
 Synthetic vs real is a within-participant comparison (every participant judges both faces), so
 the cell tests are paired (:func:`paired_cells`): exact and mid-p McNemar on correct-vs-not,
@@ -36,6 +36,8 @@ from statsmodels.stats.proportion import proportion_confint
 from statsmodels.tools.sm_exceptions import (ConvergenceWarning, PerfectSeparationError,
                                              PerfectSeparationWarning)
 
+from analysis.crossover import crossover_tests
+from analysis.scoring import check_frame, correct
 from face_model.errors import ParameterError
 from study.design import (
     AUDIO,
@@ -48,11 +50,6 @@ from study.design import (
 )
 
 CHANCE_AUDIO = 1 / 3  # three emotions; "not sure" is scored as not correct
-NEEDED = ("participant_id", "sequence", "block", "period", "face", "expression", "audio",
-          "response")
-_CODES = {"block": ("visual", "audio", "bimodal"), "face": (*FACES, "none"),
-          "expression": (*EXPRESSIONS, "none"), "audio": (*AUDIO, "none"),
-          "response": RESPONSES, "sequence": SEQUENCES}
 _MAX_ABS_COEF = 10.0  # |log-odds| beyond this in a GEE fit signals (quasi-)separation
 CELLS = ([("visual", e, "none") for e in EXPRESSIONS]
          + [("bimodal", e, a) for a in AUDIO for e in EXPRESSIONS])  # the paired comparisons
@@ -69,30 +66,6 @@ def wilson(k, n, alpha=0.05) -> tuple[float, float]:
         return (math.nan, math.nan)
     lo, hi = proportion_confint(k, n, alpha=alpha, method="wilson")
     return (float(lo), float(hi))
-
-
-def check_frame(df: pd.DataFrame) -> pd.DataFrame:
-    """Refuse a table without the needed columns or with an unknown code (naming both)."""
-    missing = [c for c in NEEDED if c not in df.columns]
-    if missing:
-        raise ParameterError(f"study data lack columns {missing}; needed: {', '.join(NEEDED)}")
-    for col, allowed in _CODES.items():
-        bad = sorted(set(df[col].astype(str)) - set(allowed))
-        if bad:
-            raise ParameterError(f"column {col} has unknown codes {bad}; allowed: "
-                                 f"{', '.join(allowed)}")
-    seqs = df.groupby("participant_id")["sequence"].nunique()
-    if (seqs > 1).any():
-        raise ParameterError(f"participant {seqs[seqs > 1].index[0]!r} has two sequences")
-    return df
-
-
-def correct(df: pd.DataFrame) -> pd.Series:
-    """Boolean per judgment: face-consistent (visual, bimodal) or sentence-consistent (audio)."""
-    check_frame(df)
-    target = np.where(df["block"] == "audio", df["audio"].map(AUDIO_EMOTION),
-                      df["expression"].map(EMOTION_OF))
-    return pd.Series(df["response"].to_numpy() == target, index=df.index, name="correct")
 
 
 def _pairs(df, block, expression, audio) -> pd.DataFrame:
@@ -277,7 +250,7 @@ def audio_vs_chance(df: pd.DataFrame, *, alternative="two-sided", alpha=0.05) ->
 
 @dataclass
 class GeeResult:
-    """A GEE fit, or ``estimable=False`` with the ``reason`` (and no numbers)."""
+    """A GEE fit, or ``estimable=False`` with the ``reason`` in words (and no numbers)."""
 
     estimable: bool
     reason: str = ""
@@ -286,6 +259,25 @@ class GeeResult:
     n_clusters: int = 0
     coefficients: dict = field(default_factory=dict)  # name -> estimate, se, lo, hi, p
     face_wald: dict = field(default_factory=dict)  # chi2, df, p over every face term
+
+
+def _cell_name(factors: list, key) -> str:
+    """'real face, smile expression, sequence RS' for one cell of a groupby over factors."""
+    words = {"face": "{} face", "expression": "{} expression", "sequence": "sequence {}"}
+    values = key if isinstance(key, tuple) else (key,)
+    return ", ".join(words[f].format(v) for f, v in zip(factors, values))
+
+
+def _separation_reason(factors: list, rate: pd.Series, n_cells: int) -> str:
+    """The separated cells (face-consistent rate 0 or 1) of a GEE design, in words."""
+    cells = " × ".join(factors) + (" cells" if len(factors) > 1 else " levels")
+    parts = []
+    for value, word in ((1, "all"), (0, "none")):
+        names = [_cell_name(factors, k) for k in rate.index[rate == value]]
+        if names:
+            where = f"{len(names)} of the {n_cells} {cells}" if not parts else len(names)
+            parts.append(f"{word} face-consistent in {where} ({'; '.join(names)})")
+    return "separation: the bimodal responses were " + ", and ".join(parts)
 
 
 def gee_face_model(df: pd.DataFrame, *, interactions=True, working="exchangeable",
@@ -314,15 +306,15 @@ def gee_face_model(df: pd.DataFrame, *, interactions=True, working="exchangeable
         bim[name] = pd.Categorical(bim[name], categories=levels)
         absent = [v for v in levels if not (bim[name] == v).any()]
         if absent:
-            return GeeResult(False, f"no bimodal trials with {name} {absent}", formula)
+            return GeeResult(False, f"no bimodal trials with {name} {' or '.join(absent)}",
+                             formula)
     groups = [list(factors)] if interactions else [[f] for f in factors]
     for g in groups:
         rate = bim.groupby(g, observed=True)["correct"].mean()
         sep = rate[(rate == 0) | (rate == 1)]
         if len(sep):
-            cells = [dict(zip(g, k if isinstance(k, tuple) else (k,))) for k in sep.index]
-            return GeeResult(False, f"separation: responses all correct or all not in {cells}",
-                             formula)
+            n_cells = int(np.prod([len(factors[f]) for f in g]))
+            return GeeResult(False, _separation_reason(g, sep, n_cells), formula)
     model = smf.gee(formula, groups="participant_id", data=bim, family=sm.families.Binomial(),
                     cov_struct=structs[working]())
     try:
@@ -445,10 +437,9 @@ def unbiased_hit_rates(counts, stimuli=EXPRESSIONS, responses=RESPONSES, target=
 
 
 def summary(df: pd.DataFrame, seed: int) -> dict:
-    """Everything above for a report. ``seed`` reaches the permutation tests; with complete
-    study data every test is exact, so it changes nothing unless the Monte Carlo fallback runs."""
-    from analysis.crossover import crossover_tests
-
+    """Everything above for a report, with the crossover tests of :mod:`analysis.crossover`.
+    ``seed`` reaches the permutation tests; with complete study data every test is exact, so it
+    changes nothing unless the Monte Carlo fallback runs."""
     check_frame(df)
     hu = {"visual": {f: m.hit_rates() for f, m in confusion_matrices(df, "visual").items()},
           "bimodal": {f: m.hit_rates() for f, m in confusion_matrices(df, "bimodal").items()}}

@@ -15,8 +15,8 @@ from _common import parse_args, report
 from data_synth.generate import synthesize_corpus
 from face_model.corpus import load_corpus
 from face_model.motion_units import fit_corpus_units
-from mapping import GatedMLP, build_dataset, split_masks
-from mapping.model import AudioMapping
+from mapping import build_dataset, make_mapper, split_masks
+from mapping.checkpoint import AudioMapping, rest_mups
 from talkingface.config import Config
 
 
@@ -33,10 +33,12 @@ def main() -> None:
         t0 = time.perf_counter()
         data = build_dataset(corpus, units, n_mfcc=m.n_mfcc, deltas=m.deltas)
         masks = split_masks(data, "random_frames", train_fraction=m.train_fraction, seed=cfg.seed)
-        mapper = GatedMLP(m, n_utterance=units.n_utterance, seed=cfg.seed).fit(data, masks)
+        mapper = make_mapper("gated_mlp", m, n_utterance=units.n_utterance,
+                             random_state=cfg.seed).fit(data, masks)
         train_times.append(time.perf_counter() - t0)
         model = AudioMapping(mapper, sample_rate=corpus.utterances[0].sample_rate,
-                             n_mfcc=m.n_mfcc, deltas=m.deltas, n_utterance=units.n_utterance)
+                             n_mfcc=m.n_mfcc, deltas=m.deltas, n_utterance=units.n_utterance,
+                             rest_mups=rest_mups(units))
         t0 = time.perf_counter()
         for u in corpus.utterances:
             model.predict_audio(u.audio, u.sample_rate, u.expression)

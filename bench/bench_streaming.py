@@ -23,9 +23,9 @@ from data_synth.generate import synthesize_corpus  # noqa: E402
 from face_model.corpus import load_corpus  # noqa: E402
 from face_model.motion_units import fit_corpus_units  # noqa: E402
 from face_model.render import FaceRenderer  # noqa: E402
-from mapping import GatedMLP, build_dataset, split_masks  # noqa: E402
+from mapping import build_dataset, make_mapper, split_masks  # noqa: E402
 from mapping.animator import FaceAnimator, StreamingAnimator  # noqa: E402
-from mapping.model import AudioMapping  # noqa: E402
+from mapping.checkpoint import AudioMapping, rest_mups  # noqa: E402
 from talkingface.config import Config  # noqa: E402
 
 
@@ -41,9 +41,11 @@ def main() -> None:
         units, _ = fit_corpus_units(corpus)
         data = build_dataset(corpus, units)
         masks = split_masks(data, "utterance", seed=cfg.seed)
-        mapper = GatedMLP(cfg.mapping, n_utterance=7, seed=cfg.seed).fit(data, masks)
+        mapper = make_mapper("gated_mlp", cfg.mapping, n_utterance=units.n_utterance,
+                             random_state=cfg.seed).fit(data, masks)
         sr = corpus.utterances[0].sample_rate
-        anim = FaceAnimator(AudioMapping(mapper, sample_rate=sr), units)
+        anim = FaceAnimator(AudioMapping(mapper, sample_rate=sr, n_utterance=units.n_utterance,
+                                         rest_mups=rest_mups(units)), units)
         test = [u for u, m in zip(corpus.utterances, masks) if not m.any()][:20]
         per_frame = []
         for _ in range(args.repeat):

@@ -13,7 +13,9 @@ from __future__ import annotations
 import ctypes
 import multiprocessing as mp
 import os
+from importlib import metadata
 
+import espeakng_loader
 import numpy as np
 
 from data_synth.speech import RawPhone, SpeechBackend, SynthRequest, SynthResult
@@ -83,8 +85,6 @@ def _initialise() -> int:
     global _LIB, _SR
     if _LIB is not None:
         return _SR
-    import espeakng_loader
-
     lib = ctypes.CDLL(espeakng_loader.get_library_path())
     lib.espeak_Initialize.restype = ctypes.c_int
     lib.espeak_Initialize.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_char_p, ctypes.c_int]
@@ -135,9 +135,7 @@ class EspeakBackend(SpeechBackend):
         self.sample_rate = _initialise()
 
     def version(self) -> str:
-        import espeakng_loader
-
-        return f"espeak-ng (espeakng-loader {_package_version('espeakng-loader')}, " \
+        return f"espeak-ng (espeakng-loader {metadata.version('espeakng-loader')}, " \
                f"{os.path.basename(espeakng_loader.get_library_path())})"
 
     def synthesize_many(self, requests, *, workers, progress=None):
@@ -149,9 +147,3 @@ class EspeakBackend(SpeechBackend):
                 if progress is not None:
                     progress(1)
         return results
-
-
-def _package_version(name: str) -> str:
-    from importlib.metadata import version
-
-    return version(name)

@@ -21,9 +21,10 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from data_synth.articulation import coarticulate
+from data_synth.backends import get_backend
 from data_synth.face import Speaker, articulate, expression_envelope, make_speaker
 from data_synth.nuisance import add_marker_noise, apply_head_motion, brow_track, head_motion
-from data_synth.speech import SynthRequest, get_backend, phone_segments
+from data_synth.speech import SynthRequest, phone_segments
 from data_synth.text import select_sentences
 from face_model.corpus import EXPRESSIONS, FPS, write_manifest, write_utterance
 from face_model.errors import ParameterError

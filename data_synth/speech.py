@@ -3,12 +3,11 @@
 A backend synthesises a batch of :class:`SynthRequest` and reports each phone with the sample
 at which it starts. :func:`phone_segments` turns those events into contiguous
 ``(start_s, end_s, phone)`` segments in the 44-class set, with the silence padding the corpus adds
-around every utterance. espeak-ng (from a wheel) is always available; Debian's flite is used when
-installed (``backend: flite``).
+around every utterance. The backends (espeak-ng from a wheel, always available; Debian's flite
+when installed) live in their own modules and are looked up by name in :mod:`data_synth.backends`.
 """
 from __future__ import annotations
 
-import shutil
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
@@ -103,19 +102,3 @@ def phone_segments(result: SynthResult, backend: SpeechBackend, *, text: str,
         elif e > s:
             merged.append([s, e, p])
     return [PhoneSegment(s / sr, e / sr, p) for s, e, p in merged]
-
-
-def get_backend(name: str) -> SpeechBackend:
-    """``espeak`` (always available) or ``flite`` (needs Debian's ``flite`` on PATH)."""
-    if name in ("espeak", "espeak-ng"):
-        from data_synth.espeak import EspeakBackend
-
-        return EspeakBackend()
-    if name == "flite":
-        if shutil.which("flite") is None:
-            raise ParameterError("synth.backend 'flite' needs the flite program "
-                                 "(apt-get install flite); allowed: espeak, flite")
-        from data_synth.flite import FliteBackend
-
-        return FliteBackend()
-    raise ParameterError(f"synth.backend {name!r} is unknown; allowed: espeak, flite")

@@ -20,14 +20,20 @@ import json
 import multiprocessing as mp
 import os
 import shutil
+import time
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 
+import cv2
 import numpy as np
 from tqdm.auto import tqdm
 
 from data_synth.video import INITS, VideoDifficulty, first_frame_markers, render_marker_video
+from face_model.alignment import speaker_neutrals
+from face_model.corpus import corpus_hash, write_manifest
 from face_model.errors import ParameterError
+from face_model.tracker import MUTracker
 
 
 @dataclass(frozen=True)
@@ -46,8 +52,6 @@ class TrackedUtterance:
 def track_utterance(utt, units, neutral, *, noise_sd: float = 10.0, init: str = "image",
                     seed: int = 0, tracker=None) -> TrackedUtterance:
     """Render one corpus utterance as marker video and track it (see the module text)."""
-    from face_model.tracker import MUTracker
-
     tracker = MUTracker() if tracker is None else tracker
     frames, mapping = render_marker_video(utt.markers, seed=seed,
                                           difficulty=VideoDifficulty(noise_sd=float(noise_sd)))
@@ -64,15 +68,11 @@ _WORKER: dict = {}
 
 
 def _init_worker(units, neutrals, noise_sd: float, init: str) -> None:
-    import cv2
-
     cv2.setNumThreads(1)  # one core per process: the pool gives the parallelism
     _WORKER.update(units=units, neutrals=neutrals, noise_sd=noise_sd, init=init)
 
 
 def _track_one(job) -> TrackedUtterance:
-    from types import SimpleNamespace
-
     utt_id, speaker, expression, markers, seed = job
     w = _WORKER
     u = SimpleNamespace(utt_id=utt_id, speaker=speaker, expression=expression, markers=markers)
@@ -107,11 +107,6 @@ def track_corpus(corpus, units, out_dir, *, noise_sd: float = 10.0, init: str = 
     dict
         Summary: utterances, frames, mean and 95th-percentile marker error (pixels), seconds.
     """
-    import time
-
-    from face_model.alignment import speaker_neutrals
-    from face_model.corpus import corpus_hash, write_manifest
-
     if init not in INITS:
         raise ParameterError(f"init {init!r}; allowed: {', '.join(INITS)}")
     if not (np.isfinite(noise_sd) and noise_sd >= 0):

@@ -28,12 +28,13 @@ not import ``data_synth``).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
 
 from face_model.alignment import similarity_params
+from face_model.detect import initial_markers_from_image
 from face_model.errors import ParameterError
 from face_model.layout import (
     LEFT_INNER_CORNER,
@@ -47,6 +48,7 @@ from face_model.layout import (
     UPPER_OUTER,
     default_layout,
 )
+from face_model.tracker import MUTracker, init_from_mouth_corners, track_points_lk
 
 FPS = 30
 DEFAULT_SIZE = (320, 320)  # width, height in pixels
@@ -316,9 +318,6 @@ def first_frame_markers(frame, truth, units, expression: str, neutral, init: str
     """The tracker's starting markers (79, 2, image pixels) on the first ``frame``: the true
     ones (``truth``), the neutral face placed by the true mouth corners, or the markers found in
     the image (see :func:`tracking_error_curve`)."""
-    from face_model.detect import initial_markers_from_image
-    from face_model.tracker import init_from_mouth_corners
-
     if init == "markers":
         return np.asarray(truth, dtype=np.float64)
     if init == "corners":
@@ -386,10 +385,6 @@ def tracking_error_curve(utterances, units, *, neutrals, noise_levels=(0.0, 10.0
     -------
     TrackingErrorCurve
     """
-    from dataclasses import replace
-
-    from face_model.tracker import MUTracker, track_points_lk
-
     tracker = MUTracker() if tracker is None else tracker
     base = VideoDifficulty() if difficulty is None else difficulty
     levels = np.asarray(noise_levels, dtype=np.float64)

@@ -36,6 +36,7 @@ from scipy.spatial import cKDTree
 from face_model.errors import ParameterError
 from face_model.layout import LEFT_OUTER_CORNER, N_MARKERS, RIGHT_OUTER_CORNER
 from face_model.mu_fit import as_points, fit_linear
+from face_model.tracker import init_from_mouth_corners
 
 __all__ = ["dot_response", "detect_marker_dots", "register_layout", "find_mouth_corners",
            "initial_markers_from_image", "DotResponse", "LayoutMatch"]
@@ -275,8 +276,6 @@ def initial_markers_from_image(image, units, expression: str = "neutral", *, neu
         then a marker whose own peak lies within ``snap_px`` of the fit starts on the peak.
     detect : ``min_contrast``, ``z`` of :meth:`DotResponse.dots` (the registration's dots).
     """
-    from face_model.tracker import init_from_mouth_corners
-
     s0 = as_points(neutral, "neutral", (N_MARKERS, 2), stacked=False)
     resp = dot_response(image)
     left, right = find_mouth_corners(image, s0, response=resp, **detect)

@@ -42,15 +42,16 @@ from pathlib import Path
 import numpy as np
 
 from face_model import numerics
+from face_model.alignment import corpus_deformations
 from face_model.errors import NotFittedError, ParameterError
 from face_model.motion_units import N_DIM, MotionUnits
 from face_model.phones import BILABIALS, PHONE_INDEX, PHONES, dominance_matrix, viseme
 
 KEYFRAMES = ("smile", "sad", "i", "a", "o", "f", "u", "m")
 EXPRESSION_KEYFRAMES, VISEME_KEYFRAMES = KEYFRAMES[:2], KEYFRAMES[2:]
-MODEL_FORMAT = "talkingface.keyframes/1"
+MODEL_FORMAT = "talkingface.keyframes/2"
 TRACKS_FORMAT, TRACKS_VERSION = "talkingface.keyframe_tracks", 1
-_MU_ARRAYS = ("mean", "components", "variance")
+_MU_PREFIX = "mu_"  # the Motion Units' arrays inside a keyframe model file
 
 
 @dataclass(frozen=True)
@@ -150,8 +151,6 @@ class KeyframeModel:
             raise ParameterError(f"the Motion Units have no {' or '.join(missing)} MUs; the "
                                  f"keyframes need both (units have: {units.expressions_})")
         if deformations is None:
-            from face_model.alignment import corpus_deformations
-
             deformations = corpus_deformations(
                 corpus, model=units.metadata_.get("alignment", "similarity"))
         for u in corpus.utterances:
@@ -292,18 +291,16 @@ class KeyframeModel:
 
     # -- persistence -----------------------------------------------------------------------
     def save(self, path) -> Path:
-        """One ``.npz``: K, the Motion Units it converts to, and a JSON metadata record."""
+        """One ``.npz``: K (``shapes``), the Motion Units it converts to (their
+        :meth:`MotionUnits.to_arrays` arrays, names prefixed ``mu_``) and a JSON metadata
+        record (the Motion Units' own record under ``units``)."""
         self._check_fitted()
-        u = self.units_
+        unit_arrays, unit_meta = self.units_.to_arrays()
         meta = {"format": MODEL_FORMAT, "keyframes": list(KEYFRAMES),
                 "min_samples": int(self.min_samples), "hold_fraction": float(self.hold_fraction),
                 "selection": {k: [[a, int(f)] for a, f in v] for k, v in self.selection_.items()},
-                "units": {"n_utterance": u.n_utterance, "n_expression": u.n_expression,
-                          "expressions": list(u.expressions_), "metadata": u.metadata_}}
-        groups = {"": (u.mean_, u.components_, u.variance_), **{k: (
-            u.expression_mean_[k], u.expression_components_[k], u.expression_variance_[k])
-            for k in u.expressions_}}
-        arrays = {f"mu_{k}__{a}": x for k, xs in groups.items() for a, x in zip(_MU_ARRAYS, xs)}
+                "units": unit_meta}
+        arrays = {_MU_PREFIX + name: x for name, x in unit_arrays.items()}
         path = Path(path)
         with open(path, "wb") as f:
             np.savez(f, metadata=np.array(json.dumps(meta, sort_keys=True)), shapes=self.shapes_,
@@ -319,20 +316,17 @@ class KeyframeModel:
         with np.load(path, allow_pickle=False) as z:
             meta = json.loads(str(z["metadata"]))
             if meta.get("format") != MODEL_FORMAT or meta.get("keyframes") != list(KEYFRAMES):
-                raise ParameterError(f"{path}: not a keyframe model (format "
+                raise ParameterError(f"{path}: not a keyframe model of this version (format "
                                      f"{meta.get('format')!r}, expected {MODEL_FORMAT!r})")
-            m = meta["units"]
-            u = MotionUnits(m["n_utterance"], m["n_expression"])
-            u.mean_, u.components_, u.variance_ = (z[f"mu___{a}"] for a in _MU_ARRAYS)
-            u.expressions_, u.metadata_ = tuple(m["expressions"]), dict(m["metadata"])
-            u.expression_mean_, u.expression_components_, u.expression_variance_ = (
-                {k: z[f"mu_{k}__{a}"] for k in u.expressions_} for a in _MU_ARRAYS)
+            unit_arrays = {name[len(_MU_PREFIX):]: z[name] for name in z.files
+                           if name.startswith(_MU_PREFIX)}
+            units = MotionUnits.from_arrays(unit_arrays, meta["units"],
+                                            source=f"{path} (its Motion Units)")
             model = cls(meta["min_samples"], meta["hold_fraction"])
-            model.shapes_, model.units_ = z["shapes"], u
+            model.shapes_, model.units_ = z["shapes"], units
         model.selection_ = {k: [(a, f) for a, f in v] for k, v in meta["selection"].items()}
         model._set_matrix()
         return model
-
 
 # -- keyframe weight tracks --------------------------------------------------------------------
 def write_keyframe_tracks(path, weights, fps: float = 30, *, expression: str,

@@ -20,6 +20,8 @@ from functools import lru_cache
 import numpy as np
 from scipy.spatial import Delaunay
 
+from face_model.errors import ParameterError
+
 LAYOUT_VERSION = "hwh79-1"
 N_MARKERS = 79
 IMAGE_SIZE = (640, 480)  # width, height in pixels
@@ -156,3 +158,26 @@ def default_layout() -> FaceLayout:
     for arr in (neutral, region, tri):
         arr.setflags(write=False)
     return FaceLayout(neutral=neutral, names=tuple(names), region=region, triangles=tri)
+
+
+def mouth_opening(markers) -> np.ndarray:
+    """The mouth opening per frame: mean y of the inner lower lip (markers 71–75) minus mean y
+    of the inner upper lip (markers 65–69), pixels (y down, so an open mouth is positive).
+
+    Parameters
+    ----------
+    markers : array_like, shape (n_frames, 79, 2)
+        Marker positions in pixels, in any frame of reference without rotation (e.g. image
+        coordinates, or aligned by :func:`face_model.alignment.align_markers`).
+
+    Returns
+    -------
+    ndarray, shape (n_frames,)
+        In the dtype of ``markers``' mean (float32 markers give float32).
+    """
+    m = np.asarray(markers)
+    if m.ndim != 3 or m.shape[1:] != (N_MARKERS, 2):
+        raise ParameterError(f"markers must have shape (n_frames, {N_MARKERS}, 2), got {m.shape}")
+    lower = m[:, LOWER_INNER.start:LOWER_INNER.stop, 1].mean(1)
+    upper = m[:, UPPER_INNER.start:UPPER_INNER.stop, 1].mean(1)
+    return lower - upper

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from face_model.alignment import corpus_deformations
 from face_model.errors import NotFittedError, ParameterError
 from face_model.layout import LAYOUT_VERSION, N_MARKERS
 from face_model.numerics import single_threaded, svd
@@ -159,8 +160,21 @@ class MotionUnits:
         return out
 
     # -- persistence -----------------------------------------------------------------------
-    def save(self, path) -> Path:
-        """One ``.npz`` holding every array and a JSON metadata record."""
+    def to_arrays(self) -> tuple[dict[str, np.ndarray], dict]:
+        """The fitted model as named arrays and a JSON-serialisable metadata record.
+
+        Returns
+        -------
+        arrays : dict str → ndarray
+            ``mean`` (158,), ``components`` (A_0, 158), ``variance``, and for every expression
+            k ``k__mean`` (158,), ``k__components`` (A_k, 158), ``k__variance``.
+        metadata : dict
+            ``format``, ``layout_version``, ``n_utterance``, ``n_expression``, ``expressions``
+            and the entries of ``metadata_``.
+
+        :meth:`from_arrays` is the inverse; :meth:`save` writes both into one ``.npz``, and
+        other files that embed Motion Units (the keyframe model) store them the same way.
+        """
         self._check_fitted()
         meta = {"format": FORMAT, "layout_version": LAYOUT_VERSION,
                 "n_utterance": self.n_utterance, "n_expression": self.n_expression,
@@ -170,6 +184,48 @@ class MotionUnits:
             arrays[f"{k}__mean"] = self.expression_mean_[k]
             arrays[f"{k}__components"] = self.expression_components_[k]
             arrays[f"{k}__variance"] = self.expression_variance_[k]
+        return arrays, meta
+
+    @classmethod
+    def from_arrays(cls, arrays, metadata: dict, *, source: str = "Motion Units") -> "MotionUnits":
+        """Rebuild a fitted model from the output of :meth:`to_arrays`.
+
+        Parameters
+        ----------
+        arrays : mapping str → ndarray
+            E.g. an open ``np.load`` file; only the names of :meth:`to_arrays` are read.
+        metadata : dict
+            The metadata record; every entry other than the model's own settings (and
+            ``layout_version``) goes back into ``metadata_``.
+        source : str
+            Names the file or record in error messages.
+        """
+        if metadata.get("format") != FORMAT:
+            raise ParameterError(f"{source}: not a Motion Units file (format "
+                                 f"{metadata.get('format')!r}, expected {FORMAT!r})")
+        mu = cls(metadata["n_utterance"], metadata["n_expression"])
+        expressions = tuple(metadata["expressions"])
+        names = ["mean", "components", "variance"] + [
+            f"{k}__{a}" for k in expressions for a in ("mean", "components", "variance")]
+        missing = [n for n in names if n not in arrays]
+        if missing:
+            raise ParameterError(f"{source}: Motion Units arrays {', '.join(missing)} are "
+                                 "missing")
+        mu.mean_, mu.components_, mu.variance_ = (arrays["mean"], arrays["components"],
+                                                  arrays["variance"])
+        mu.expressions_ = expressions
+        mu.expression_mean_ = {k: arrays[f"{k}__mean"] for k in expressions}
+        mu.expression_components_ = {k: arrays[f"{k}__components"] for k in expressions}
+        mu.expression_variance_ = {k: arrays[f"{k}__variance"] for k in expressions}
+        skip = {"format", "layout_version", "n_utterance", "n_expression", "expressions"}
+        mu.metadata_ = {k: v for k, v in metadata.items() if k not in skip}
+        mu.metadata_["layout_version"] = metadata["layout_version"]
+        return mu
+
+    def save(self, path) -> Path:
+        """One ``.npz`` holding every array of :meth:`to_arrays` and, as ``metadata``, its
+        JSON metadata record."""
+        arrays, meta = self.to_arrays()
         path = Path(path)
         with open(path, "wb") as f:
             np.savez(f, metadata=np.array(json.dumps(meta, sort_keys=True)), **arrays)
@@ -177,25 +233,12 @@ class MotionUnits:
 
     @classmethod
     def load(cls, path) -> "MotionUnits":
+        """Rebuild a model saved by :meth:`save`."""
         path = Path(path)
         if not path.is_file():
             raise ParameterError(f"Motion Units file {path} not found")
         with np.load(path, allow_pickle=False) as z:
-            meta = json.loads(str(z["metadata"]))
-            if meta.get("format") != FORMAT:
-                raise ParameterError(f"{path}: not a Motion Units file (format "
-                                     f"{meta.get('format')!r}, expected {FORMAT!r})")
-            mu = cls(meta["n_utterance"], meta["n_expression"])
-            mu.mean_, mu.components_, mu.variance_ = z["mean"], z["components"], z["variance"]
-            mu.expressions_ = tuple(meta["expressions"])
-            mu.expression_mean_ = {k: z[f"{k}__mean"] for k in mu.expressions_}
-            mu.expression_components_ = {k: z[f"{k}__components"] for k in mu.expressions_}
-            mu.expression_variance_ = {k: z[f"{k}__variance"] for k in mu.expressions_}
-        skip = {"format", "layout_version", "n_utterance", "n_expression", "expressions"}
-        mu.metadata_ = {k: v for k, v in meta.items() if k not in skip}
-        mu.metadata_["layout_version"] = meta["layout_version"]
-        return mu
-
+            return cls.from_arrays(z, json.loads(str(z["metadata"])), source=str(path))
 
 def fit_corpus_units(corpus, *, n_utterance: int = 7, n_expression: int = 2,
                      alignment: str = "similarity", metadata: dict | None = None):
@@ -203,8 +246,6 @@ def fit_corpus_units(corpus, *, n_utterance: int = 7, n_expression: int = 2,
 
     Returns ``(units, deformations_by_utterance)``.
     """
-    from face_model.alignment import corpus_deformations
-
     defs = corpus_deformations(corpus, model=alignment)
     by_expr: dict[str, list] = {}
     for u in corpus.utterances:

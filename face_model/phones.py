@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from face_model.errors import ParameterError
+
 ARTIC_PARAMS = ("jaw", "aperture", "spread", "protrusion", "upper_raise", "lower_tuck", "closure")
 N_ARTIC = len(ARTIC_PARAMS)
 
@@ -97,8 +99,6 @@ def viseme(phone: str) -> str:
 def check_phone(phone: str, *, source: str = "") -> str:
     """Return ``phone`` if it is one of the 44 classes, else raise ``ParameterError``."""
     if phone not in PHONE_INDEX:
-        from face_model.errors import ParameterError
-
         where = f" in {source}" if source else ""
         raise ParameterError(
             f"unknown phone {phone!r}{where}; allowed are the 44 classes: {' '.join(PHONES)}"

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -207,3 +208,24 @@ class FaceRenderer:
             raise ParameterError(f"markers must have shape (n_frames, {N_MARKERS}, 2), "
                                  f"got {m.shape}")
         return np.stack([self.render(f) for f in m])
+
+
+def face_grid(images: list, titles: list, path, *, ncols: int = 5) -> Path:
+    """Rendered faces (RGB arrays) in a grid with a title under each (Figs. 4, 6, 7 style),
+    written as a PNG (150 dpi) to ``path``; returns the path."""
+    from matplotlib.figure import Figure  # the figure alone: no pyplot, no backend to choose
+
+    n = len(images)
+    nrows = int(np.ceil(n / ncols))
+    h, w = images[0].shape[:2]
+    fig = Figure(figsize=(1.9 * ncols, 1.9 * nrows * h / w + 0.3), layout="constrained")
+    axes = fig.subplots(nrows, ncols, squeeze=False)
+    for ax in axes.ravel():
+        ax.axis("off")
+    for ax, img, title in zip(axes.ravel(), images, titles):
+        ax.imshow(img)
+        ax.set_title(title, fontsize=8, y=-0.12)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=150, bbox_inches="tight")
+    return path

@@ -1,11 +1,10 @@
 """From speech to moving markers, offline and streaming (paper §VI, Figs. 6–7).
 
-:class:`FaceAnimator` bundles a trained :class:`~mapping.model.AudioMapping`, the Motion Units
+:class:`FaceAnimator` bundles a trained :class:`~mapping.checkpoint.AudioMapping`, the Motion Units
 and a neutral face: audio → MUPs → deformations (Eq. 2) → markers (n_frames, 79, 2).
 
-Silence. Frames whose analysis window is quieter than ``silence_dbfs`` get the utterance MUPs of
-the neutral face (a closed, neutral mouth) whatever the network says, so digital silence, far
-outside the training data, gives a defined face. The expression MUPs are kept.
+Silence: the mapping itself (:class:`~mapping.checkpoint.AudioMapping`) draws frames quieter
+than its ``silence_dbfs`` with a closed, neutral mouth, offline and streaming alike.
 
 :class:`StreamingAnimator` takes audio chunks of any size and emits frame k (time k / fps) as soon
 as the samples its 3-frame look-ahead needs have arrived: those of frame k + forward's analysis
@@ -21,20 +20,9 @@ import numpy as np
 
 from face_model.alignment import unflatten
 from face_model.errors import ParameterError
-from mapping.features import MFCC_SETTINGS, hop_samples, mfcc, stack_context
-
-
-def window_dbfs(y: np.ndarray, centre: int, half: int) -> float:
-    """Level (dBFS) of the analysis window ``y[centre − half : centre + half + 1]``."""
-    seg = np.asarray(y[max(0, centre - half):centre + half + 1], dtype=np.float64)
-    return float(10 * np.log10(np.mean(seg**2) + 1e-20)) if len(seg) else -200.0
-
-
-def frame_rms_dbfs(y: np.ndarray, *, sr: int, fps: int = 30, n_frames: int) -> np.ndarray:
-    """Level (dBFS) of each frame's 25 ms analysis window, centred at k / fps (n_frames,)."""
-    hop = hop_samples(sr, fps)
-    half = int(round(MFCC_SETTINGS["window_s"] * sr)) // 2
-    return np.array([window_dbfs(y, k * hop, half) for k in range(n_frames)])
+from face_model.layout import default_layout
+from mapping.checkpoint import rest_mups
+from mapping.features import MFCC_SETTINGS, hop_samples, mfcc, window_dbfs
 
 
 class FaceAnimator:
@@ -46,46 +34,35 @@ class FaceAnimator:
     units : MotionUnits
     neutral : ndarray (79, 2), optional
         The face to animate (default: the marker layout's neutral face).
-    silence_dbfs : float
-        Frames quieter than this are drawn with a closed, neutral mouth.
     """
 
-    def __init__(self, mapping, units, neutral: np.ndarray | None = None,
-                 silence_dbfs: float = -60.0):
-        from face_model.layout import default_layout
-
+    def __init__(self, mapping, units, neutral: np.ndarray | None = None):
         self.mapping = mapping
         self.units = units
         self.neutral = default_layout().neutral if neutral is None else np.asarray(neutral)
-        self.silence_dbfs = silence_dbfs
         if mapping.n_utterance != units.n_utterance:
             raise ParameterError(f"the mapping estimates {mapping.n_utterance} utterance MUPs but "
                                  f"the Motion Units have {units.n_utterance}")
-        # MUPs of zero deformation: the neutral face
-        self.rest_ = units.transform(np.zeros((1, 2 * len(self.neutral))))[0, :units.n_utterance]
+        if not np.allclose(rest_mups(units), mapping.rest_mups, rtol=0, atol=1e-9):
+            raise ParameterError("the mapping was saved with other Motion Units (its neutral-face "
+                                 "MUPs differ from these units'): load the units of its run")
+
+    @property
+    def rest_(self) -> np.ndarray:
+        """Utterance MUPs of the neutral face (what silent frames get)."""
+        return self.mapping.rest_mups
+
+    @property
+    def silence_dbfs(self) -> float:
+        return self.mapping.silence_dbfs
 
     def check_expression(self, expression: str) -> str:
-        if expression not in self.mapping.expressions:
-            raise ParameterError(f"unknown expression {expression!r}; allowed: "
-                                 f"{', '.join(self.mapping.expressions)}")
-        return expression
-
-    def silence_fix(self, mups: np.ndarray, levels_dbfs: np.ndarray) -> np.ndarray:
-        """Utterance MUPs of the neutral face on frames below the silence level."""
-        out = np.array(mups, dtype=np.float32, copy=True)
-        quiet = np.asarray(levels_dbfs) < self.silence_dbfs
-        out[quiet, : self.units.n_utterance] = self.rest_
-        return out
+        return self.mapping.check_expression(expression)
 
     def mups(self, y: np.ndarray, sr: int, expression: str = "neutral") -> np.ndarray:
-        """MUPs (n_frames, A0 + Ak) of mono audio, with the silence rule applied."""
-        self.check_expression(expression)
-        y_m = self.mapping.at_model_rate(y, sr)  # checked and resampled once
-        feats = self.mapping.features(y_m, self.mapping.sample_rate)
-        est = self.mapping.mapper.predict(feats, expression)
-        levels = frame_rms_dbfs(y_m, sr=self.mapping.sample_rate, fps=self.mapping.fps,
-                                n_frames=len(est))
-        return self.silence_fix(est, levels)
+        """MUPs (n_frames, A0 + Ak) of mono audio, with the silence rule applied (the mapping's
+        one audio → MUP entry point, :meth:`AudioMapping.predict_audio`)."""
+        return self.mapping.predict_audio(y, sr, expression)
 
     def markers(self, mups: np.ndarray, expression: str = "neutral") -> np.ndarray:
         """Markers (n_frames, 79, 2) in pixels from MUPs (Eq. 2 plus the neutral face)."""
@@ -171,7 +148,7 @@ class StreamingAnimator:
         mups = self.animator.mapping.mapper.predict_stacked(x, self.expression)
         # the kept samples start at self._a0 (earlier ones are no longer needed)
         level = window_dbfs(self._audio, k * self.hop - self._a0, self.half)
-        mups = self.animator.silence_fix(mups, np.array([level]))
+        mups = self.animator.mapping.silence_fix(mups, np.array([level]))
         markers = self.animator.markers(mups, self.expression)[0]
         return StreamFrame(k, k / self.fps, mups[0], markers)
 

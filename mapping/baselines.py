@@ -28,8 +28,9 @@ from sklearn.mixture import GaussianMixture
 
 from face_model.errors import NotFittedError, ParameterError
 from face_model.numerics import single_threaded
-from mapping.features import ContextFeatures
-from mapping.nets import GRUNet, MLP, TDNN, NetRegressor, TrainSettings
+from mapping.features import ContextFeatures, check_context, check_seed
+from mapping.config import TrainSettings
+from mapping.nets import GRUNet, MLP, TDNN, NetRegressor
 
 BASELINES = ("vq", "linear", "gmm_regression", "mlp_large", "tdnn", "gru")
 REFERENCES = {"vq": "[43] vector quantisation", "linear": "[44] affine transformation",
@@ -96,21 +97,32 @@ class GMMRegressor:
 class Baseline:
     """One regressor per expression from context-stacked, normalised audio features to MUPs.
 
-    Parameters
+    Parameters (stored as given, checked in ``fit``)
     ----------
     kind : str
         One of :data:`BASELINES`.
-    mcfg : MappingConfig
-        Supplies the feature context and the network training settings.
-    seed : int
+    context_back, context_forward : int
+        Audio context of the frame models (``mlp_large`` uses ±5 and ``tdnn`` its own delays).
+    train : TrainSettings
+        Optimisation of the networks.
+    random_state : int
     """
 
-    def __init__(self, kind: str, mcfg, seed: int = 0):
-        if kind not in BASELINES:
-            raise ParameterError(f"unknown baseline {kind!r}; allowed: {', '.join(BASELINES)}")
-        self.kind, self.mcfg, self.seed = kind, mcfg, seed
-        self.name = kind
-        self.reference = REFERENCES[kind]
+    def __init__(self, kind: str, *, context_back: int = 3, context_forward: int = 3,
+                 train: TrainSettings = TrainSettings(), random_state: int = 0):
+        self.kind = kind
+        self.context_back = context_back
+        self.context_forward = context_forward
+        self.train = train
+        self.random_state = random_state
+
+    @property
+    def name(self) -> str:
+        return self.kind
+
+    @property
+    def reference(self) -> str:
+        return REFERENCES.get(self.kind, f"unknown baseline {self.kind!r}")
 
     @property
     def sequence(self) -> bool:
@@ -121,10 +133,9 @@ class Baseline:
             return 5, 5
         if self.kind == "tdnn":
             return 0, 0  # the network's own time delays give the context (±4 frames)
-        return self.mcfg.context_back, self.mcfg.context_forward
+        return self.context_back, self.context_forward
 
     def _make(self, n_in, n_out, seed):
-        settings = TrainSettings.from_config(self.mcfg)
         if self.kind == "vq":
             return VQRegressor(64, seed)
         if self.kind == "linear":
@@ -132,12 +143,16 @@ class Baseline:
         if self.kind == "gmm_regression":
             return GMMRegressor(8, seed)
         if self.kind == "mlp_large":
-            return NetRegressor(MLP(n_in, 600, n_out), settings, seed)
+            return NetRegressor(MLP(n_in, 600, n_out), self.train, seed)
         if self.kind == "tdnn":
-            return NetRegressor(TDNN(n_in, 48, n_out, layers=2, width=2), settings, seed)
-        return NetRegressor(GRUNet(n_in, 64, n_out), settings, seed)
+            return NetRegressor(TDNN(n_in, 48, n_out, layers=2, width=2), self.train, seed)
+        return NetRegressor(GRUNet(n_in, 64, n_out), self.train, seed)
 
     def fit(self, data: list, masks: list) -> "Baseline":
+        if self.kind not in BASELINES:
+            raise ParameterError(f"unknown baseline {self.kind!r}; allowed: {', '.join(BASELINES)}")
+        check_context(self.context_back, self.context_forward)
+        check_seed(self.random_state)
         self.context_ = ContextFeatures(*self._context()).fit([d.features for d in data], masks)
         self.models_ = {}
         for j, e in enumerate(sorted({d.expression for d in data})):
@@ -146,7 +161,7 @@ class Baseline:
                 continue
             xs = [self.context_.transform(data[i].features) for i in idx]
             ys = [data[i].mups for i in idx]
-            model = self._make(xs[0].shape[1], ys[0].shape[1], self.seed + 1009 * j)
+            model = self._make(xs[0].shape[1], ys[0].shape[1], self.random_state + 1009 * j)
             if self.sequence:
                 X, Y, M = _pad(xs, ys, [masks[i] for i in idx])
                 model.fit(X, Y, M)

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from face_model.alignment import corpus_deformations
 from face_model.errors import ParameterError
 from mapping.features import audio_features
 
@@ -57,8 +58,6 @@ def build_dataset(corpus, units, *, n_mfcc: int = 10, deltas: bool = False,
     The MUPs are the Motion Units' projection of the aligned deformations (the alignment model
     recorded in the units' metadata unless given).
     """
-    from face_model.alignment import corpus_deformations
-
     alignment = alignment or units.metadata_.get("alignment", "similarity")
     defs = corpus_deformations(corpus, model=alignment)
     out = []

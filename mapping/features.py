@@ -176,3 +176,31 @@ class ContextFeatures:
         if x.ndim == 2 and not np.all(np.isfinite(x)):
             raise ParameterError("features hold NaN or inf values")
         return stack_context(self.normalizer_.transform(x), back=self.back, forward=self.forward)
+
+
+def window_dbfs(y: np.ndarray, centre: int, half: int) -> float:
+    """Level (dBFS) of the analysis window ``y[centre − half : centre + half + 1]``."""
+    seg = np.asarray(y[max(0, centre - half):centre + half + 1], dtype=np.float64)
+    return float(10 * np.log10(np.mean(seg**2) + 1e-20)) if len(seg) else -200.0
+
+
+def frame_rms_dbfs(y: np.ndarray, *, sr: int, fps: int = 30, n_frames: int) -> np.ndarray:
+    """Level (dBFS) of each frame's 25 ms analysis window, centred at k / fps (n_frames,)."""
+    hop = hop_samples(sr, fps)
+    half = int(round(MFCC_SETTINGS["window_s"] * sr)) // 2
+    return np.array([window_dbfs(y, k * hop, half) for k in range(n_frames)])
+
+
+def check_context(back, forward) -> None:
+    """Frames of context before and after a frame: non-negative integers."""
+    for name, value in (("context_back", back), ("context_forward", forward)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+            raise ParameterError(f"{name} must be a non-negative integer, got {value!r}")
+
+
+def check_seed(random_state) -> None:
+    """A seed: a non-negative integer."""
+    if isinstance(random_state, bool) or not isinstance(random_state, (int, np.integer)) \
+            or random_state < 0:
+        raise ParameterError(f"random_state must be a non-negative integer, got "
+                             f"{random_state!r}")

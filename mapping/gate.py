@@ -156,3 +156,33 @@ def confusion(true: np.ndarray, pred: np.ndarray, n: int) -> np.ndarray:
     m = np.zeros((n, n), int)
     np.add.at(m, (np.asarray(true), np.asarray(pred)), 1)
     return m
+
+
+def gate_accuracy(mapper, data: list, masks: list) -> dict:
+    """Frame accuracy of a trained gated mapping's gate (after the small-class rule) on neutral
+    training and test frames and on all test frames, with the confusion matrix of the neutral
+    test frames.
+
+    ``mapper`` has ``gate_classes(features)``, ``group_of_phone_``, ``class_names_`` and
+    ``merges_`` (:class:`mapping.gated.GatedMLP`); ``data`` are :class:`mapping.dataset.UttData`
+    with their training-frame ``masks``.
+    """
+    n = len(mapper.class_names_)
+    parts = ("train", "test")
+    hits = {f"{s}_{p}": [0, 0] for p in parts for s in ("neutral", "all")}
+    conf = np.zeros((n, n), int)
+    for d, m in zip(data, masks):
+        pred = mapper.gate_classes(d.features)  # once per utterance, both parts
+        true = mapper.group_of_phone_[d.phones]
+        for part, sel in (("train", m), ("test", ~m)):
+            scopes = ("neutral", "all") if d.expression == "neutral" else ("all",)
+            for scope in scopes:
+                hits[f"{scope}_{part}"][0] += int((pred[sel] == true[sel]).sum())
+                hits[f"{scope}_{part}"][1] += int(sel.sum())
+            if part == "test" and d.expression == "neutral":
+                conf += confusion(true[sel], pred[sel], n)
+    out = {k: h / t if t else float("nan") for k, (h, t) in hits.items()}
+    out["confusion"] = conf
+    out["class_names"] = list(mapper.class_names_)
+    out["merges"] = dict(mapper.merges_)
+    return out

@@ -24,11 +24,13 @@ from __future__ import annotations
 import numpy as np
 
 from face_model.errors import NotFittedError, ParameterError
-from mapping.features import ContextFeatures
+from mapping.features import ContextFeatures, check_context, check_seed
 from mapping.gate import PhoneGate, class_groups, merge_small_classes
-from mapping.nets import MLP, NetRegressor, TrainSettings
+from mapping.config import TrainSettings
+from mapping.nets import MLP, NetRegressor
 
 EXPRESSION_MODELS = ("cascade", "bank")
+GATE_COVARIANCES = ("diag", "full", "tied", "spherical")
 
 
 def hidden_units(n_frames: int, smallest: int, largest: int, lo: int = 15, hi: int = 25) -> int:
@@ -83,62 +85,107 @@ class MLPBank:
 class GatedMLP:
     """The paper's audio-to-MUP mapping: gate + MLP bank + expression cascade.
 
-    Parameters
+    Parameters (scikit-learn style: stored as given, checked in ``fit``)
     ----------
-    mcfg : MappingConfig
     n_utterance : int
         A0: the first ``n_utterance`` MUPs are the utterance part the bank estimates.
-    seed : int
+    context_back, context_forward : int
+        Frames of audio context before and after the frame (paper: 3 + 1 + 3).
+    n_classes : int
+        Gate classes: 44 phone classes, 8 viseme groups or 1 (a single MLP).
+    gate_components : int
+        Mixture components per class; ``gate_covariance`` their covariance type.
+    min_class_frames : int
+        A class with fewer training frames joins its viseme group (:mod:`mapping.gate`).
+    hidden_min, hidden_max : int
+        Hidden units of the smallest and the largest subset's MLP.
+    expression_model : {"cascade", "bank"}
+        Υ_k on the bank's estimates, or a bank retrained per expression.
+    cascade_hidden : int
+        Hidden units of each Υ_k.
+    train : TrainSettings
+        Optimisation of every network.
+    random_state : int
+        Seeds the gate, the bank and the expression networks.
     """
 
     name = "gated_mlp"
     reference = "Hong, Wen & Huang (2002), §VI"
 
-    def __init__(self, mcfg, n_utterance: int = 7, seed: int = 0):
-        if mcfg.expression_model not in EXPRESSION_MODELS:
-            raise ParameterError(f"mapping.expression_model must be one of {EXPRESSION_MODELS}, "
-                                 f"got {mcfg.expression_model!r}")
-        self.mcfg = mcfg
+    def __init__(self, *, n_utterance: int = 7, context_back: int = 3, context_forward: int = 3,
+                 n_classes: int = 44, gate_components: int = 4, gate_covariance: str = "diag",
+                 min_class_frames: int = 40, hidden_min: int = 15, hidden_max: int = 25,
+                 expression_model: str = "cascade", cascade_hidden: int = 30,
+                 train: TrainSettings = TrainSettings(), random_state: int = 0):
         self.n_utterance = n_utterance
-        self.seed = seed
+        self.context_back = context_back
+        self.context_forward = context_forward
+        self.n_classes = n_classes
+        self.gate_components = gate_components
+        self.gate_covariance = gate_covariance
+        self.min_class_frames = min_class_frames
+        self.hidden_min = hidden_min
+        self.hidden_max = hidden_max
+        self.expression_model = expression_model
+        self.cascade_hidden = cascade_hidden
+        self.train = train
+        self.random_state = random_state
+
+    def _validate(self) -> None:
+        if self.expression_model not in EXPRESSION_MODELS:
+            raise ParameterError(f"expression_model must be one of {EXPRESSION_MODELS}, got "
+                                 f"{self.expression_model!r}")
+        for name in ("n_utterance", "gate_components", "min_class_frames", "hidden_min",
+                     "hidden_max", "cascade_hidden"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ParameterError(f"{name} must be a positive integer, got {value!r}")
+        if self.hidden_min > self.hidden_max:
+            raise ParameterError(f"hidden_min ({self.hidden_min}) must not exceed hidden_max "
+                                 f"({self.hidden_max})")
+        if self.gate_covariance not in GATE_COVARIANCES:
+            raise ParameterError(f"gate_covariance must be one of {GATE_COVARIANCES}, got "
+                                 f"{self.gate_covariance!r}")
+        check_context(self.context_back, self.context_forward)
+        check_seed(self.random_state)
 
     # -- training --------------------------------------------------------------------------
     def fit(self, data: list, masks: list) -> "GatedMLP":
-        m = self.mcfg
-        settings = TrainSettings.from_config(m)
-        self.context_ = ContextFeatures(m.context_back, m.context_forward).fit(
+        self._validate()
+        seed = self.random_state
+        self.context_ = ContextFeatures(self.context_back, self.context_forward).fit(
             [d.features for d in data], masks)
-        group_of_phone, names, visemes = class_groups(m.n_classes)
+        group_of_phone, names, visemes = class_groups(self.n_classes)
         X, Y, labels, expr = self._stack(data, masks, group_of_phone)
         neutral = expr == "neutral"
         if not neutral.any():
             raise ParameterError("the mapping needs neutral training frames (Ψ_0) for the gate "
                                  "and the MLP bank; the training set has none")
         target, self.merges_ = merge_small_classes(labels[neutral], names, visemes,
-                                                   m.min_class_frames)
+                                                   self.min_class_frames)
         self.group_of_phone_ = target[group_of_phone]
         self.class_names_ = names
         labels = target[labels]
         classes = np.unique(labels[neutral])
-        self.gate_ = PhoneGate(m.gate_components, m.gate_covariance, self.seed).fit(
+        self.gate_ = PhoneGate(self.gate_components, self.gate_covariance, seed).fit(
             X[neutral], labels[neutral], classes)
         gated = self.gate_.predict(X)
-        self.bank_ = MLPBank(m.hidden_min, m.hidden_max, settings, self.seed + 1).fit(
+        self.bank_ = MLPBank(self.hidden_min, self.hidden_max, self.train, seed + 1).fit(
             X, Y[:, :self.n_utterance], self._subsets(gated, labels, neutral, classes))
         self.expressions_ = tuple(sorted({e for e in expr if e != "neutral"}))
         self.n_mups_ = Y.shape[1]
         self.experts_ = {}
         for j, k in enumerate(self.expressions_):
             rows = expr == k
-            if m.expression_model == "cascade":
+            if self.expression_model == "cascade":
                 c0 = self.bank_.predict(X[rows], gated[rows])
-                net = NetRegressor(MLP(c0.shape[1], m.cascade_hidden, Y.shape[1]), settings,
-                                   self.seed + 7919 * (j + 1))
+                net = NetRegressor(MLP(c0.shape[1], self.cascade_hidden, Y.shape[1]), self.train,
+                                   seed + 7919 * (j + 1))
                 self.experts_[k] = net.fit(c0, Y[rows])
             else:
                 sub = self._subsets(gated[rows], labels[rows], np.ones(rows.sum(), bool), classes)
-                self.experts_[k] = MLPBank(m.hidden_min, m.hidden_max, settings,
-                                           self.seed + 7919 * (j + 1)).fit(X[rows], Y[rows], sub)
+                self.experts_[k] = MLPBank(self.hidden_min, self.hidden_max, self.train,
+                                           seed + 7919 * (j + 1)).fit(X[rows], Y[rows], sub)
         return self
 
     def _stack(self, data, masks, group_of_phone):
@@ -155,7 +202,7 @@ class GatedMLP:
         subsets = {}
         for c in classes:
             rows = np.flatnonzero(use & (gated == c))
-            if len(rows) < self.mcfg.min_class_frames:
+            if len(rows) < self.min_class_frames:
                 rows = np.union1d(rows, np.flatnonzero(use & (labels == c)))
             subsets[c] = rows
         return subsets
@@ -187,6 +234,6 @@ class GatedMLP:
         if expression == "neutral":
             return np.concatenate([c0, np.zeros((len(X), self.n_mups_ - c0.shape[1]),
                                                 np.float32)], axis=1)
-        if self.mcfg.expression_model == "cascade":
+        if self.expression_model == "cascade":
             return self.experts_[expression].predict(c0)
         return self.experts_[expression].predict(X, gated)

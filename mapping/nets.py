@@ -12,30 +12,13 @@ whole utterances while only the training frames count in the loss.
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
 
 import numpy as np
 import torch
 from torch import nn
 
 from face_model.errors import NotFittedError, ParameterError
-
-
-@dataclass(frozen=True)
-class TrainSettings:
-    """Optimisation settings shared by every network (see ``MappingConfig``)."""
-
-    validation_fraction: float = 0.15
-    max_epochs: int = 600
-    patience: int = 40
-    learning_rate: float = 0.01
-    weight_decay: float = 1e-4
-    batch_size: int = 0  # 0: full batch
-
-    @classmethod
-    def from_config(cls, mcfg) -> "TrainSettings":
-        return cls(mcfg.validation_fraction, mcfg.max_epochs, mcfg.patience, mcfg.learning_rate,
-                   mcfg.weight_decay)
+from mapping.config import TrainSettings
 
 
 class MLP(nn.Module):

@@ -6,14 +6,20 @@ logistic regression; only the middle half of each utterance, where its expressio
 judges a whole animation by its mean class probability. :func:`visual_evidence` applies it to
 the marker trajectories behind every video of a stimulus set. The observers of
 :mod:`study.simulate` take these probabilities as their visual evidence, so a weaker mapping
-gives a less readable synthetic face.
+gives a less readable synthetic face. :func:`observer_classifier` is the classifier every study
+command uses: trained on the run's corpus beside the stimuli (:func:`classifier_corpus`).
 """
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
+from sklearn.decomposition import PCA
+from sklearn.linear_model import LogisticRegression
+from sklearn.pipeline import make_pipeline
 
+from face_model.alignment import align_markers, flatten, speaker_neutrals
+from face_model.corpus import load_corpus
 from face_model.errors import NotFittedError, ParameterError
 from face_model.numerics import single_threaded
 from study.design import AUDIO, EXPRESSIONS, FACES, stimulus_id
@@ -23,6 +29,7 @@ def is_finite_number(value) -> bool:
     """A real, finite number (not a bool)."""
     return isinstance(value, (int, float, np.integer, np.floating)) and \
         not isinstance(value, bool) and bool(np.isfinite(value))
+
 
 class ExpressionClassifier:
     """Frame-wise expression classifier on aligned marker deformations (see the module text).
@@ -53,19 +60,11 @@ class ExpressionClassifier:
         self.model_ = None
 
     def _features(self, markers, neutral: np.ndarray) -> np.ndarray:
-        from face_model.alignment import align_markers, flatten
-
         return flatten(align_markers(markers) - neutral[None])
 
     @single_threaded
     def fit(self, corpus, *, seed: int) -> "ExpressionClassifier":
         """Train on every utterance of ``corpus`` (a loaded :class:`face_model.corpus.Corpus`)."""
-        from sklearn.decomposition import PCA
-        from sklearn.linear_model import LogisticRegression
-        from sklearn.pipeline import make_pipeline
-
-        from face_model.alignment import speaker_neutrals
-
         utts = list(corpus.utterances)
         absent = [e for e in self.classes if not any(u.expression == e for u in utts)]
         if absent:
@@ -133,6 +132,24 @@ class ExpressionClassifier:
                 "C": self.C, "trim": self.trim, "seed": self.seed_, "classes": list(self.classes),
                 "n_training_frames": self.n_frames_, "n_training_utterances": self.n_utterances_,
                 "speakers": self.speakers_}
+
+
+def classifier_corpus(stimuli_dir) -> Path:
+    """The corpus the simulated observers' expression classifier learns from: the run's corpus
+    beside ``runs/<name>/stimuli``, else the stimuli's own source sentences."""
+    stimuli_dir = Path(stimuli_dir)
+    for c in (stimuli_dir.parent / "corpus", stimuli_dir / "source"):
+        if (c / "manifest.csv").is_file():
+            return c
+    raise ParameterError(f"no corpus to train the observers' expression classifier: neither "
+                         f"{stimuli_dir.parent / 'corpus'} nor {stimuli_dir / 'source'} exists")
+
+
+def observer_classifier(stimuli_dir, seed: int) -> ExpressionClassifier:
+    """The simulated observers' eyes for a stimulus set: an :class:`ExpressionClassifier` with
+    its default settings, fitted with ``seed`` on :func:`classifier_corpus` of ``stimuli_dir``
+    (the run's corpus, else the stimuli's source sentences)."""
+    return ExpressionClassifier().fit(load_corpus(classifier_corpus(stimuli_dir)), seed=seed)
 
 
 def visual_evidence(classifier: ExpressionClassifier, stimuli: dict, *,

@@ -28,6 +28,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from filelock import FileLock
+
 from face_model.errors import ParameterError
 from study.design import (
     N_TRIALS,
@@ -235,8 +237,6 @@ class Allocation:
         self.meta_path = self.dir / "allocation.json"
 
     def _lock(self):
-        from filelock import FileLock
-
         self.dir.mkdir(parents=True, exist_ok=True)
         return FileLock(str(self.dir / ".allocation.lock"), timeout=30)
 

@@ -32,11 +32,11 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from face_model.corpus import EXPRESSIONS  # the corpus's expressions, also the study's
 from face_model.errors import ParameterError
 
 SENTENCES = {"normal": "It is normal.", "good": "It is good.", "bad": "It is bad."}
 AUDIO = tuple(SENTENCES)  # audio track 1, 2, 3 of the paper
-EXPRESSIONS = ("neutral", "smile", "sad")
 FACES = ("synthetic", "real")
 RESPONSES = ("neutral", "happy", "sad", "not_sure")
 EMOTION_OF = {"neutral": "neutral", "smile": "happy", "sad": "sad"}  # a face's expression

@@ -1,8 +1,9 @@
 """One participant's session of the perception study (paper §VII-C), run in PsychoPy.
 
-:func:`run_session` first checks everything that can be refused (participant id, stimuli,
-allocation slot, data file: a complete session is never reopened, an interrupted one only with
-``resume``; the audio backend), then opens a window: instructions; one practice trial, not
+:func:`run_session` first checks everything that can be refused and plans the session without a
+window (:func:`study.session.plan_session`: participant id, stimuli, allocation slot, data file:
+a complete session is never reopened, an interrupted one only with ``resume``), then checks the
+audio backend, then executes the plan in a window: instructions; one practice trial, not
 written (skipped on resume; the neutral sentence's audio-only track, so neither face is seen
 before its block); then each block after a short instruction. A trial is a fixation cross, the
 stimulus, and the response screen (the face's last frame, or a speaker symbol, above the four
@@ -31,18 +32,17 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
+from PIL import Image
 
 from face_model.errors import ParameterError
 from study import data as sdata
-from study.design import (RESPONSES, Trial, check_participant_id, group_of, participant_seed,
-                          required_stimuli, session_trials)
-from study.stimuli import load_manifest, manifest_digest, read_video_frames
+from study.design import RESPONSES, required_stimuli
+from study.session import PRACTICE, SessionPlan, plan_session
+from study.stimuli import read_video_frames
 
 LABELS = {"neutral": "Neutral", "happy": "Happy", "sad": "Sad", "not_sure": "Not sure"}
-AUDIO_BACKENDS = ("sounddevice", "ptb", "none")
 DEFAULT_RT_S = 0.8
 LATE_FACTOR = 1.5  # a frame interval longer than this × the nominal refresh is late
-PRACTICE = Trial("audio", 0, -1, "none", "none", "normal", "audio-normal")
 WELCOME = ("In this study you will see and hear a person saying short sentences.\n\n"
            "After each one, tell us which emotion the person showed:\n\n{prompt}\n\n"
            "Answer with your first impression. There are no right or wrong answers.")
@@ -99,24 +99,6 @@ def scripted_responder(path):
         raise ParameterError(f"{path}: no response for stimuli {absent}; every stimulus of the "
                              "design needs one row")
     return lambda trial: table[trial.stimulus_id]
-
-
-def _check_options(keys, audio_backend, fixation_s, iti_s, window_size) -> list[str]:
-    keys = [str(k) for k in keys]
-    if len(keys) != len(RESPONSES) or len(set(keys)) != len(keys) or \
-            any(not k or k in ("escape", "space") for k in keys):
-        raise ParameterError(f"keys {keys}: give {len(RESPONSES)} different keys for "
-                             f"{', '.join(RESPONSES)} (not escape or space)")
-    if audio_backend not in AUDIO_BACKENDS:
-        raise ParameterError(f"audio backend {audio_backend!r}; allowed: "
-                             f"{', '.join(AUDIO_BACKENDS)}")
-    for name, v in (("fixation_s", fixation_s), ("iti_s", iti_s)):
-        if not (isinstance(v, (int, float)) and math.isfinite(v) and 0 <= v <= 10):
-            raise ParameterError(f"study.{name} = {v!r}; allowed: seconds in [0, 10]")
-    if not (len(window_size) == 2 and all(isinstance(s, (int, np.integer)) and s >= 320
-                                          for s in window_size)):
-        raise ParameterError(f"window size {window_size!r}; allowed: (width, height) >= 320 px")
-    return keys
 
 
 def _silent_sound(path):
@@ -248,8 +230,6 @@ class _Screen:
 
     def frames(self, video):
         """Decode every frame and build its ImageStim, scaled to fit above the prompt."""
-        from PIL import Image
-
         frames, fps = read_video_frames(video)
         fh, fw = frames.shape[1:3]
         scale = min(1.0, 0.8 * self.W / fw, 0.62 * self.H / fh)
@@ -334,19 +314,80 @@ def _quietly(psy, fn):
         psy.logging.console.level = level
 
 
-def _session_lock(study_dir: Path, pid: str):
-    """One session per participant at a time (a second terminal is refused, not interleaved)."""
-    from filelock import FileLock, Timeout
+def _judgments(screen: _Screen, plan: SessionPlan, psy, exp) -> None:
+    """The welcome, the practice trial, then the plan's steps, each judgment written as it is
+    made (the data file, fsync'ed; PsychoPy's files)."""
+    opts = dict(fixation_s=plan.fixation_s, iti_s=plan.iti_s)
+    screen.text(WELCOME.format(prompt=screen.prompt.text) + CONTINUE)
+    if plan.practice:
+        screen.text(PRACTICE_TEXT + CONTINUE)
+        screen.trial(PRACTICE, plan.stimuli[PRACTICE.stimulus_id], practice=True, **opts)
+        screen.text("The practice is over. The study begins now." + CONTINUE)
+    for step in plan.steps:
+        if step.part is not None:
+            screen.text(BLOCK_TEXT[step.part] + CONTINUE)
+        response, key, rt, qc = screen.trial(
+            step.trial, step.stimulus, screenshot=plan.screenshot if step.screenshot else None,
+            **opts)
+        row = sdata.trial_row(step.trial, participant_id=plan.participant_id,
+                              sequence=plan.sequence, response=response, response_key=key,
+                              rt_s=rt, simulated=plan.simulated,
+                              responder_model=plan.responder_model, session=plan.session, qc=qc)
+        plan.file.append(row)
+        for c in sdata.COLUMNS:
+            exp.addData(c, row[c])
+        exp.nextEntry()
+        names = _quietly(psy, exp.save)  # per trial: PsychoPy's record survives a crash
+        exp.queueNextCollision("overwrite", fileName=names)
 
-    folder = sdata.subject_dir(study_dir, pid)
-    folder.mkdir(parents=True, exist_ok=True)
-    lock = FileLock(str(folder / ".session.lock"))
+
+def _execute(plan: SessionPlan, psy, responder) -> str:
+    """Run the plan in a window, keeping the sidecar and PsychoPy's files; returns the end
+    state (``complete``, ``aborted``, or ``error: …`` as the exception is raised on)."""
+    versions = {"python": platform.python_version(), "psychopy": psy.version,
+                "numpy": np.__version__}
+    sdata.write_dataset_description(plan.study_dir, name="talkingface emotion-perception study",
+                                    simulated=plan.simulated)
+    base = plan.psychopy_base(time.strftime("%Y%m%dT%H%M%S"))
+    this = plan.record(start=sdata.now_iso(), versions=versions, audio_device=psy.speaker)
+    meta = plan.metadata(versions, this)
+
+    def save_sidecar():
+        sdata.write_atomic(plan.sidecar_path, json.dumps(meta, indent=1) + "\n")
+
+    base.parent.mkdir(parents=True, exist_ok=True)
+    exp = psy.data.ExperimentHandler(
+        name=f"talkingface-{sdata.TASK}",  # the rows carry session, sequence, ...
+        extraInfo={"participant": plan.participant_id, "study_seed": plan.study_seed},
+        originPath=__file__, savePickle=True, saveWideText=True, dataFileName=str(base))
+    log = psy.logging.LogFile(exp.dataFileName + ".log", level=psy.logging.EXP, filemode="w")
+    this["psychopy_files"] = [exp.dataFileName + e for e in (".csv", ".psydat", ".log")]
+    save_sidecar()
+    end_state, screen = "error", None
     try:
-        lock.acquire(timeout=0)
-    except Timeout:
-        raise ParameterError(f"a session of participant {pid} is already running (lock "
-                             f"{folder / '.session.lock'}); wait for it to end") from None
-    return lock
+        screen = _Screen(psy, size=plan.window_size, fullscreen=plan.fullscreen,
+                         keys=[plan.keys[r] for r in RESPONSES], responder=responder)
+        this["frame_period_s"] = screen.period
+        _judgments(screen, plan, psy, exp)
+        end_state = "complete"
+        screen.text("Thank you! The session is over.", wait=False,
+                    seconds=1.0 if responder is None else 0.1)
+    except _Abort:  # Escape (on the closing screen of a complete session, too late to abort)
+        end_state = "complete" if plan.file.complete else "aborted"
+    except BaseException as exc:
+        end_state = f"error: {type(exc).__name__}: {exc}"
+        raise
+    finally:
+        _quietly(psy, exp.close)  # saves what was completed; no further saves at exit
+        if screen is not None:
+            screen.win.close()
+        psy.logging.flush()
+        psy.logging.root.removeTarget(log)
+        this.update(end=sdata.now_iso(), end_state=end_state, rows_at_end=len(plan.file.done))
+        save_sidecar()
+        if end_state == "complete":  # otherwise the slot stays "assigned", for --resume
+            sdata.Allocation(plan.study_dir).set_status(plan.participant_id, "complete")
+    return end_state
 
 
 def run_session(study_dir, stimuli_dir, participant_id: str, *, study_seed: int,
@@ -357,133 +398,20 @@ def run_session(study_dir, stimuli_dir, participant_id: str, *, study_seed: int,
                 window_size=(1024, 768)) -> dict:
     """One session of ``participant_id`` (see the module text).
 
-    Returns ``{"participant_id", "sequence", "rows", "complete", "aborted", "data"}``: the
-    number of judgments in the data file, whether all 27 are there, whether Escape ended the
-    session, and the data file's path. Refusals raise ParameterError before any window opens.
+    Returns ``{"participant_id", "sequence", "rows", "complete", "aborted", "data",
+    "session", "sidecar"}``: the number of judgments in the data file, whether all 27 are
+    there, whether Escape ended the session, the data file's path, this session's number and
+    the sidecar's path. Refusals raise ParameterError before any window opens
+    (:func:`study.session.plan_session`, then the audio backend's check).
     """
-    pid = check_participant_id(participant_id)
-    keys = _check_options(keys, audio_backend, fixation_s, iti_s, window_size)
-    study_dir = Path(study_dir)
-    stimuli = load_manifest(stimuli_dir)
-    alloc = sdata.Allocation(study_dir)
-    data_file = sdata.data_path(study_dir, pid)
-    held = [r for r in alloc.rows() if r["participant_id"] == pid] if alloc.path.is_file() else []
-    if resume and not data_file.is_file():
-        if not held:
-            raise ParameterError(f"--resume: participant {pid} has no session to resume "
-                                 f"({data_file} not found)")
-        resume = False  # stopped before the first judgment: nothing to resume, start afresh
-    if data_file.is_file() and not held:
-        raise ParameterError(f"{data_file} exists but participant {pid} holds no slot in "
-                             f"{alloc.path} (was it released?); use a new participant id")
-    if not alloc.path.is_file():
-        alloc.create(n_slots, study_seed)
-    made = json.loads(alloc.meta_path.read_text()).get("seed") if alloc.meta_path.is_file() \
-        else study_seed
-    if made != study_seed:
-        raise ParameterError(f"{alloc.path} was made with seed {made}, but this session's study "
-                             f"seed is {study_seed}; run with --seed {made} (one seed per study)")
-    slot = alloc.assign(pid)
-    sequence = slot["sequence"]
-    trials = session_trials(pid, sequence, study_seed)
-    side_path = sdata.sidecar_path(study_dir, pid)
-    side = json.loads(side_path.read_text()) if side_path.is_file() else {}
-    digest = manifest_digest(stimuli)
-    if resume and side.get("stimuli", {}).get("manifest_digest", digest) != digest:
-        raise ParameterError(f"the stimuli in {stimuli_dir} differ from those of {pid}'s earlier "
-                             f"session (manifest digest, see {side_path}); resume with the same "
-                             "stimulus set")
-    lock = _session_lock(study_dir, pid)  # held until this function returns
-    sf = sdata.SessionFile(study_dir, pid, trials, resume=resume)
-    psy = _psychopy(audio_backend, stimuli[PRACTICE.stimulus_id].wav)
-    versions = {"python": platform.python_version(), "psychopy": psy.version,
-                "numpy": np.__version__}
-
-    simulated = responder_model.startswith("flmp")
-    sdata.write_dataset_description(study_dir, name="talkingface emotion-perception study",
-                                    simulated=simulated)
-    sessions = [dict(s, end_state="interrupted") if s.get("end_state") == "running" else s
-                for s in side.get("sessions", [])]
-    session_no = len(sessions) + 1
-    stamp = time.strftime("%Y%m%dT%H%M%S")
-    base = sdata.subject_dir(study_dir, pid) / "psychopy" / f"sub-{pid}_ses-{session_no}_{stamp}"
-    this = {"session": session_no, "start": sdata.now_iso(), "resumed": bool(resume),
-            "rows_at_start": len(sf.done), "dropped_partial_row": sf.dropped_partial,
-            "end": None, "end_state": "running", "rows_at_end": None,
-            "versions": versions, "responder_model": responder_model,
-            "audio_backend": audio_backend, "audio_device": psy.speaker,
-            "fullscreen": bool(fullscreen),
-            "window_size": [int(s) for s in window_size],
-            "practice": bool(practice and not resume)}
-    meta = {"participant_id": pid, "task": sdata.TASK, "group": group_of(sequence),
-            "versions": versions, "study_seed": int(study_seed),
-            "participant_seed": participant_seed(study_seed, pid),
-            "allocation": {"file": str(alloc.path), "slot": int(slot["slot"]),
-                           "sequence": sequence},
-            "stimuli": {"folder": str(Path(stimuli_dir).resolve()), "manifest_digest": digest},
-            "responder_model": responder_model, "simulated": simulated,
-            "keys": dict(zip(RESPONSES, keys)), "sessions": sessions + [this]}
-
-    def save_sidecar():
-        sdata.write_atomic(side_path, json.dumps(meta, indent=1) + "\n")
-
-    base.parent.mkdir(parents=True, exist_ok=True)
-    exp = psy.data.ExperimentHandler(
-        name=f"talkingface-{sdata.TASK}",  # the rows carry session, sequence, ...
-        extraInfo={"participant": pid, "study_seed": int(study_seed)},
-        originPath=__file__, savePickle=True, saveWideText=True, dataFileName=str(base))
-    log = psy.logging.LogFile(exp.dataFileName + ".log", level=psy.logging.EXP, filemode="w")
-    this["psychopy_files"] = [exp.dataFileName + e for e in (".csv", ".psydat", ".log")]
-    save_sidecar()
-    end_state, screen = "error", None
-    try:
-        screen = _Screen(psy, size=window_size, fullscreen=fullscreen, keys=keys,
-                         responder=responder)
-        this["frame_period_s"] = screen.period
-        opts = dict(fixation_s=fixation_s, iti_s=iti_s)
-        screen.text(WELCOME.format(prompt=screen.prompt.text) + CONTINUE)
-        if practice and not resume:
-            screen.text(PRACTICE_TEXT + CONTINUE)
-            screen.trial(PRACTICE, stimuli[PRACTICE.stimulus_id], practice=True, **opts)
-            screen.text("The practice is over. The study begins now." + CONTINUE)
-        part, shot = None, screenshot
-        for trial in sf.remaining:
-            if (trial.block, trial.period) != part:
-                part = (trial.block, trial.period)
-                screen.text(BLOCK_TEXT[part] + CONTINUE)
-            take = shot if trial.block == "bimodal" else None
-            response, key, rt, qc = screen.trial(trial, stimuli[trial.stimulus_id],
-                                                 screenshot=take, **opts)
-            shot = None if take else shot
-            row = sdata.trial_row(trial, participant_id=pid, sequence=sequence,
-                                  response=response, response_key=key, rt_s=rt,
-                                  simulated=simulated, responder_model=responder_model,
-                                  session=session_no, qc=qc)
-            sf.append(row)
-            for c in sdata.COLUMNS:
-                exp.addData(c, row[c])
-            exp.nextEntry()
-            names = _quietly(psy, exp.save)  # per trial: PsychoPy's record survives a crash
-            exp.queueNextCollision("overwrite", fileName=names)
-        end_state = "complete"
-        screen.text("Thank you! The session is over.", wait=False,
-                    seconds=1.0 if responder is None else 0.1)
-    except _Abort:  # Escape (on the closing screen of a complete session, too late to abort)
-        end_state = "complete" if sf.complete else "aborted"
-    except BaseException as exc:
-        end_state = f"error: {type(exc).__name__}: {exc}"
-        raise
+    plan = plan_session(study_dir, stimuli_dir, participant_id, study_seed=study_seed,
+                        n_slots=n_slots, resume=resume, fullscreen=fullscreen, keys=keys,
+                        practice=practice, fixation_s=fixation_s, iti_s=iti_s,
+                        audio_backend=audio_backend, responder_model=responder_model,
+                        screenshot=screenshot, window_size=window_size)
+    try:  # the participant's session lock is held until the session ends
+        psy = _psychopy(audio_backend, plan.stimuli[PRACTICE.stimulus_id].wav)
+        end_state = _execute(plan, psy, responder)
     finally:
-        _quietly(psy, exp.close)  # saves what was completed; no further saves at exit
-        if screen is not None:
-            screen.win.close()
-        psy.logging.flush()
-        psy.logging.root.removeTarget(log)
-        this.update(end=sdata.now_iso(), end_state=end_state, rows_at_end=len(sf.done))
-        save_sidecar()
-        if end_state == "complete":  # otherwise the slot stays "assigned", for --resume
-            alloc.set_status(pid, "complete")
-        lock.release()
-    return {"participant_id": pid, "sequence": sequence, "rows": len(sf.done),
-            "complete": sf.complete, "aborted": end_state == "aborted", "data": str(sf.path),
-            "session": session_no, "sidecar": str(side_path)}
+        plan.release()
+    return plan.result(end_state)

@@ -84,16 +84,28 @@ nothing that exists is ever overwritten.
 from __future__ import annotations
 
 import json
+import platform
 from dataclasses import asdict, dataclass
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 import numpy as np
+from tqdm.auto import tqdm
 
 from face_model.errors import ParameterError
 from study.classifier import (  # noqa: F401  (ExpressionClassifier, visual_evidence: re-exported)
     ExpressionClassifier,
     is_finite_number,
     visual_evidence,
+)
+from study.data import (
+    Allocation,
+    SessionFile,
+    data_path,
+    sidecar_path,
+    trial_row,
+    write_atomic,
+    write_dataset_description,
 )
 from study.design import (
     AUDIO_EMOTION,
@@ -108,6 +120,7 @@ from study.design import (
     participant_seed,
     session_trials,
 )
+from study.stimuli import manifest_digest
 
 RESPONDER_MODEL = "flmp-v1"
 EMOTIONS = ("neutral", "happy", "sad")  # the responses other than not_sure, in class order
@@ -313,9 +326,6 @@ def participant_ids(n: int) -> list[str]:
 
 
 def _versions() -> dict:
-    import platform
-    from importlib.metadata import PackageNotFoundError, version
-
     out = {"python": platform.python_version()}
     for name in ("numpy", "scipy", "scikit-learn"):
         try:
@@ -358,19 +368,6 @@ def simulate_study(study_dir, stimuli: dict, classifier: ExpressionClassifier, *
     ``data`` and ``sidecars`` (paths), ``dataset_description``, ``allocation``,
     ``responder_model``.
     """
-    from tqdm.auto import tqdm
-
-    from study.data import (
-        Allocation,
-        SessionFile,
-        data_path,
-        sidecar_path,
-        trial_row,
-        write_atomic,
-        write_dataset_description,
-    )
-    from study.stimuli import manifest_digest
-
     if len(keys) != len(RESPONSES) or len(set(keys)) != len(keys):
         raise ParameterError(f"keys must be {len(RESPONSES)} distinct keys for "
                              f"{', '.join(RESPONSES)}, got {keys!r}")

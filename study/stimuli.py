@@ -35,8 +35,15 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from tqdm.auto import tqdm
 
+from data_synth.generate import synthesize_corpus
+from face_model.alignment import align_markers, speaker_neutrals
+from face_model.audio import write_wav
+from face_model.corpus import load_corpus
 from face_model.errors import ParameterError
+from face_model.movie import write_mp4
+from face_model.render import FaceRenderer, face_grid
 from study.design import AUDIO, EXPRESSIONS, FACES, SENTENCES, required_stimuli, stimulus_id
 
 MANIFEST = "manifest.csv"
@@ -72,19 +79,10 @@ class Stimulus:
 
 
 def write_silent_mp4(path, frames, size, *, fps: int = FPS) -> Path:
-    """RGB frames (h, w, 3) uint8 → H.264 MP4 without audio."""
-    import imageio_ffmpeg
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    writer = imageio_ffmpeg.write_frames(str(path), size, fps=fps, codec="libx264",
-                                         pix_fmt_in="rgb24", pix_fmt_out="yuv420p", quality=8,
-                                         macro_block_size=8)
-    writer.send(None)
-    for frame in frames:
-        writer.send(np.ascontiguousarray(frame))
-    writer.close()
-    return path
+    """RGB frames (h, w, 3) uint8 → H.264 MP4 without audio (:func:`face_model.movie.write_mp4`
+    at quality 8, frame sizes padded to a multiple of 8 pixels)."""
+    return write_mp4(path, frames, len(frames) if hasattr(frames, "__len__") else None, size,
+                     fps=fps, audio_path=None, progress=False, quality=8, macro_block_size=8)
 
 
 def read_video_frames(path) -> tuple[np.ndarray, float]:
@@ -122,15 +120,6 @@ def build_stimuli(out_dir, *, animator, synth_cfg, seed: int, progress: bool = T
     seed : int
         The run seed (the stimulus speaker is the run corpus's first speaker).
     """
-    from tqdm.auto import tqdm
-
-    from data_synth.generate import synthesize_corpus
-    from face_model.alignment import align_markers, speaker_neutrals
-    from face_model.audio import write_wav
-    from face_model.corpus import load_corpus
-    from face_model.render import FaceRenderer
-    from mapping.animator import FaceAnimator
-
     out = Path(out_dir)
     if out.exists() and any(out.iterdir()):
         raise ParameterError(f"{out} exists and is not empty; stimuli are never overwritten "
@@ -142,8 +131,9 @@ def build_stimuli(out_dir, *, animator, synth_cfg, seed: int, progress: bool = T
                                            seed, progress=False))
     speaker = corpus.utterances[0].speaker
     neutral = speaker_neutrals(corpus)[speaker]
-    anim = FaceAnimator(animator.mapping, animator.units, neutral=neutral,
-                        silence_dbfs=animator.silence_dbfs)
+    # the same animator on the stimulus speaker's face (its class, not an import of
+    # mapping.animator, which loads torch: this module stays light for the session runner)
+    anim = type(animator)(animator.mapping, animator.units, neutral=neutral)
     renderer = FaceRenderer(mesh=False)
     rows, stills, titles = [], [], []
     jobs = [(a, i, e) for i, a in enumerate(AUDIO) for e in EXPRESSIONS]
@@ -175,8 +165,6 @@ def build_stimuli(out_dir, *, animator, synth_cfg, seed: int, progress: bool = T
         w = csv.DictWriter(f, fieldnames=COLUMNS, lineterminator="\n")
         w.writeheader()
         w.writerows(rows)
-    from analysis.figures import face_grid
-
     face_grid(stills, titles, out / "contact_sheet.png", ncols=len(FACES))
     (out / "stimuli.json").write_text(json.dumps(
         {"seed": seed, "speaker": speaker, "sentences": SENTENCES,

@@ -7,11 +7,20 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 
+from face_model.audio import read_wav
 from face_model.errors import ParameterError
+from face_model.keyframes import KeyframeModel, write_keyframe_tracks
+from face_model.motion_units import MotionUnits
+from face_model.movie import write_mp4
+from face_model.render import FaceRenderer
+from mapping.animator import FaceAnimator, StreamingAnimator
+from mapping.checkpoint import AudioMapping
+from talkingface.live import MicrophoneStats, microphone_chunks, run_stream, wav_chunks
 
 CLIP_LEVEL = 0.999
 CLIP_WARN_FRACTION = 0.001
@@ -50,18 +59,12 @@ def find_model(model: str | None, runs_dir="runs") -> tuple[Path, Path]:
 
 
 def load_animator(model: str | None, runs_dir="runs"):
-    from face_model.motion_units import MotionUnits
-    from mapping.animator import FaceAnimator
-    from mapping.model import AudioMapping
-
     tfmap, units = find_model(model, runs_dir)
     return FaceAnimator(AudioMapping.load(tfmap), MotionUnits.load(units)), tfmap
 
 
 def read_speech(path) -> tuple[np.ndarray, int, str | None]:
     """Mono float audio, its rate, and a warning when the file is clipped."""
-    from face_model.audio import read_wav
-
     y, sr = read_wav(path, mix_to_mono=True)
     clipped = float(np.mean(np.abs(y) >= CLIP_LEVEL))
     warn = None
@@ -71,31 +74,10 @@ def read_speech(path) -> tuple[np.ndarray, int, str | None]:
     return y, sr, warn
 
 
-def write_mp4(path, frames_iter, n_frames: int, size, *, fps: int, audio_path,
-              progress: bool = True) -> Path:
-    """H.264 video at ``fps`` with the audio of ``audio_path`` muxed as AAC."""
-    import imageio_ffmpeg
-    from tqdm import tqdm
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    writer = imageio_ffmpeg.write_frames(str(path), size, fps=fps, codec="libx264",
-                                         pix_fmt_in="rgb24", pix_fmt_out="yuv420p", quality=7,
-                                         audio_path=str(audio_path), audio_codec="aac")
-    writer.send(None)
-    for frame in tqdm(frames_iter, total=n_frames, desc="render", unit="frame",
-                      disable=not progress):
-        writer.send(np.ascontiguousarray(frame))
-    writer.close()
-    return path
-
-
 def animate_file(wav, out_mp4, *, expression: str = "neutral", model: str | None = None,
                  markers_out=None, keyframes_out=None, runs_dir="runs",
                  progress: bool = True) -> dict:
     """WAV → MP4 (and optionally markers .npy and keyframe tracks); returns a summary."""
-    from face_model.render import FaceRenderer
-
     animator, tfmap = load_animator(model, runs_dir)
     animator.check_expression(expression)
     y, sr, warn = read_speech(wav)
@@ -109,8 +91,6 @@ def animate_file(wav, out_mp4, *, expression: str = "neutral", model: str | None
     if markers_out:
         np.save(markers_out, markers.astype(np.float32))
     if keyframes_out:
-        from face_model.keyframes import KeyframeModel, write_keyframe_tracks
-
         kf_path = tfmap.parent.parent / "keyframes" / "keyframes.npz"
         if not kf_path.is_file():
             raise ParameterError(f"keyframes were not fitted for this run ({kf_path} missing); "
@@ -126,8 +106,6 @@ def animate_file(wav, out_mp4, *, expression: str = "neutral", model: str | None
 
 def _streaming(model, expression, runs_dir):
     """A warmed-up StreamingAnimator (the first calls load code paths: not latency)."""
-    from mapping.animator import StreamingAnimator
-
     animator, tfmap = load_animator(model, runs_dir)
     warm = StreamingAnimator(animator, expression)
     warm.push(np.zeros(animator.mapping.sample_rate // 5, np.float32))
@@ -136,8 +114,6 @@ def _streaming(model, expression, runs_dir):
 
 
 def _summary(stats, tfmap, warn) -> dict:
-    from dataclasses import asdict
-
     return {**asdict(stats), "model": str(tfmap), "warning": warn}
 
 
@@ -147,8 +123,6 @@ def stream_file(wav, *, expression: str = "neutral", model: str | None = None, r
     """Play a WAV through the :class:`~mapping.animator.StreamingAnimator` in chunks of
     ``chunk_s`` seconds, paced in real time unless ``paced`` is False; returns the figures of
     :func:`talkingface.live.run_stream`."""
-    from talkingface.live import run_stream, wav_chunks
-
     stream, animator, tfmap = _streaming(model, expression, runs_dir)
     y, sr, warn = read_speech(wav)
     y = animator.mapping.at_model_rate(y, sr)
@@ -163,8 +137,6 @@ def stream_microphone(*, expression: str = "neutral", model: str | None = None,
     """Animate live from an input device (see :mod:`talkingface.live`) for ``seconds`` of
     audio or until Ctrl-C; returns the figures of :func:`talkingface.live.run_stream` plus the
     device, its rate and the number of input overflows (samples the device dropped)."""
-    from talkingface.live import MicrophoneStats, microphone_chunks, run_stream
-
     stream, _, tfmap = _streaming(model, expression, runs_dir)
     mic = MicrophoneStats()
     stats = run_stream(stream, microphone_chunks(stream.sr, seconds=seconds, device=device,

@@ -7,46 +7,28 @@ line (``error: ...``) with exit status 2.
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import os
 import subprocess
 import sys
 from pathlib import Path
 
+from data_synth.generate import synthesize_corpus
+from face_model.corpus import load_corpus
 from face_model.errors import TalkingFaceError
-
-DEFAULT_GRID = Path(__file__).resolve().parents[1] / "configs" / "ablations.yaml"
-
-
-def _config_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--config", metavar="FILE", help="YAML config (defaults: the paper's values)")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="override one config value, e.g. --set synth.speakers=2 (repeatable)")
-    p.add_argument("--seed", type=int, help="the run seed (same as --set seed=N)")
-
-
-def _visual_source_arg(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--visual-source", choices=("markers", "tracked"),
-                   help="MUPs the mapping learns from: the corpus markers, or the corpus "
-                   "rendered as marker video and tracked by the MU-constrained tracker, as the "
-                   "paper did (same as --set mapping.visual_source=...)")
-
-
-def _load(args):
-    from talkingface.config import load_config
-
-    overrides = list(args.overrides)
-    if getattr(args, "seed", None) is not None:
-        overrides.append(f"seed={args.seed}")
-    if getattr(args, "visual_source", None) is not None:
-        overrides.append(f"mapping.visual_source={args.visual_source}")
-    return load_config(args.config, overrides)
+from talkingface import runs, study_cli
+from talkingface.animate import animate_file, stream_file, stream_microphone
+from talkingface.cli_args import config_args, resolve_config, run_args, visual_source_arg
+from talkingface.config import dump_config, load_config
+from talkingface.experiment_log import artifact_root, tracking_uri
+from talkingface.live import input_devices
+from talkingface.paths import RunPaths, check_run_name
+from talkingface.stages import run
+from talkingface.stages.foundation import fit_units_folder
 
 
 def cmd_synth(args) -> int:
-    from data_synth.generate import synthesize_corpus
-    from talkingface.config import dump_config
-    from talkingface.pipeline import with_synth
-
-    cfg = _load(args)
+    cfg = resolve_config(args)
     changes = {}
     if args.text:
         changes["text_file"] = str(args.text)
@@ -56,23 +38,20 @@ def cmd_synth(args) -> int:
         changes["n_sentences"] = args.sentences
     if args.speakers is not None:
         changes["speakers"] = args.speakers
-    cfg = with_synth(cfg, **changes)
+    cfg = dataclasses.replace(cfg, synth=dataclasses.replace(cfg.synth, **changes))
     out = synthesize_corpus(args.out, cfg.synth, cfg.seed, overwrite=args.overwrite)
     dump_config(cfg, out / "config.yaml")
-    from face_model.corpus import load_corpus
-
     c = load_corpus(out)
     print(f"wrote {out}: {len(c)} utterances, {c.n_frames} frames")
     return 0
 
 
 def cmd_units(args) -> int:
-    from talkingface.pipeline import stage_units
-
-    cfg = _load(args)
-    res = stage_units(Path(args.corpus), Path(args.out), cfg)
+    cfg = resolve_config(args)
+    res = fit_units_folder(Path(args.corpus), Path(args.out), cfg)
     s = res["summary"]
-    print(f"Motion Units fitted in {res['seconds']:.2f} s -> {Path(args.out) / 'motion_units.npz'}")
+    print(f"Motion Units fitted in {res['fit_seconds']:.2f} s -> "
+          f"{Path(args.out) / 'motion_units.npz'}")
     print(f"{'':32s}{'ours':>10s}{'paper':>10s}")
     print(f"{s['n_utterance']} utterance MUs (neutral){'':7s}{100 * s['explained']['neutral']:9.2f}%"
           f"{100 * s['paper']['neutral']:9.2f}%")
@@ -83,92 +62,61 @@ def cmd_units(args) -> int:
     return 0
 
 
-def cmd_replicate(args) -> int:
-    from talkingface.pipeline import replicate
+def _ablation_overrides(args) -> list[str]:
+    out = []
+    if getattr(args, "ablations", None) is not None:
+        out.append(f"ablations.grid={args.ablations}")
+    if getattr(args, "grid", None) is not None:
+        out.append(f"ablations.grid={args.grid}")
+    if getattr(args, "workers", None) is not None:
+        out.append(f"ablations.workers={args.workers}")
+    return out
 
-    cfg = _load(args)
-    grid = None if str(args.ablations).lower() == "none" else args.ablations
-    if grid is None and args.ablations is None:
-        grid = DEFAULT_GRID
-    pdf = replicate(args.name, cfg, overwrite=args.overwrite, ablation_grid=grid,
-                    workers=args.workers)
-    print(f"report: {pdf}")
+
+def cmd_replicate(args) -> int:
+    cfg = resolve_config(args, *_ablation_overrides(args))
+    print(f"report: {runs.replicate(args.name, cfg, overwrite=args.overwrite)}")
     return 0
 
 
-def _prepared(args):
-    """Config and paths of ``runs/<name>``, with the corpus and Motion Units made if missing."""
-    from talkingface.paths import RunPaths
-    from talkingface.pipeline import prepare_run, stage_synth, stage_units, _done
-
-    cfg = _load(args)
-    paths = RunPaths.create(args.name)
-    prepare_run(paths, cfg, overwrite=args.overwrite)
-    stage_synth(paths, cfg)
-    if not _done(paths.units):
-        stage_units(paths.corpus, paths.units, cfg)
-    return cfg, paths
-
-
 def cmd_train(args) -> int:
-    from talkingface.pipeline import stage_train
-    from talkingface.tracking import mlflow_run
-
-    from talkingface.motion_stage import stage_keyframes
-
-    cfg, paths = _prepared(args)
-    with mlflow_run(cfg, run_name=f"train:{args.name}", tags={"stage": "train"}) as mlf:
-        done = stage_train(paths, cfg, mlf=mlf)
-    if not (paths.root / "keyframes" / "done.json").is_file():  # animate --keyframes needs it
-        stage_keyframes(paths.corpus, paths.units_model, paths.root / "keyframes", cfg)
+    done = runs.train(args.name, resolve_config(args), overwrite=args.overwrite)
     for split, rk in done["ranking"].items():
         print(f"{split} split, mean test R / MSE:")
         for x in rk:
             print(f"  {x['rank']}. {x['method']:<15} R={x['R']:.3f}  MSE={x['MSE']:.4f}")
-    print(f"tables and models: {paths.mapping}")
+    print(f"tables and models: {RunPaths.create(args.name).mapping}")
     return 0
 
 
 def cmd_track(args) -> int:
-    from talkingface.motion_stage import stage_track_corpus
-
-    args.visual_source = "tracked"  # a tracked run: train, ablate, replicate then reuse it
-    cfg, paths = _prepared(args)
-    done = stage_track_corpus(paths.corpus, paths.units_model, paths.tracked, cfg)
+    # a tracked run: train, ablate and replicate then reuse the tracked corpus
+    cfg = resolve_config(args, "mapping.visual_source=tracked")
+    done = runs.track(args.name, cfg, overwrite=args.overwrite)
     print(f"{done['utterances']} utterances ({done['frames']} frames) rendered at image noise sd "
           f"{cfg.tracker.corpus_noise_sd:g} and tracked from the {cfg.tracker.init} placement: "
           f"marker error mean {done['error_px_mean']:.3f} px, 95th percentile "
           f"{done['error_px_p95']:.3f} px")
-    print(f"tracked corpus: {paths.tracked} (train on it with --visual-source tracked)")
+    print(f"tracked corpus: {RunPaths.create(args.name).tracked} (train on it with "
+          "--visual-source tracked)")
     return 0
 
 
 def cmd_ablate(args) -> int:
-    from talkingface.pipeline import stage_ablate
-    from talkingface.tracking import mlflow_run
-
-    cfg, paths = _prepared(args)
-    with mlflow_run(cfg, run_name=f"ablate:{Path(args.grid).stem}",
-                    tags={"stage": "ablate", "grid": str(args.grid)}) as mlf:
-        rows = stage_ablate(paths, cfg, args.grid, workers=args.workers, mlf=mlf, nested=False)
-    for r in rows:
+    done = runs.ablate(args.name, resolve_config(args, *_ablation_overrides(args)),
+                       overwrite=args.overwrite)
+    for r in done["rows"]:
         figures = "  ".join(f"{k}={float(v):.4f}" for k, v in r.items()
                             if k.endswith(("_R", "_MSE")) and v != "")
         print(f"  {r['setting']:<24} {figures}")
-    print(f"results: {paths.ablations / 'results.csv'}")
+    print(f"results: {RunPaths.create(args.name).ablations / 'results.csv'}")
     return 0
 
 
 def cmd_report(args) -> int:
-    from talkingface.config import load_config
-    from talkingface.paths import RunPaths, check_run_name
-    from talkingface.pipeline import stage_report
-
     if args.study_data is not None:
-        from talkingface.study_cli import study_report
-
         name = check_run_name(args.name or Path(args.study_data).resolve().name)
-        print(f"report: {study_report(args.study_data, name, seed=args.seed or 0)}")
+        print(f"report: {study_cli.study_report(args.study_data, name, seed=args.seed or 0)}")
         return 0
     if not args.name:
         raise TalkingFaceError("give --name RUN (a replication's report) or --study-data DIR "
@@ -177,15 +125,12 @@ def cmd_report(args) -> int:
     if not paths.config.is_file():
         raise TalkingFaceError(f"{paths.config} not found: run 'talkingface replicate --name "
                                f"{args.name}' first")
-    cfg = load_config(paths.config)
-    print(f"report: {stage_report(paths, cfg)}")
+    run(["report"], paths, load_config(paths.config))
+    print(f"report: {paths.pdf}")
     return 0
 
 
 def cmd_ui(args) -> int:
-    from talkingface.config import load_config
-    from talkingface.tracking import artifact_root, tracking_uri
-
     uri = tracking_uri(load_config(args.config, args.overrides))
     cmd = [sys.executable, "-m", "mlflow", "server", "--backend-store-uri", uri,
            "--host", "127.0.0.1", "--port", str(args.port)]
@@ -196,8 +141,6 @@ def cmd_ui(args) -> int:
 
 
 def cmd_animate(args) -> int:
-    from talkingface.animate import animate_file
-
     res = animate_file(args.wav, args.out, expression=args.expression, model=args.model,
                        markers_out=args.markers, keyframes_out=args.keyframes)
     if res["warning"]:
@@ -208,13 +151,7 @@ def cmd_animate(args) -> int:
 
 
 def cmd_stream(args) -> int:
-    import os
-
-    from talkingface.animate import stream_file, stream_microphone
-
     if args.list_devices:
-        from talkingface.live import input_devices
-
         devices = input_devices()
         for d in devices:
             print(f"{d['index']}: {d['name']} ({d['channels']} in, {d['rate']:.0f} Hz)")
@@ -248,69 +185,70 @@ def cmd_stream(args) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="talkingface", description=__doc__.splitlines()[0])
-    sub = p.add_subparsers(dest="command", required=True)
-
+def _corpus_commands(sub) -> None:
     s = sub.add_parser("synth", help="generate the synthetic audio-visual corpus")
     s.add_argument("--out", required=True, type=Path, help="corpus folder to create")
     s.add_argument("--text", type=Path, help="your own sentences, one per line")
     s.add_argument("--sentences", type=int, help="number of sentences (default: 100)")
     s.add_argument("--speakers", type=int, help="number of speakers (default: 1)")
     s.add_argument("--overwrite", action="store_true", help="replace an existing corpus folder")
-    _config_args(s)
+    config_args(s)
     s.set_defaults(func=cmd_synth)
 
     s = sub.add_parser("units", help="fit the Motion Units on a corpus")
     s.add_argument("--corpus", required=True, type=Path)
     s.add_argument("--out", required=True, type=Path, help="folder for motion_units.npz")
-    _config_args(s)
+    config_args(s)
     s.set_defaults(func=cmd_units)
 
-    s = sub.add_parser("replicate", help="run every stage into runs/<name> and write the report")
-    s.add_argument("--name", required=True, help="run name (runs/<name>, reports/<name>.pdf)")
-    s.add_argument("--overwrite", action="store_true",
-                   help="replace an existing run made with a different config")
-    _config_args(s)
-    _visual_source_arg(s)
-    s.set_defaults(func=cmd_replicate)
 
-    s.add_argument("--ablations", default=None, metavar="GRID",
+def _run_commands(sub) -> None:
+    s = sub.add_parser("replicate", help="run every stage into runs/<name> and write the report")
+    run_args(s, "run name (runs/<name>, reports/<name>.pdf)")
+    visual_source_arg(s)
+    s.add_argument("--ablations", metavar="GRID",
                    help="ablation grid trained as child runs and tabulated ('none' to skip; "
-                        "default: the project's configs/ablations.yaml)")
-    s.add_argument("--workers", type=int, default=0, help="processes for ablations (0: all cores)")
+                        "default: the project's configs/ablations.yaml; same as --set "
+                        "ablations.grid=GRID)")
+    s.add_argument("--workers", type=int, help="processes for ablations (0: all cores)")
+    s.set_defaults(func=cmd_replicate)
 
     s = sub.add_parser("train", help="train and evaluate the mapping and the baselines "
                        "(runs/<name>/mapping), logged to MLflow with the pyfunc model")
-    s.add_argument("--name", required=True, help="run name (its corpus and MUs are made if "
-                   "missing)")
-    s.add_argument("--overwrite", action="store_true",
-                   help="replace an existing run made with a different config")
-    _config_args(s)
-    _visual_source_arg(s)
+    run_args(s, "run name (its corpus and MUs are made if missing)")
+    visual_source_arg(s)
     s.set_defaults(func=cmd_train)
 
     s = sub.add_parser("track", help="render the run's corpus as marker video and track it with "
                        "the MU-constrained tracker (runs/<name>/tracked, a corpus); the run "
                        "trains on it (its config gets mapping.visual_source=tracked)")
-    s.add_argument("--name", required=True, help="run name (its corpus and MUs are made if "
-                   "missing)")
-    s.add_argument("--overwrite", action="store_true",
-                   help="replace an existing run made with a different config")
-    _config_args(s)
+    run_args(s, "run name (its corpus and MUs are made if missing)")
     s.set_defaults(func=cmd_track)
 
     s = sub.add_parser("ablate", help="one MLflow child run per setting of an ablation grid")
     s.add_argument("--grid", required=True, type=Path, help="grid file, e.g. "
                    "configs/ablations.yaml")
-    s.add_argument("--name", required=True, help="run whose corpus and MUs are used")
-    s.add_argument("--workers", type=int, default=0, help="processes (0: all cores)")
-    s.add_argument("--overwrite", action="store_true",
-                   help="replace an existing run made with a different config")
-    _config_args(s)
-    _visual_source_arg(s)
+    s.add_argument("--workers", type=int, help="processes (0: all cores)")
+    run_args(s, "run whose corpus and MUs are used")
+    visual_source_arg(s)
     s.set_defaults(func=cmd_ablate)
 
+    s = sub.add_parser("report", help="rebuild reports/<name>.pdf from runs/<name>, or a study "
+                       "report from study data alone (--study-data)")
+    s.add_argument("--name", help="run name (with --study-data: the PDF's name; default: the "
+                   "data folder's name)")
+    s.add_argument("--study-data", type=Path, help="a study data folder (real or simulated)")
+    s.add_argument("--seed", type=int, help="seed of the Monte Carlo parts (default 0)")
+    s.set_defaults(func=cmd_report)
+
+    s = sub.add_parser("ui", help="start the MLflow UI on 127.0.0.1 against the same store")
+    s.add_argument("--port", type=int, default=5000)
+    s.add_argument("--config", metavar="FILE")
+    s.add_argument("--set", dest="overrides", action="append", default=[])
+    s.set_defaults(func=cmd_ui)
+
+
+def _face_commands(sub) -> None:
     s = sub.add_parser("animate", help="animate a face from a WAV file into an MP4 (H.264, "
                        "30 fps, audio muxed)")
     s.add_argument("wav", type=Path, help="speech (any sample rate, mono or stereo)")
@@ -337,23 +275,14 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--fast", action="store_true", help="do not pace the input in real time")
     s.set_defaults(func=cmd_stream)
 
-    from talkingface.study_cli import add_parser as add_study_parser
 
-    add_study_parser(sub)
-
-    s = sub.add_parser("report", help="rebuild reports/<name>.pdf from runs/<name>, or a study "
-                       "report from study data alone (--study-data)")
-    s.add_argument("--name", help="run name (with --study-data: the PDF's name; default: the "
-                   "data folder's name)")
-    s.add_argument("--study-data", type=Path, help="a study data folder (real or simulated)")
-    s.add_argument("--seed", type=int, help="seed of the Monte Carlo parts (default 0)")
-    s.set_defaults(func=cmd_report)
-
-    s = sub.add_parser("ui", help="start the MLflow UI on 127.0.0.1 against the same store")
-    s.add_argument("--port", type=int, default=5000)
-    s.add_argument("--config", metavar="FILE")
-    s.add_argument("--set", dest="overrides", action="append", default=[])
-    s.set_defaults(func=cmd_ui)
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="talkingface", description=__doc__.splitlines()[0])
+    sub = p.add_subparsers(dest="command", required=True)
+    _corpus_commands(sub)
+    _run_commands(sub)
+    _face_commands(sub)
+    study_cli.add_parser(sub)
     return p
 
 

@@ -23,8 +23,10 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+import soxr
 
 from face_model.errors import ParameterError
+from face_model.render import FaceRenderer
 
 
 @dataclass
@@ -107,8 +109,6 @@ def microphone_chunks(sr: int, *, seconds: float | None, device=None, chunk_s: f
     try:
         sd.check_input_settings(device=device, channels=1, dtype="int16", samplerate=sr)
     except sd.PortAudioError:
-        import soxr
-
         rate = int(info["default_samplerate"])
         resampler = soxr.ResampleStream(rate, sr, 1, dtype="float32")
     stats.rate = rate
@@ -134,7 +134,6 @@ def run_stream(stream, chunks, *, show: bool = False, on_frame=None) -> StreamSt
     flush it; see the module text for the figures."""
     renderer = None
     if show:
-        from face_model.render import FaceRenderer
         renderer = FaceRenderer()
     fps, sr = stream.fps, stream.sr
     compute, emitted = [], []  # emitted: (frame index, wall time)

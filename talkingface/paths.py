@@ -3,15 +3,23 @@
 ::
 
     runs/<name>/
-      config.yaml           the resolved config of the last invocation
-      corpus/               data_synth output (the corpus contract)
-      units/                motion_units.npz, variance.csv, summary.json, config.yaml
-      tracked/              the corpus as the MU-constrained tracker sees it (visual_source
-                            tracked): the corpus contract plus tracking.csv
-      mapping/              trained mappings, Tables I-II (CSV), ranking, gate accuracy, plots
-      ablations/            one folder per ablation setting and results.csv
-      report/               figures and the summary the PDF is built from
+      config.yaml    the resolved config of the last invocation
+      corpus/        data_synth output (the corpus contract)
+      units/         motion_units.npz, variance.csv
+      keyframes/     keyframes.npz, roundtrip.csv, keyframes.png
+      tracking/      the MU-constrained tracker on rendered video: error_curve.csv/.png
+      tracked/       the corpus as the tracker sees it (mapping.visual_source tracked)
+      mapping/       trained mappings, Tables I-II (CSV), ranking, gate accuracy, plots
+      render/        Fig. 6 / Fig. 7-style pictures and keyframe tracks of a held-out sentence
+      stimuli/       the perception study's stimuli and manifest
+      study_data/    the simulated participants (psych-DS)
+      analysis/      Tables III-VII, statistics and model fits of study_data
+      ablations/     one folder per ablation setting and results.csv
+      report/        figures and the summary the PDF is built from
     reports/<name>.pdf
+
+Every stage folder holds the ``config.yaml`` it ran under and a ``done.json`` written last (see
+:mod:`talkingface.stages.base`).
 """
 from __future__ import annotations
 
@@ -22,6 +30,9 @@ from pathlib import Path
 from face_model.errors import ParameterError
 
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
+
+STAGE_FOLDERS = ("corpus", "units", "keyframes", "tracking", "tracked", "mapping", "render",
+                 "stimuli", "study_data", "analysis", "ablations", "report")
 
 
 def check_run_name(name: str) -> str:
@@ -43,37 +54,71 @@ class RunPaths:
         check_run_name(name)
         return cls(name, Path(runs_dir) / name, Path(reports_dir))
 
+    def stage(self, name: str) -> Path:
+        """The folder of stage ``name`` (one of :data:`STAGE_FOLDERS`)."""
+        if name not in STAGE_FOLDERS:
+            raise ParameterError(f"unknown stage {name!r}; allowed: {', '.join(STAGE_FOLDERS)}")
+        return self.root / name
+
     @property
     def config(self) -> Path:
         return self.root / "config.yaml"
 
     @property
     def corpus(self) -> Path:
-        return self.root / "corpus"
+        return self.stage("corpus")
 
     @property
     def units(self) -> Path:
-        return self.root / "units"
+        return self.stage("units")
 
     @property
     def units_model(self) -> Path:
         return self.units / "motion_units.npz"
 
     @property
+    def keyframes(self) -> Path:
+        return self.stage("keyframes")
+
+    @property
+    def keyframes_model(self) -> Path:
+        return self.keyframes / "keyframes.npz"
+
+    @property
+    def tracking(self) -> Path:
+        return self.stage("tracking")
+
+    @property
     def tracked(self) -> Path:
-        return self.root / "tracked"
+        return self.stage("tracked")
 
     @property
     def mapping(self) -> Path:
-        return self.root / "mapping"
+        return self.stage("mapping")
+
+    @property
+    def render(self) -> Path:
+        return self.stage("render")
+
+    @property
+    def stimuli(self) -> Path:
+        return self.stage("stimuli")
+
+    @property
+    def study_data(self) -> Path:
+        return self.stage("study_data")
+
+    @property
+    def analysis(self) -> Path:
+        return self.stage("analysis")
 
     @property
     def ablations(self) -> Path:
-        return self.root / "ablations"
+        return self.stage("ablations")
 
     @property
     def report_dir(self) -> Path:
-        return self.root / "report"
+        return self.stage("report")
 
     @property
     def pdf(self) -> Path:

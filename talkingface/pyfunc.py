@@ -7,26 +7,32 @@ Input (``model.predict(x, params={"expression": "smile"})``):
 * a pandas DataFrame with a ``path`` column (one WAV per row), as the MLflow scoring server sends.
 
 Output: one ``(n_frames, A0 + Ak)`` float32 array per input (a single array for a single input);
-frame k is centred at k / 30 s. ``expression`` is ``neutral`` by default.
+frame k is centred at k / 30 s. ``expression`` is ``neutral`` by default. The MUPs are those of
+:meth:`mapping.checkpoint.AudioMapping.predict_audio`, silence rule included, exactly what
+``talkingface animate`` draws.
 """
 from __future__ import annotations
 
 import warnings
+from importlib.metadata import version
 from pathlib import Path
 
 import mlflow.pyfunc
 import numpy as np
+from mlflow.models import ModelSignature
+from mlflow.types.schema import ParamSchema, ParamSpec
+
+from face_model.errors import ParameterError
+from mapping.checkpoint import AudioMapping
 
 REPO = Path(__file__).resolve().parents[1]
 CODE_PATHS = [str(REPO / p) for p in ("face_model", "mapping", "talkingface")]
 
 
 class MappingModel(mlflow.pyfunc.PythonModel):
-    """Wraps :class:`mapping.model.AudioMapping` (artifact ``mapping``)."""
+    """Wraps :class:`mapping.checkpoint.AudioMapping` (artifact ``mapping``)."""
 
     def load_context(self, context):
-        from mapping.model import AudioMapping
-
         self.mapping = AudioMapping.load(context.artifacts["mapping"])
 
     def predict(self, context, model_input, params=None):
@@ -43,8 +49,6 @@ class MappingModel(mlflow.pyfunc.PythonModel):
 
 
 def _as_items(model_input) -> tuple[list, bool]:
-    from face_model.errors import ParameterError
-
     if isinstance(model_input, (str, Path)):
         return [model_input], True
     if isinstance(model_input, dict):
@@ -67,9 +71,6 @@ def _as_items(model_input) -> tuple[list, bool]:
 
 def log_mapping_model(mlf, model_path: Path, *, name: str = "mapping"):
     """Log ``model_path`` (an ``AudioMapping`` file) as a pyfunc model of the active run."""
-    from mlflow.models import ModelSignature
-    from mlflow.types.schema import ParamSchema, ParamSpec
-
     # No input schema: the input is a path, a dict or a list, which a column schema would turn
     # into a DataFrame; the params schema carries the expression.
     signature = ModelSignature(inputs=None,
@@ -86,7 +87,5 @@ def log_mapping_model(mlf, model_path: Path, *, name: str = "mapping"):
 
 
 def _requirements() -> list[str]:
-    from importlib.metadata import version
-
     return [f"{p}=={version(p)}" for p in ("numpy", "scipy", "scikit-learn", "torch", "librosa",
                                            "mlflow")]

@@ -14,76 +14,34 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from analysis.perception_report import analyze_study, perception_section
+from analysis.report import Report
 from face_model.errors import ParameterError
+from study.classifier import observer_classifier, visual_evidence
+from study.data import Allocation, data_path, read_rows
+from study.design import participant_seed, session_trials
+from study.runner import run_session, scripted_responder
+from study.simulate import RESPONDER_MODEL, make_observers, responder, simulate_study
+from study.stimuli import load_manifest
+from talkingface import runs
+from talkingface.cli_args import config_args, resolve_config, run_args
+from talkingface.provenance import git_commit
 
 DEFAULT_STUDY_DIR = Path("study_data")
-
-
-def _cfg(args):
-    from talkingface.cli import _load
-
-    return _load(args)
 
 
 def _stimuli_dir(args) -> Path:
     if args.stimuli:
         return Path(args.stimuli)
-    runs = sorted(Path("runs").glob("*/stimuli/manifest.csv"), key=lambda p: p.stat().st_mtime)
-    if not runs:
+    found = sorted(Path("runs").glob("*/stimuli/manifest.csv"), key=lambda p: p.stat().st_mtime)
+    if not found:
         raise ParameterError("no stimuli found under runs/: make them with `talkingface study "
                              "stimuli --name RUN` (or `make replicate`), or pass --stimuli DIR")
-    return runs[-1].parent
-
-
-def classifier_corpus(stimuli_dir: Path) -> Path:
-    """The corpus the simulated observers' expression classifier learns from: the run's corpus
-    beside ``runs/<name>/stimuli``, else the stimuli's own source sentences."""
-    stimuli_dir = Path(stimuli_dir)
-    for c in (stimuli_dir.parent / "corpus", stimuli_dir / "source"):
-        if (c / "manifest.csv").is_file():
-            return c
-    raise ParameterError(f"no corpus to train the observers' expression classifier: neither "
-                         f"{stimuli_dir.parent / 'corpus'} nor {stimuli_dir / 'source'} exists")
-
-
-def stage_simulate(run_root: Path, cfg, *, n: int | None = None) -> dict:
-    """``runs/<name>/study_data``: the simulated participants of the replication (reused when
-    complete)."""
-    from face_model.corpus import load_corpus
-    from study.simulate import ExpressionClassifier, simulate_study
-    from study.stimuli import load_manifest
-
-    out = Path(run_root) / "study_data"
-    done = out / "simulated.json"
-    if done.is_file():
-        return json.loads(done.read_text())
-    if out.exists():  # an interrupted simulation: simulated data are remade, never mixed
-        import shutil
-
-        shutil.rmtree(out)
-    stim = Path(run_root) / "stimuli"
-    clf = ExpressionClassifier().fit(load_corpus(classifier_corpus(stim)), seed=cfg.seed)
-    res = simulate_study(out, load_manifest(stim), clf, n=n or cfg.study.n_participants,
-                         seed=cfg.seed, study_seed=cfg.seed)
-    done.write_text(json.dumps(res, indent=1, default=str))
-    return json.loads(done.read_text())
-
-
-def stage_analyze(run_root: Path, cfg) -> dict:
-    """``runs/<name>/analysis``: Tables III–VII, statistics and model fits of the run's study
-    data."""
-    from analysis.perception_report import analyze_study
-
-    return analyze_study(Path(run_root) / "study_data", Path(run_root) / "analysis",
-                         seed=cfg.seed)
+    return found[-1].parent
 
 
 def study_report(study_dir, name: str, *, seed: int = 0, reports_dir="reports") -> Path:
     """``reports/<name>.pdf`` from a study's data alone: the analysis and how it was made."""
-    from analysis.perception_report import analyze_study, perception_section
-    from analysis.report import Report
-    from talkingface.tracking import git_commit
-
     out = Path(reports_dir) / f"{name}_analysis"
     summary = analyze_study(study_dir, out, seed=seed)
     rep = Report(f"talkingface perception study: {name}",
@@ -98,8 +56,6 @@ def study_report(study_dir, name: str, *, seed: int = 0, reports_dir="reports") 
 
 
 def cmd_analyze(args) -> int:
-    from analysis.perception_report import analyze_study
-
     out = args.out or Path(args.study_data) / "analysis"
     summary = analyze_study(args.study_data, out, seed=args.seed or 0)
     for k, t in summary["tallies"].items():
@@ -108,40 +64,15 @@ def cmd_analyze(args) -> int:
     return 0
 
 
-def stage_stimuli(run_root: Path, cfg, *, progress: bool = True) -> dict:
-    """``runs/<name>/stimuli`` from the run's trained mapping (reused when present)."""
-    from study.stimuli import MANIFEST, build_stimuli
-    from talkingface.animate import load_animator
-
-    out = Path(run_root) / "stimuli"
-    if (out / MANIFEST).is_file() and (out / "stimuli.json").is_file():
-        return json.loads((out / "stimuli.json").read_text())
-    if out.exists():  # an interrupted build: nothing in it was ever used
-        import shutil
-
-        shutil.rmtree(out)
-    animator, _ = load_animator(str(run_root))
-    build_stimuli(out, animator=animator, synth_cfg=cfg.synth, seed=cfg.seed, progress=progress)
-    return json.loads((out / "stimuli.json").read_text())
-
-
 def cmd_stimuli(args) -> int:
-    from talkingface.cli import _prepared
-    from talkingface.pipeline import stage_train
-
-    cfg, paths = _prepared(args)
-    if not (paths.mapping / "done.json").is_file():
-        stage_train(paths, cfg)
-    info = stage_stimuli(paths.root, cfg)
-    print(f"{info['n_stimuli']} stimuli in {paths.root / 'stimuli'} (manifest.csv, "
+    info = runs.stimuli(args.name, resolve_config(args), overwrite=args.overwrite)
+    print(f"{info['n_stimuli']} stimuli in {Path('runs') / args.name / 'stimuli'} (manifest.csv, "
           "contact_sheet.png)")
     return 0
 
 
 def cmd_allocate(args) -> int:
-    from study.data import Allocation
-
-    cfg = _cfg(args)
+    cfg = resolve_config(args)
     n = args.n or cfg.study.n_participants
     rows = Allocation(args.study_dir).create(n, cfg.seed)
     counts = {s: sum(r["sequence"] == s for r in rows) for s in ("SR", "RS")}
@@ -154,22 +85,9 @@ def _injected(args, stimuli_dir: Path, cfg, pid: str):
     """``(responder, model name)`` for ``--inject``: ``flmp`` or a CSV of responses."""
     if not args.inject:
         return None, "human"
-    from study.runner import scripted_responder
-
     if args.inject != "flmp":
         return scripted_responder(args.inject), f"script:{Path(args.inject).name}"
-    from study.design import participant_seed
-    from study.simulate import (
-        RESPONDER_MODEL,
-        ExpressionClassifier,
-        make_observers,
-        responder,
-        visual_evidence,
-    )
-    from study.stimuli import load_manifest
-    from face_model.corpus import load_corpus
-
-    clf = ExpressionClassifier().fit(load_corpus(classifier_corpus(stimuli_dir)), seed=cfg.seed)
+    clf = observer_classifier(stimuli_dir, cfg.seed)
     observer = make_observers(1, participant_seed(cfg.seed, pid))[0]
     answer = responder(observer, visual_evidence(clf, load_manifest(stimuli_dir)))
     if args.resume:
@@ -180,9 +98,6 @@ def _injected(args, stimuli_dir: Path, cfg, pid: str):
 def _replay_answers(answer, study_dir: Path, pid: str, seed: int) -> None:
     """On --resume, let a simulated observer answer the judgments already on file again (and
     discard them), so its random stream continues where the interrupted session left it."""
-    from study.data import Allocation, data_path, read_rows
-    from study.design import session_trials
-
     path = data_path(study_dir, pid)
     if not path.is_file():
         return
@@ -193,9 +108,7 @@ def _replay_answers(answer, study_dir: Path, pid: str, seed: int) -> None:
 
 
 def cmd_run(args) -> int:
-    from study.runner import run_session
-
-    cfg = _cfg(args)
+    cfg = resolve_config(args)
     stim = _stimuli_dir(args)
     resp, model = _injected(args, stim, cfg, args.participant)
     s = cfg.study
@@ -215,8 +128,6 @@ def cmd_run(args) -> int:
 
 
 def cmd_release(args) -> int:
-    from study.data import Allocation
-
     slot = Allocation(args.study_dir).release(args.participant, note=args.note or "")
     print(f"slot {slot['slot']} ({slot['sequence']}) is free again; {args.participant}'s data "
           "stay where they are")
@@ -224,13 +135,9 @@ def cmd_release(args) -> int:
 
 
 def cmd_simulate(args) -> int:
-    from face_model.corpus import load_corpus
-    from study.simulate import ExpressionClassifier, simulate_study
-    from study.stimuli import load_manifest
-
-    cfg = _cfg(args)
+    cfg = resolve_config(args)
     stim = _stimuli_dir(args)
-    clf = ExpressionClassifier().fit(load_corpus(classifier_corpus(stim)), seed=cfg.seed)
+    clf = observer_classifier(stim, cfg.seed)
     res = simulate_study(args.study_dir, load_manifest(stim), clf, n=args.n, seed=cfg.seed,
                          study_seed=cfg.seed, progress=True)
     print(json.dumps(res, indent=1, default=str))
@@ -238,8 +145,6 @@ def cmd_simulate(args) -> int:
 
 
 def add_parser(sub) -> None:
-    from talkingface.cli import _config_args
-
     a = sub.add_parser("analyze", help="Tables III–VII, statistics and FLMP/WTAV fits of study "
                        "data (real or simulated)")
     a.add_argument("study_data", type=Path, help="a study data folder")
@@ -252,10 +157,7 @@ def add_parser(sub) -> None:
     ss = p.add_subparsers(dest="study_command", required=True)
 
     s = ss.add_parser("stimuli", help="make runs/<name>/stimuli from the run's trained mapping")
-    s.add_argument("--name", required=True, help="run (trained first if needed)")
-    s.add_argument("--overwrite", action="store_true",
-                   help="replace an existing run made with a different config")
-    _config_args(s)
+    run_args(s, "run (trained first if needed)")
     s.set_defaults(func=cmd_stimuli)
 
     def study_dir(q):
@@ -265,7 +167,7 @@ def add_parser(sub) -> None:
     s = ss.add_parser("allocate", help="write the seeded SR/RS allocation list")
     study_dir(s)
     s.add_argument("--n", type=int, help="slots (default: study.n_participants)")
-    _config_args(s)
+    config_args(s)
     s.set_defaults(func=cmd_allocate)
 
     s = ss.add_parser("run", help="one PsychoPy session for a participant")
@@ -278,7 +180,7 @@ def add_parser(sub) -> None:
     s.add_argument("--inject", help="answer automatically: 'flmp' (a simulated observer) or a "
                    "CSV of stimulus_id,response[,rt_s] (tests and demonstrations)")
     s.add_argument("--screenshot", type=Path, help="save a PNG of the first bimodal trial")
-    _config_args(s)
+    config_args(s)
     s.set_defaults(func=cmd_run)
 
     s = ss.add_parser("release", help="free an aborted participant's allocation slot")
@@ -291,6 +193,6 @@ def add_parser(sub) -> None:
     s.add_argument("--n", type=int, default=20)
     study_dir(s)
     s.add_argument("--stimuli", type=Path, help="stimulus folder (default: the latest run's)")
-    _config_args(s)
+    config_args(s)
     s.set_defaults(func=cmd_simulate)
 

@@ -2,8 +2,13 @@
 import numpy as np
 from pypdf import PdfReader
 
-from analysis import figures
-from analysis.report import Report
+from analysis import figures, stats
+from analysis.corpus_report import noise_floor_share
+from analysis.mapping_report import mapping_section
+from analysis.perception_stats_report import stats_section
+from analysis.report import Report, escape
+from analysis.study_data import PAPER_TALLIES, trials_from_tallies
+from study.design import EMOTION_OF
 
 
 def test_tables_are_real_text(tmp_path):
@@ -31,8 +36,6 @@ def test_same_content_gives_the_same_pdf(tmp_path):
 
 def test_noise_floor_share_recovers_white_noise():
     """Low-rank signal + white noise of known variance: the estimated share matches the truth."""
-    from analysis.foundation import noise_floor_share
-
     rng = np.random.default_rng(3)
     n, d, rank, sd = 20000, 158, 5, 0.2
     basis = np.linalg.qr(rng.standard_normal((d, rank)))[0].T
@@ -42,3 +45,61 @@ def test_noise_floor_share_recovers_white_noise():
     true_share = d * sd**2 / var.sum()
     assert abs(noise_floor_share(var) - true_share) < 0.1 * true_share
     assert noise_floor_share(np.array([3.0, 2.0, 1.0])) == 0.0  # too few axes to tell
+
+
+def pdf_text(path) -> str:
+    """The PDF's text with every run of white space (line breaks included) as one space."""
+    return " ".join(" ".join(p.extract_text() for p in PdfReader(path).pages).split())
+
+
+def _mapping_summary() -> dict:
+    """The least of a train stage's summary that :func:`mapping_section` reads."""
+    mapping = {"method": "gated_mlp", "cascade_hidden": 5, "expression_model": "cascade",
+               "n_mfcc": 10, "deltas": False, "context_back": 2, "context_forward": 2,
+               "gate_components": 4, "gate_covariance": "diag", "n_classes": 44,
+               "hidden_min": 5, "hidden_max": 20, "min_class_frames": 50,
+               "visual_source": "markers"}
+    ranking = [{"rank": 1, "method": "gated_mlp", "reference": "Hong, Wen & Huang (2002), §VI",
+                "R": 0.9, "MSE": 0.01, "fit_seconds": 1.0}]
+    return {"config": {"mapping": mapping}, "rows": [], "gate": {},
+            "ranking": {"utterance": ranking}, "trajectories": "none.png"}
+
+
+def test_an_ampersand_prints_once_in_paragraphs_and_table_cells(tmp_path):
+    """Report text is markup everywhere: '&amp;' in a paragraph, a note or a table cell
+    prints as '&'; the method ranking's reference (a cell) once printed a literal '&amp;'."""
+    rep = Report("T")
+    rep.paragraph("Paragraph: Hong, Wen " + escape("&") + " Huang.")
+    rep.table("c", ["a " + escape("&") + " b"], [[escape("R&D <1>")]], note="Note: x &amp; y.")
+    mapping_section(rep, _mapping_summary(), tmp_path, None)
+    text = pdf_text(rep.build(tmp_path / "amp.pdf"))
+    assert "&amp;" not in text
+    for s in ("Paragraph: Hong, Wen & Huang.", "a & b", "R&D <1>", "Note: x & y.",
+              "gated_mlp Hong, Wen & Huang (2002), §VI"):
+        assert s in text
+
+
+def _gee_sentence(text: str) -> str:
+    return text[text.index("GEE logistic model"):text.index("Visual capture")]
+
+
+def test_a_gee_that_is_not_estimable_says_why_in_words(tmp_path):
+    """Separation in the bimodal cells: the report names the cells in a sentence (it once
+    printed a Python list of dicts)."""
+    df = trials_from_tallies(PAPER_TALLIES, seed=0)
+    bim = df["block"] == "bimodal"
+    real, neutral_syn = bim & (df["face"] == "real"), \
+        bim & (df["face"] == "synthetic") & (df["expression"] == "neutral")
+    df.loc[real, "response"] = df.loc[real, "expression"].map(EMOTION_OF)  # all consistent
+    df.loc[neutral_syn, "response"] = "not_sure"  # none consistent
+    summary = stats.summary(df, seed=0)
+    assert not summary["gee"].estimable
+    rep = Report("T")
+    stats_section(rep, summary)
+    sentence = _gee_sentence(pdf_text(rep.build(tmp_path / "gee.pdf")))
+    assert not set("[]{}'") & set(sentence), sentence
+    assert "not estimable" in sentence
+    assert "all face-consistent in 6 of the 12 face × expression × sequence cells" in sentence
+    assert "real face, smile expression, sequence RS" in sentence
+    assert ", and none face-consistent in 2 (synthetic face, neutral expression, sequence SR; "\
+        "synthetic face, neutral expression, sequence RS)." in sentence

@@ -13,7 +13,7 @@ from scipy import stats as sps
 from statsmodels.stats.contingency_tables import SquareTable, Table, mcnemar
 from statsmodels.stats.proportion import proportion_confint
 
-from analysis import crossover, stats
+from analysis import crossover, scoring, stats
 from analysis.study_data import PAPER_TALLIES, trials_from_tallies
 from face_model.errors import ParameterError
 from study.design import AUDIO, EMOTION_OF, EXPRESSIONS, FACES, RESPONSES
@@ -223,7 +223,7 @@ def test_unknown_codes_and_missing_columns_are_refused(paper_df):
     bad = paper_df.copy()
     bad.loc[0, "response"] = "angry"
     with pytest.raises(ParameterError, match="angry"):
-        stats.correct(bad)
+        scoring.correct(bad)
     with pytest.raises(ParameterError, match="sequence"):
         stats.paired_cells(paper_df.drop(columns="sequence"))
 
@@ -358,9 +358,12 @@ def test_gee_degenerate_designs_are_not_estimable(paper_df):
     sel = (one_face["block"] == "bimodal") & (one_face["face"] == "real")
     one_face.loc[sel, "response"] = one_face.loc[sel, "expression"].map(EMOTION_OF)
     res = stats.gee_face_model(one_face, interactions=False)
-    assert not res.estimable and "real" in res.reason
+    assert not res.estimable
+    assert res.reason == ("separation: the bimodal responses were all face-consistent in 1 of "
+                          "the 2 face levels (real face)")
     only_sr = paper_df[paper_df["sequence"] == "SR"]
-    assert not stats.gee_face_model(only_sr).estimable
+    res = stats.gee_face_model(only_sr)
+    assert not res.estimable and res.reason == "no bimodal trials with sequence RS"
     with pytest.raises(ParameterError, match="ar1"):
         stats.gee_face_model(paper_df, working="ar1")
 

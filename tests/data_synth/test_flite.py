@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from data_synth import flite as flite_mod
+from data_synth.backends import get_backend
 from data_synth.flite import FLITE_TO_CLASS, FliteBackend, flite_features
 from data_synth.generate import synthesize_corpus
-from data_synth.speech import SynthRequest, get_backend
+from data_synth.speech import SynthRequest
 from face_model.corpus import load_corpus
 from face_model.errors import ParameterError
 from face_model.phones import PHONE_INDEX

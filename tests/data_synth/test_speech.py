@@ -1,18 +1,22 @@
 """Speech synthesis interface: phone events → contiguous 44-class segments, and espeak-ng."""
 from __future__ import annotations
 
+import ast
+from pathlib import Path
+
 import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from data_synth.espeak import ESPEAK_TO_CLASS
+from data_synth import backends, speech
+from data_synth.backends import get_backend
+from data_synth.espeak import ESPEAK_TO_CLASS, EspeakBackend
 from data_synth.speech import (
     RawPhone,
     SpeechBackend,
     SynthRequest,
     SynthResult,
-    get_backend,
     phone_segments,
 )
 from face_model.corpus import PhoneSegment
@@ -140,3 +144,21 @@ def test_unknown_backend_is_refused():
     with pytest.raises(ParameterError, match="synth.backend 'festival' is unknown; allowed: "
                                              "espeak, flite"):
         get_backend("festival")
+
+
+def test_backends_are_looked_up_by_name(monkeypatch):
+    assert isinstance(get_backend("espeak"), EspeakBackend)
+    assert isinstance(get_backend("espeak-ng"), EspeakBackend)
+    monkeypatch.setattr(backends.shutil, "which", lambda name: None)
+    with pytest.raises(ParameterError, match=r"synth\.backend 'flite' needs the flite program "
+                                             r"\(apt-get install flite\); allowed: espeak, flite"):
+        get_backend("flite")
+
+
+def test_the_speech_interface_imports_no_backend():
+    """The dependency is one-way: the backends import the interface, the lookup by name lives
+    above both (data_synth.backends)."""
+    tree = ast.parse(Path(speech.__file__).read_text())
+    imported = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+    imported |= {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    assert not any((m or "").startswith("data_synth") for m in imported), imported

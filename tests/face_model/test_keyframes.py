@@ -277,6 +277,38 @@ def test_save_load_rebuilds_the_same_conversion(fitted, small_corpus, tmp_path):
         KeyframeModel.load(tmp_path / "missing.npz")
 
 
+def test_the_model_file_stores_its_motion_units_as_the_units_file_does(fitted, tmp_path):
+    """The Motion Units inside keyframes.npz are their :meth:`MotionUnits.to_arrays` record:
+    the same arrays (names prefixed ``mu_``) and metadata as motion_units.npz."""
+    model, units, _ = fitted
+    path = model.save(tmp_path / "keyframes.npz")
+    arrays, meta = units.to_arrays()
+    with np.load(path, allow_pickle=False) as z:
+        stored = json.loads(str(z["metadata"]))
+        assert stored["format"] == "talkingface.keyframes/2" and stored["units"] == meta
+        assert set(z.files) == {"metadata", "shapes", *(f"mu_{n}" for n in arrays)}
+        for name, value in arrays.items():
+            assert np.array_equal(z[f"mu_{name}"], value)
+    loaded = KeyframeModel.load(path).units_
+    again, again_meta = loaded.to_arrays()
+    assert again_meta == meta and all(np.array_equal(again[n], arrays[n]) for n in arrays)
+    assert loaded.metadata_ == {**units.metadata_, "layout_version": meta["layout_version"]}
+    # an older version, and a file whose Motion Units lost an array, are refused by name
+    old = tmp_path / "old.npz"
+    np.savez(old, metadata=np.array(json.dumps({**stored, "format": "talkingface.keyframes/1"})),
+             shapes=model.shapes_)
+    with pytest.raises(ParameterError, match=r"old\.npz: not a keyframe model of this version "
+                                             r"\(format 'talkingface\.keyframes/1', expected "
+                                             r"'talkingface\.keyframes/2'\)"):
+        KeyframeModel.load(old)
+    broken = tmp_path / "broken.npz"
+    np.savez(broken, metadata=np.array(json.dumps(stored)), shapes=model.shapes_,
+             **{f"mu_{n}": v for n, v in arrays.items() if n != "smile__mean"})
+    with pytest.raises(ParameterError, match=r"broken\.npz \(its Motion Units\): Motion Units "
+                                             r"arrays smile__mean are missing"):
+        KeyframeModel.load(broken)
+
+
 def test_invalid_inputs_raise_helpful_errors(fitted):
     model, _, _ = fitted
     with pytest.raises(ParameterError, match=r"MUPs \(A_0 \+ A_k columns\) must have "

@@ -1,6 +1,7 @@
 """The 79-marker layout of the paper's Fig. 2: counts, regions, lip order and the skin mesh."""
 from __future__ import annotations
 
+import re
 from collections import Counter
 
 import numpy as np
@@ -21,7 +22,9 @@ from face_model.layout import (
     UPPER_INNER,
     UPPER_OUTER,
     default_layout,
+    mouth_opening,
 )
+from face_model.errors import ParameterError
 
 MOUTH_OPENING = ([LEFT_INNER_CORNER, *UPPER_INNER, RIGHT_INNER_CORNER, *LOWER_INNER])
 
@@ -136,3 +139,35 @@ def test_layout_is_deterministic_and_read_only():
         second.neutral[0, 0] = 0.0
     with pytest.raises(ValueError, match="read-only"):
         second.triangles[0, 0] = 0
+
+
+def test_mouth_opening_is_the_inner_lip_gap_in_pixels(rng):
+    neutral = default_layout().neutral
+    # The layout's inner lips are 1.2 px · sqrt(1 − (x/25)²) above and below the mouth centre
+    # line at x = −25 + 50 k/6, k = 1…5, so the neutral opening is 2.4 px times their mean.
+    x = -25.0 + 50.0 * np.arange(1, 6) / 6
+    opening = mouth_opening(neutral[None])
+    assert opening.shape == (1,)
+    assert opening[0] == pytest.approx(2.4 * np.sqrt(1.0 - (x / 25.0) ** 2).mean(), abs=1e-12)
+    frames = neutral + rng.normal(0.0, 2.0, (20, N_MARKERS, 2))
+    base = mouth_opening(frames)
+    assert base.shape == (20,)
+    # Lowering the inner lower lip by 7 px opens the mouth by 7 px; x and head shifts do not.
+    lowered = frames.copy()
+    lowered[5, list(LOWER_INNER), 1] += 7.0
+    lowered[:, :, 0] += 30.0
+    np.testing.assert_allclose(mouth_opening(lowered) - base, np.eye(20)[5] * 7.0, atol=1e-9)
+    np.testing.assert_allclose(mouth_opening(frames + [13.0, -4.0]), base, atol=1e-9)
+    # Bit for bit the expression the call sites wrote by hand, in the markers' own precision.
+    for dtype in (np.float64, np.float32):
+        m = frames.astype(dtype)
+        by_hand = m[:, 71:76, 1].mean(1) - m[:, 65:70, 1].mean(1)
+        got = mouth_opening(m)
+        assert got.dtype == by_hand.dtype and np.array_equal(got, by_hand)
+
+
+@pytest.mark.parametrize("shape", [(79, 2), (4, 78, 2), (4, 79, 3), (4, 79)])
+def test_mouth_opening_refuses_other_shapes(shape):
+    with pytest.raises(ParameterError, match=re.escape(
+            f"markers must have shape (n_frames, 79, 2), got {shape}")):
+        mouth_opening(np.zeros(shape))

@@ -2,6 +2,8 @@
 persistence, deterministic signs and error messages."""
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from hypothesis import given
@@ -214,6 +216,42 @@ def test_load_refuses_a_missing_or_foreign_file(tmp_path):
     with pytest.raises(ParameterError, match=r"foreign\.npz: not a Motion Units file \(format "
                                              r"'something/else'"):
         MotionUnits.load(foreign)
+
+
+def test_the_file_holds_the_to_arrays_record(fitted, model_data, tmp_path):
+    """motion_units.npz is exactly :meth:`to_arrays`: these names, this metadata (format 1)."""
+    arrays, meta = fitted.to_arrays()
+    assert set(arrays) == {"mean", "components", "variance"} | {
+        f"{k}__{a}" for k in ("smile", "sad") for a in ("mean", "components", "variance")}
+    assert meta == {"format": "talkingface.motion_units/1", "layout_version": "hwh79-1",
+                    "n_utterance": 7, "n_expression": 2, "expressions": ["smile", "sad"],
+                    "source": "test"}
+    assert arrays["components"].shape == (7, D) and arrays["sad__components"].shape == (2, D)
+    with np.load(fitted.save(tmp_path / "units.npz"), allow_pickle=False) as z:
+        assert set(z.files) == {"metadata", *arrays}
+        assert json.loads(str(z["metadata"])) == meta
+        for name, value in arrays.items():
+            assert z[name].dtype == value.dtype and np.array_equal(z[name], value)
+    back = MotionUnits.from_arrays(arrays, json.loads(json.dumps(meta)))
+    assert back.metadata_ == {"source": "test", "layout_version": "hwh79-1"}
+    for k in ("neutral", "smile", "sad"):
+        assert np.array_equal(back.transform(model_data[k][:30], k),
+                              fitted.transform(model_data[k][:30], k))
+    again, again_meta = back.to_arrays()
+    assert again_meta == meta and all(np.array_equal(again[n], arrays[n]) for n in arrays)
+
+
+def test_from_arrays_refuses_a_foreign_record_or_missing_arrays(fitted):
+    arrays, meta = fitted.to_arrays()
+    with pytest.raises(ParameterError, match=r"record: not a Motion Units file \(format 'x', "
+                                             r"expected 'talkingface\.motion_units/1'\)"):
+        MotionUnits.from_arrays(arrays, {**meta, "format": "x"}, source="record")
+    del arrays["sad__components"], arrays["variance"]
+    with pytest.raises(ParameterError, match="Motion Units: Motion Units arrays variance, "
+                                             "sad__components are missing"):
+        MotionUnits.from_arrays(arrays, meta)
+    with pytest.raises(NotFittedError):
+        MotionUnits().to_arrays()
 
 
 def test_signs_are_deterministic(model_data):

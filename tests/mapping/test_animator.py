@@ -1,13 +1,16 @@
 """Offline and streaming animation: streaming frames equal offline frames for any chunk size,
-frames leave as soon as their look-ahead has arrived, silence gives the neutral face, and the
-renderer draws what the markers say."""
+frames leave as soon as their look-ahead has arrived, silence gives the neutral face (the
+mapping's silence rule, the same offline, in the animator and streaming), and the renderer draws
+what the markers say."""
 import numpy as np
 import pytest
 
 from face_model.errors import ParameterError
-from mapping import GatedMLP, build_dataset, split_masks
+from face_model.audio import resample
+from mapping import build_dataset, make_mapper, split_masks
 from mapping.animator import FaceAnimator, StreamingAnimator
-from mapping.model import AudioMapping
+from mapping.checkpoint import AudioMapping, rest_mups
+from mapping.features import MFCC_SETTINGS, frame_rms_dbfs, hop_samples
 from talkingface.config import Config
 
 # Streaming and offline run the same arithmetic on (1, d) rows and (n, d) blocks; BLAS may round
@@ -24,10 +27,11 @@ def animator(small_corpus):
     units, _ = fit_corpus_units(small_corpus)
     data = build_dataset(small_corpus, units)
     masks = split_masks(data, "random_frames", seed=cfg.seed)
-    mapper = GatedMLP(cfg.mapping, n_utterance=units.n_utterance, seed=cfg.seed).fit(data, masks)
+    mapper = make_mapper("gated_mlp", cfg.mapping, n_utterance=units.n_utterance,
+                         random_state=cfg.seed).fit(data, masks)
     sr = small_corpus.utterances[0].sample_rate
-    return FaceAnimator(AudioMapping(mapper, sample_rate=sr, n_utterance=units.n_utterance),
-                        units)
+    return FaceAnimator(AudioMapping(mapper, sample_rate=sr, n_utterance=units.n_utterance,
+                                     rest_mups=rest_mups(units)), units)
 
 
 def _stream(animator, y, chunk, expression):
@@ -74,6 +78,72 @@ def test_silence_gives_the_neutral_face(animator):
     np.testing.assert_allclose(np.stack([f.markers for f in frames]), markers, atol=1e-9)
 
 
+PAD_S = 0.5  # digital silence before and after the speech
+
+
+@pytest.fixture(scope="module")
+def padded_speech(animator, small_corpus):
+    """An utterance with 0.5 s of zeros before and after it, and the frames whose whole
+    analysis window lies in the zeros (frame k is centred at sample k · hop)."""
+    u = small_corpus.utterances[4]  # a smiling utterance
+    sr = u.sample_rate
+    pad = int(PAD_S * sr)
+    y = np.concatenate([np.zeros(pad, np.float32), u.audio, np.zeros(pad, np.float32)])
+    hop, half = hop_samples(sr, 30), int(round(MFCC_SETTINGS["window_s"] * sr)) // 2
+    centres = np.arange(int(np.ceil(len(y) / hop))) * hop
+    silent = (centres + half < pad) | (centres - half >= pad + len(u.audio))
+    return u, y, silent
+
+
+@pytest.mark.parametrize("expression", ["neutral", "smile"])
+def test_digital_silence_around_speech_gives_exactly_the_rest_mups(animator, padded_speech,
+                                                                   expression):
+    u, y, silent = padded_speech
+    mapping, a0 = animator.mapping, animator.mapping.n_utterance
+    assert 2 * 13 <= silent.sum() <= 2 * 15 and silent[:13].all() and silent[-13:].all()
+    mups = mapping.predict_audio(y, u.sample_rate, expression)
+    assert mups.shape == (len(silent), a0 + 2) and mups.dtype == np.float32
+    raw = mapping.mapper.predict(mapping.features(y, u.sample_rate), expression)
+    # quiet: the zeros, and the corpus's own faint pauses at the ends of the utterance
+    quiet = frame_rms_dbfs(y, sr=u.sample_rate, n_frames=len(mups)) < mapping.silence_dbfs
+    assert quiet[silent].all() and not quiet.all()
+    # silent frames: the neutral face's utterance MUPs, whatever the network said
+    rest = mapping.rest_mups.astype(np.float32)
+    np.testing.assert_array_equal(mups[silent, :a0], np.broadcast_to(rest, (silent.sum(), a0)))
+    np.testing.assert_array_equal(mups[quiet, :a0], np.broadcast_to(rest, (quiet.sum(), a0)))
+    assert np.abs(raw[silent, :a0] - rest).max() > 1e-3  # the rule did act
+    # the expression part is kept, and sounding frames are the network's estimate unchanged
+    np.testing.assert_array_equal(mups[:, a0:], raw[:, a0:])
+    np.testing.assert_array_equal(mups[~quiet], raw[~quiet])
+    # streaming applies the same rule
+    frames = _stream(animator, y, 4096, expression)
+    streamed = np.stack([f.mups for f in frames])
+    np.testing.assert_array_equal(streamed[silent, :a0], np.broadcast_to(rest, (silent.sum(), a0)))
+
+
+@pytest.mark.parametrize("sr", [None, 44100])
+def test_the_animator_mups_are_the_mappings_predict_audio(animator, padded_speech, sr):
+    """One audio → MUP entry point: FaceAnimator.mups is AudioMapping.predict_audio, bit for
+    bit, at the model's rate and at another one (resampled by the mapping)."""
+    u, y, _ = padded_speech
+    if sr is not None:
+        y = resample(y, sr_in=u.sample_rate, sr_out=sr)
+    sr = sr or u.sample_rate
+    for expression in ("neutral", "smile"):
+        expected = animator.mapping.predict_audio(y, sr, expression)
+        np.testing.assert_array_equal(animator.mups(y, sr, expression), expected)
+        mups, _ = animator.animate(y, sr, expression)
+        np.testing.assert_array_equal(mups, expected)
+
+
+def test_animator_refuses_a_mapping_of_other_motion_units(animator):
+    m = animator.mapping
+    other = AudioMapping(m.mapper, sample_rate=m.sample_rate, n_utterance=m.n_utterance,
+                         rest_mups=m.rest_mups + 0.01)
+    with pytest.raises(ParameterError, match="saved with other Motion Units"):
+        FaceAnimator(other, animator.units)
+
+
 def test_stream_errors(animator):
     s = StreamingAnimator(animator)
     with pytest.raises(ParameterError, match="mono"):
@@ -83,7 +153,7 @@ def test_stream_errors(animator):
     s.flush()
     with pytest.raises(ParameterError, match="was flushed"):
         s.push(np.zeros(10))
-    with pytest.raises(ParameterError, match="unknown expression 'angry'"):
+    with pytest.raises(ParameterError, match="expression 'angry' is not known to this model"):
         StreamingAnimator(animator, "angry")
 
 

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import json
 
 import numpy as np
@@ -12,19 +13,20 @@ from face_model.errors import NotFittedError, ParameterError
 from face_model.motion_units import fit_corpus_units
 from face_model.phones import PHONES
 from mapping import BASELINES, METHODS, Baseline, GatedMLP, build_dataset, make_mapper, mfcc
+from mapping.checkpoint import FORMAT, AudioMapping, rest_mups
+from mapping.config import MappingConfig, TrainSettings
 from mapping.dataset import UttData, split_masks
-from mapping.features import audio_features
-from mapping.model import FORMAT, AudioMapping
-from talkingface.config import MappingConfig
+from mapping.features import audio_features, frame_rms_dbfs
 
 A0, AK, N_FEAT = 3, 2, 4
 SPOKEN = ("iy", "aa", "m", "sil")
-
-
+# Short training of every network: the synthetic mapping is easy.
+TRAIN = TrainSettings(max_epochs=150, patience=25)
 
 
 def config(**changes) -> MappingConfig:
-    base = dict(max_epochs=150, patience=25, min_class_frames=15, gate_components=2)
+    """The mapping section for the small synthetic data, with some values changed."""
+    base = dict(train=TRAIN, min_class_frames=15, gate_components=2)
     base.update(changes)
     return dataclasses.replace(MappingConfig(), **base)
 
@@ -63,7 +65,7 @@ def masks(data):
 
 @pytest.mark.parametrize("kind", BASELINES)
 def test_baseline_beats_the_training_mean(kind, data, masks):
-    b = Baseline(kind, config(), seed=0).fit(data, masks)
+    b = Baseline(kind, train=TRAIN, random_state=0).fit(data, masks)
     assert b.name == kind and b.reference
     assert sorted(b.models_) == ["neutral", "smile"]  # one regressor per expression
     err_model = err_mean = 0.0
@@ -78,10 +80,14 @@ def test_baseline_beats_the_training_mean(kind, data, masks):
 
 
 def test_baseline_errors(data, masks):
+    b = Baseline("knn", train=TRAIN)  # stored as given ...
+    assert b.kind == "knn" and b.name == "knn"
     with pytest.raises(ParameterError, match=r"unknown baseline 'knn'; allowed: vq, linear, "
                                              r"gmm_regression, mlp_large, tdnn, gru"):
-        Baseline("knn", config())
-    b = Baseline("linear", config())
+        b.fit(data, masks)  # ... and refused when training starts
+    with pytest.raises(NotFittedError, match="baseline knn is not trained yet"):
+        b.predict(data[0].features)
+    b = Baseline("linear", train=TRAIN)
     with pytest.raises(NotFittedError, match="baseline linear is not trained yet"):
         b.predict(data[0].features)
     b.fit(data, masks)
@@ -91,25 +97,71 @@ def test_baseline_errors(data, masks):
 
 
 def test_baseline_context_sizes(data, masks):
-    """mlp_large sees 5 + 1 + 5 frames, tdnn single frames, the others the configured 3 + 1 + 3."""
-    cfg = config(max_epochs=2)
-    assert Baseline("mlp_large", cfg).fit(data, masks).context_.n_inputs == 11 * N_FEAT
-    assert Baseline("tdnn", cfg).fit(data, masks).context_.n_inputs == N_FEAT
-    assert Baseline("linear", cfg).fit(data, masks).context_.n_inputs == 7 * N_FEAT
-    assert Baseline("linear", config(context_back=1, context_forward=0)).fit(
+    """mlp_large sees 5 + 1 + 5 frames, tdnn single frames, the others the given 3 + 1 + 3."""
+    train = dataclasses.replace(TRAIN, max_epochs=2)
+    assert Baseline("mlp_large", train=train).fit(data, masks).context_.n_inputs == 11 * N_FEAT
+    assert Baseline("tdnn", train=train).fit(data, masks).context_.n_inputs == N_FEAT
+    assert Baseline("linear", train=train).fit(data, masks).context_.n_inputs == 7 * N_FEAT
+    assert Baseline("linear", context_back=1, context_forward=0).fit(
         data, masks).context_.n_inputs == 2 * N_FEAT
+
+
+def test_baseline_stores_its_arguments_verbatim():
+    params = dict(kind="gru", context_back=2, context_forward=1,
+                  train=TrainSettings(max_epochs=7, patience=3), random_state=42)
+    b = Baseline(**params)
+    for name, value in params.items():
+        assert getattr(b, name) is value, name
+    assert set(params) == set(inspect.signature(Baseline).parameters)  # every parameter checked
+    assert not hasattr(b, "models_")  # nothing learnt before fit
 
 
 def test_make_mapper():
     assert METHODS == ("gated_mlp", *BASELINES)
-    g = make_mapper("gated_mlp", config(), n_utterance=5, seed=2)
-    assert isinstance(g, GatedMLP) and g.n_utterance == 5 and g.seed == 2
+    g = make_mapper("gated_mlp", config(), n_utterance=5, random_state=2)
+    assert isinstance(g, GatedMLP) and g.n_utterance == 5 and g.random_state == 2
     for kind in BASELINES:
-        b = make_mapper(kind, config(), seed=4)
-        assert isinstance(b, Baseline) and b.kind == kind and b.seed == 4
+        b = make_mapper(kind, config(), random_state=4)
+        assert isinstance(b, Baseline) and b.kind == kind and b.random_state == 4
     with pytest.raises(ParameterError, match=r"unknown mapping method 'nope'; allowed: gated_mlp, "
                                              r"vq, linear, gmm_regression, mlp_large, tdnn, gru"):
         make_mapper("nope", config())
+
+
+# The MappingConfig fields that are no estimator's hyper-parameter: they choose what is trained
+# and on which data (the method, the splits, the features and the visual source).
+NOT_HYPER_PARAMETERS = {"method", "baselines", "splits", "train_fraction", "n_mfcc", "deltas",
+                        "visual_source"}
+
+
+def estimator_parameters(cls) -> set:
+    """Hyper-parameters of an estimator class that a MappingConfig supplies."""
+    return set(inspect.signature(cls).parameters) - {"kind", "n_utterance", "random_state"}
+
+
+def test_make_mapper_passes_every_config_field():
+    """Every estimator hyper-parameter comes from the MappingConfig field of the same name (all
+    set away from their defaults here, so a parameter left at its default shows)."""
+    train = TrainSettings(validation_fraction=0.3, max_epochs=7, patience=3, learning_rate=0.5,
+                          weight_decay=0.25, batch_size=16)
+    mcfg = dataclasses.replace(
+        MappingConfig(), context_back=2, context_forward=1, n_classes=8, gate_components=3,
+        gate_covariance="full", min_class_frames=11, hidden_min=4, hidden_max=9,
+        expression_model="bank", cascade_hidden=12, train=train)
+    fields = {f.name for f in dataclasses.fields(MappingConfig)}
+    gated = estimator_parameters(GatedMLP)
+    assert fields - gated == NOT_HYPER_PARAMETERS  # every other field is a hyper-parameter
+    assert estimator_parameters(Baseline) <= gated
+    defaults = GatedMLP()
+    g = make_mapper("gated_mlp", mcfg, n_utterance=5, random_state=2)
+    for name in sorted(gated):
+        assert getattr(g, name) == getattr(mcfg, name) != getattr(defaults, name), name
+    assert g.train is train and (g.n_utterance, g.random_state) == (5, 2)
+    for kind in BASELINES:
+        b = make_mapper(kind, mcfg, random_state=4)
+        for name in sorted(estimator_parameters(Baseline)):
+            assert getattr(b, name) == getattr(mcfg, name) != getattr(Baseline(kind), name), name
+        assert b.train is train and b.random_state == 4
 
 
 # -- the saved model ---------------------------------------------------------------------------
@@ -120,11 +172,12 @@ def corpus_model(small_corpus):
     units, _ = fit_corpus_units(small_corpus)
     data = build_dataset(small_corpus, units)
     masks = split_masks(data, "random_frames", seed=0)
-    mapper = GatedMLP(config(n_classes=8, min_class_frames=20, max_epochs=30), seed=0)
+    mcfg = config(n_classes=8, min_class_frames=20, train=dataclasses.replace(TRAIN, max_epochs=30))
+    mapper = make_mapper("gated_mlp", mcfg, n_utterance=7, random_state=0)
     mapper.fit(data, masks)
     u = small_corpus.utterances[0]
     return AudioMapping(mapper, sample_rate=u.sample_rate, fps=u.fps, n_utterance=7,
-                        metadata={"note": "unit test", "n_frames": 996})
+                        rest_mups=rest_mups(units), metadata={"note": "unit test", "n_frames": 996})
 
 
 def test_audio_mapping_matches_the_method(small_corpus, corpus_model):
@@ -133,15 +186,25 @@ def test_audio_mapping_matches_the_method(small_corpus, corpus_model):
     feats = audio_features(u.audio, sr=u.sample_rate, fps=u.fps)
     assert feats.shape == (int(np.ceil(len(u.audio) / (u.sample_rate // u.fps))), 10)
     np.testing.assert_array_equal(corpus_model.features(u.audio, u.sample_rate), feats)
+    # the method's estimate, with the neutral mouth on the faint pauses at the utterance's ends
+    levels = frame_rms_dbfs(u.audio, sr=u.sample_rate, fps=u.fps, n_frames=len(feats))
+    quiet = levels < corpus_model.silence_dbfs
+    assert quiet.any() and not quiet.all()
+    est = corpus_model.mapper.predict(feats, "smile")
+    expected = est.copy()
+    expected[quiet, :7] = corpus_model.rest_mups
     np.testing.assert_array_equal(corpus_model.predict_audio(u.audio, u.sample_rate, "smile"),
-                                  corpus_model.mapper.predict(feats, "smile"))
+                                  expected)
 
 
 def test_save_load_round_trip(small_corpus, corpus_model, tmp_path):
     path = corpus_model.save(tmp_path / "models" / "m.tfmap")
     assert path.is_file()
     header = json.loads(path.read_bytes().split(b"\n", 1)[0])
+    assert FORMAT == "talkingface.mapping/2"
     assert header["format"] == FORMAT and header["method"] == "gated_mlp"
+    assert header["rest_mups"] == corpus_model.rest_mups.tolist()
+    assert header["silence_dbfs"] == corpus_model.silence_dbfs
     loaded = AudioMapping.load(path)
     assert (loaded.sample_rate, loaded.fps, loaded.n_mfcc, loaded.deltas, loaded.n_utterance) == (
         corpus_model.sample_rate, corpus_model.fps, 10, False, 7)
@@ -157,12 +220,37 @@ def test_save_load_round_trip(small_corpus, corpus_model, tmp_path):
 
 def test_saved_baseline_round_trip(data, masks, tmp_path):
     """A baseline trained on raw features saves and loads too (predict from features)."""
-    b = Baseline("vq", config(), seed=0).fit(data, masks)
-    m = AudioMapping(b, sample_rate=22050, n_utterance=A0)
+    b = Baseline("vq", train=TRAIN, random_state=0).fit(data, masks)
+    m = AudioMapping(b, sample_rate=22050, n_utterance=A0, rest_mups=np.zeros(A0))
     loaded = AudioMapping.load(m.save(tmp_path / "vq.tfmap"))
     assert loaded.expressions == ("neutral", "smile")
     np.testing.assert_array_equal(loaded.mapper.predict(data[5].features, "smile"),
                                   b.predict(data[5].features, "smile"))
+
+
+def test_silence_settings_survive_saving_bit_for_bit(corpus_model, tmp_path):
+    """rest_mups and silence_dbfs go through the JSON header and come back unchanged, down to
+    the last bit (values with long binary expansions on purpose)."""
+    rest = np.array([1 / 3, -2 / 7, np.pi, 1e-17, -0.0, 2.0**-40, -1e300])
+    m = AudioMapping(corpus_model.mapper, sample_rate=corpus_model.sample_rate, n_utterance=7,
+                     rest_mups=rest, silence_dbfs=-60.0 - 1 / 3)
+    loaded = AudioMapping.load(m.save(tmp_path / "m.tfmap"))
+    assert loaded.rest_mups.dtype == np.float64 and loaded.rest_mups.shape == (7,)
+    assert loaded.rest_mups.tobytes() == m.rest_mups.tobytes()
+    assert isinstance(loaded.silence_dbfs, float)
+    assert np.float64(loaded.silence_dbfs).tobytes() == np.float64(-60.0 - 1 / 3).tobytes()
+
+
+def test_rest_mups_of_the_wrong_shape_are_refused(corpus_model):
+    for bad, shape in ((np.zeros(6), r"\(6,\)"), (np.zeros((1, 7)), r"\(1, 7\)"),
+                       (0.0, r"\(\)")):
+        with pytest.raises(ParameterError, match=r"rest_mups must have shape \(7,\), got " + shape):
+            AudioMapping(corpus_model.mapper, sample_rate=22050, n_utterance=7, rest_mups=bad)
+    with pytest.raises(ParameterError, match=r"rest_mups must have shape \(3,\), got \(7,\)"):
+        AudioMapping(corpus_model.mapper, sample_rate=22050, n_utterance=3,
+                     rest_mups=corpus_model.rest_mups)
+    with pytest.raises(TypeError, match="rest_mups"):  # required: no silent default
+        AudioMapping(corpus_model.mapper, sample_rate=22050)
 
 
 def test_loading_other_files_is_refused(tmp_path):
@@ -176,6 +264,11 @@ def test_loading_other_files_is_refused(tmp_path):
     other.write_text(json.dumps({"format": "someone.else/3"}) + "\n")
     with pytest.raises(ParameterError, match=r"not a talkingface mapping model .*someone\.else/3"):
         AudioMapping.load(other)
+    old = tmp_path / "old.tfmap"  # the first format had no silence rule in the header
+    old.write_text(json.dumps({"format": "talkingface.mapping/1"}) + "\n")
+    with pytest.raises(ParameterError, match=r"expected format 'talkingface\.mapping/2', got "
+                                             r"'talkingface\.mapping/1'"):
+        AudioMapping.load(old)
     binary = tmp_path / "blob.bin"
     binary.write_bytes(bytes(range(256)) * 4)
     with pytest.raises(ParameterError, match="not a talkingface mapping model"):

@@ -3,15 +3,16 @@ data whose true mapping is known."""
 from __future__ import annotations
 
 import dataclasses
+import inspect
 
 import numpy as np
 import pytest
 
 from face_model.errors import NotFittedError, ParameterError
 from face_model.phones import PHONES
+from mapping.config import TrainSettings
 from mapping.dataset import UttData, split_masks
 from mapping.gated import GatedMLP, hidden_units
-from talkingface.config import MappingConfig
 
 A0, AK, N_FEAT = 3, 2, 4
 # Phone classes of the synthetic speech and how often each is spoken (unequal on purpose, so the
@@ -20,8 +21,8 @@ SPOKEN = ("iy", "aa", "m", "sil")
 FREQ = (0.45, 0.3, 0.15, 0.1)
 RARE = "ih"
 OFFSET = {"smile": np.array([1.5, -1.0]), "sad": np.array([-1.2, 0.8])}
-
-
+# Short training of every network: the synthetic mapping is easy.
+TRAIN = TrainSettings(max_epochs=200, patience=30)
 
 
 def synthetic_data(seed: int = 0, n_utt: int = 4, expressions=("neutral", "smile"),
@@ -48,10 +49,12 @@ def synthetic_data(seed: int = 0, n_utt: int = 4, expressions=("neutral", "smile
     return data
 
 
-def config(**changes) -> MappingConfig:
-    base = dict(max_epochs=200, patience=30, min_class_frames=15, gate_components=2)
-    base.update(changes)
-    return dataclasses.replace(MappingConfig(), **base)
+def gated_mlp(**changes) -> GatedMLP:
+    """An untrained GatedMLP for the small synthetic data (A0 utterance MUPs, few gate
+    components, small classes allowed), with some hyper-parameters changed."""
+    params = dict(n_utterance=A0, min_class_frames=15, gate_components=2, train=TRAIN)
+    params.update(changes)
+    return GatedMLP(**params)
 
 
 def predict_all(m, data) -> list:
@@ -77,7 +80,7 @@ def masks(data):
 
 @pytest.fixture(scope="module")
 def fitted(data, masks):
-    return GatedMLP(config(), n_utterance=A0, seed=3).fit(data, masks)
+    return gated_mlp(random_state=3).fit(data, masks)
 
 
 # -- recovery -----------------------------------------------------------------------------------
@@ -177,15 +180,15 @@ def test_hidden_units_grow_with_subset_size():
     assert hidden_units(5000, 50, 5000, lo=4, hi=9) == 9
 
 
-def test_bank_hidden_sizes_follow_the_config(data, masks):
-    m = GatedMLP(config(hidden_min=5, hidden_max=12, max_epochs=20), n_utterance=A0,
-                 seed=0).fit(data, masks)
+def test_bank_hidden_sizes_follow_the_hyper_parameters(data, masks):
+    m = gated_mlp(hidden_min=5, hidden_max=12, train=dataclasses.replace(TRAIN, max_epochs=20),
+                  random_state=0).fit(data, masks)
     h = m.bank_.hidden_
     assert all(5 <= v <= 12 for v in h.values())
     assert min(h.values()) == 5 and max(h.values()) == 12  # smallest and largest subset
     for c, net in m.bank_.nets_.items():
         assert net.module.net[0].out_features == h[c]
-    assert m.experts_["smile"].module.net[0].out_features == m.mcfg.cascade_hidden
+    assert m.experts_["smile"].module.net[0].out_features == m.cascade_hidden
 
 
 # -- errors -------------------------------------------------------------------------------------
@@ -197,7 +200,7 @@ def test_unknown_expression_at_predict(data, fitted):
 
 
 def test_untrained_model_refuses(data):
-    m = GatedMLP(config(), n_utterance=A0)
+    m = gated_mlp()
     with pytest.raises(NotFittedError, match="GatedMLP is not trained yet"):
         m.predict(data[0].features)
     with pytest.raises(NotFittedError, match="GatedMLP is not trained yet"):
@@ -206,42 +209,73 @@ def test_untrained_model_refuses(data):
 
 def test_no_neutral_training_frames(data, masks):
     with pytest.raises(ParameterError, match="needs neutral training frames"):
-        GatedMLP(config(), n_utterance=A0).fit(
-            data, [mk & (d.expression != "neutral") for d, mk in zip(data, masks)])
+        gated_mlp().fit(data, [mk & (d.expression != "neutral") for d, mk in zip(data, masks)])
     smile_only = [d for d in data if d.expression == "smile"]
     with pytest.raises(ParameterError, match="needs neutral training frames"):
-        GatedMLP(config(), n_utterance=A0).fit(smile_only, [np.ones(d.n_frames, bool)
-                                                            for d in smile_only])
+        gated_mlp().fit(smile_only, [np.ones(d.n_frames, bool) for d in smile_only])
 
 
 def test_too_few_frames_for_any_class_gives_one_mlp(data, masks):
     """No class reaches min_class_frames: every phone joins the largest class, one MLP."""
-    m = GatedMLP(config(min_class_frames=100000, max_epochs=20), n_utterance=A0).fit(data, masks)
+    m = gated_mlp(min_class_frames=100000, train=dataclasses.replace(TRAIN, max_epochs=20)).fit(
+        data, masks)
     iy = PHONES.index("iy")  # the most frequent phone
     assert np.all(m.group_of_phone_ == iy)
     assert list(m.bank_.nets_) == [iy]
     assert np.all(m.gate_classes(data[0].features) == iy)
 
 
-def test_invalid_expression_model():
-    with pytest.raises(ParameterError, match=r"mapping.expression_model must be one of "
-                                             r"\('cascade', 'bank'\), got 'tree'"):
-        GatedMLP(config(expression_model="tree"))
+# -- the estimator contract (scikit-learn style): store in __init__, check in fit --------------
+
+def test_constructor_stores_its_arguments_verbatim():
+    params = dict(n_utterance=5, context_back=2, context_forward=1, n_classes=8,
+                  gate_components=3, gate_covariance="full", min_class_frames=11, hidden_min=4,
+                  hidden_max=9, expression_model="bank", cascade_hidden=12,
+                  train=TrainSettings(max_epochs=7, patience=3), random_state=42)
+    m = GatedMLP(**params)
+    for name, value in params.items():
+        assert getattr(m, name) is value, name
+    assert set(params) == set(inspect.signature(GatedMLP).parameters)  # every parameter checked
+    assert not hasattr(m, "bank_")  # nothing learnt before fit
+
+
+BAD_VALUES = [
+    (dict(expression_model="tree"),
+     r"expression_model must be one of \('cascade', 'bank'\), got 'tree'"),
+    (dict(hidden_min=30, hidden_max=20), r"hidden_min \(30\) must not exceed hidden_max \(20\)"),
+    (dict(cascade_hidden=0), r"cascade_hidden must be a positive integer, got 0"),
+    (dict(n_utterance=2.5), r"n_utterance must be a positive integer, got 2\.5"),
+    (dict(gate_components=True), r"gate_components must be a positive integer, got True"),
+    (dict(min_class_frames=-3), r"min_class_frames must be a positive integer, got -3"),
+    (dict(n_classes=7), r"n_classes must be one of \(1, 8, 44\), got 7"),
+]
+
+
+@pytest.mark.parametrize("changes, message", BAD_VALUES,
+                         ids=[",".join(c) for c, _ in BAD_VALUES])
+def test_bad_hyper_parameters_are_refused_in_fit(data, masks, changes, message):
+    m = gated_mlp(**changes)  # accepted as given ...
+    for name, value in changes.items():
+        assert getattr(m, name) is value
+    with pytest.raises(ParameterError, match=message):  # ... and refused when training starts
+        m.fit(data, masks)
+    with pytest.raises(NotFittedError, match="GatedMLP is not trained yet"):
+        m.predict(data[0].features)
 
 
 # -- reproducibility and the alternative expression model ---------------------------------------
 
 def test_same_seed_gives_identical_predictions(data, masks, fitted):
-    again = GatedMLP(config(), n_utterance=A0, seed=3).fit(data, masks)
+    again = gated_mlp(random_state=3).fit(data, masks)
     for d in data:
         np.testing.assert_array_equal(again.predict(d.features, d.expression),
                                       fitted.predict(d.features, d.expression))
-    other = GatedMLP(config(), n_utterance=A0, seed=4).fit(data, masks)
+    other = gated_mlp(random_state=4).fit(data, masks)
     assert not np.array_equal(other.predict(data[0].features), fitted.predict(data[0].features))
 
 
 def test_bank_expression_model(data, masks):
-    m = GatedMLP(config(expression_model="bank"), n_utterance=A0, seed=1).fit(data, masks)
+    m = gated_mlp(expression_model="bank", random_state=1).fit(data, masks)
     expert = m.experts_["smile"]
     assert set(expert.nets_) == set(m.bank_.nets_)  # the gate and its classes are shared
     r = column_r(data, predict_all(m, data), masks)

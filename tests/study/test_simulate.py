@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 from face_model.alignment import align_markers
 from face_model.corpus import Corpus
 from face_model.errors import ParameterError
+from study.classifier import classifier_corpus, observer_classifier
 from study.data import N_TRIALS, data_path, sidecar_path
 from study.design import (
     AUDIO,
@@ -209,3 +210,30 @@ def test_flmp_posterior_and_answers(v, gamma, rho, audio, seed):
     assert pa[target] == pa.max()
     response, rt = obs.respond(bim, visual)
     assert response in RESPONSES and rt > 0
+
+
+# --- the observers' classifier of a stimulus set (study.classifier.observer_classifier) -------
+def test_classifier_corpus_prefers_the_runs_corpus(small_corpus_dir, tmp_path):
+    stim = tmp_path / "run" / "stimuli"
+    stim.mkdir(parents=True)
+    with pytest.raises(ParameterError, match=r"no corpus to train the observers' expression "
+                                             r"classifier: neither .*run/corpus nor "
+                                             r".*stimuli/source exists"):
+        classifier_corpus(stim)
+    (stim / "source").symlink_to(small_corpus_dir)  # the stimuli's own source sentences
+    assert classifier_corpus(stim) == stim / "source"
+    (tmp_path / "run" / "corpus").symlink_to(small_corpus_dir)  # the run's corpus comes first
+    assert classifier_corpus(str(stim)) == tmp_path / "run" / "corpus"
+
+
+def test_observer_classifier_is_the_default_classifier_on_that_corpus(small_corpus,
+                                                                      small_corpus_dir,
+                                                                      tmp_path):
+    stim = tmp_path / "stimuli"
+    stim.mkdir()
+    (stim / "source").symlink_to(small_corpus_dir)
+    clf = observer_classifier(stim, seed=5)
+    ref = ExpressionClassifier().fit(small_corpus, seed=5)
+    assert clf.describe() == ref.describe()
+    m = small_corpus.utterances[0].markers
+    np.testing.assert_array_equal(clf.predict_frames(m), ref.predict_frames(m))

@@ -3,19 +3,21 @@ sync with their sentence's calm audio, checksums that catch a changed file, and 
 researcher can point at their own recordings."""
 import csv
 import shutil
+import subprocess
 
 import numpy as np
 import pytest
 
-from face_model.audio import read_wav
+from face_model.audio import read_wav, write_wav
 from face_model.errors import ParameterError
+from face_model.movie import write_mp4
 from study.design import AUDIO, EXPRESSIONS, required_stimuli
-from study.stimuli import COLUMNS, MANIFEST, load_manifest, read_video_frames
+from study.stimuli import COLUMNS, MANIFEST, load_manifest, read_video_frames, write_silent_mp4
 from talkingface.cli import main
 
 TINY = ["--set", "synth.n_sentences=4", "--set", "synth.workers=2", "--set",
         "mapping.baselines=[]", "--set", "mapping.splits=[utterance]", "--set",
-        "tracking.enabled=false"]
+        "mlflow.enabled=false"]
 
 
 @pytest.fixture(scope="module")
@@ -123,3 +125,24 @@ def test_stimuli_are_never_overwritten(stimuli):
 
     with pytest.raises(ParameterError, match="stimuli are never overwritten"):
         build_stimuli(stimuli, animator=None, synth_cfg=None, seed=0)
+
+
+def test_silent_stimulus_videos_and_videos_with_sound(tmp_path):
+    """study.stimuli writes silent H.264 videos through face_model.movie.write_mp4, which muxes
+    a sound file as AAC when given one; frame k is at k/fps s either way."""
+    import imageio_ffmpeg  # heavy and optional: imported where it is used
+
+    rng = np.random.default_rng(3)
+    frames = [rng.integers(0, 256, (64, 80, 3), dtype=np.uint8) for _ in range(12)]
+    wav = tmp_path / "tone.wav"
+    write_wav(wav, 0.1 * np.sin(np.arange(6400) / 5.0), 16000)
+    silent = write_silent_mp4(tmp_path / "a" / "silent.mp4", iter(frames), (80, 64))
+    voiced = write_mp4(tmp_path / "voiced.mp4", frames, len(frames), (80, 64), fps=30,
+                       audio_path=wav, progress=False)
+    for path in (silent, voiced):
+        got, fps = read_video_frames(path)
+        assert fps == 30 and len(got) == len(frames)
+    probe = lambda p: subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-i", str(p)],  # noqa: E731
+                                     capture_output=True, text=True).stderr
+    assert "Video: h264" in probe(silent) and "Audio:" not in probe(silent)
+    assert "Audio: aac" in probe(voiced)

@@ -11,7 +11,7 @@ from talkingface.cli import main
 
 TINY = ["--set", "synth.n_sentences=4", "--set", "synth.workers=2", "--set",
         "mapping.baselines=[]", "--set", "mapping.splits=[utterance]", "--set",
-        "tracking.enabled=false"]
+        "mlflow.enabled=false"]
 
 
 @pytest.fixture(scope="module")

@@ -75,9 +75,9 @@ def test_replicate_writes_runs_report_and_mlflow(workdir, capsys):
 
 def test_replicate_refuses_a_different_config_under_the_same_name(workdir, capsys):
     assert main(["replicate", "--name", "r", *TINY, "--ablations", "none",
-                 "--set", "tracking.enabled=false"]) == 0
+                 "--set", "mlflow.enabled=false"]) == 0
     stamp = (workdir / "runs" / "r" / "corpus" / "done.json").read_text()
-    code = main(["replicate", "--name", "r", *TINY, "--set", "tracking.enabled=false",
+    code = main(["replicate", "--name", "r", *TINY, "--set", "mlflow.enabled=false",
                  "--seed", "5"])
     assert code == 2
     assert "was made with a different config" in capsys.readouterr().err
@@ -85,7 +85,7 @@ def test_replicate_refuses_a_different_config_under_the_same_name(workdir, capsy
     assert (workdir / "runs" / "r" / "corpus" / "done.json").read_text() == stamp
     # the same config again reuses the finished corpus
     assert main(["replicate", "--name", "r", *TINY, "--ablations", "none",
-                 "--set", "tracking.enabled=false"]) == 0
+                 "--set", "mlflow.enabled=false"]) == 0
     assert (workdir / "runs" / "r" / "corpus" / "done.json").read_text() == stamp
 
 

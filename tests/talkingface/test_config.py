@@ -25,10 +25,10 @@ def test_paper_yaml_mirrors_the_defaults():
 
 def test_set_overrides_parse_yaml_scalars():
     cfg = load_config(None, ["synth.speakers=3", "seed=7", "synth.marker_noise_px=0.5",
-                             "units.alignment=affine", "tracking.enabled=false"])
+                             "units.alignment=affine", "mlflow.enabled=false"])
     assert cfg.synth.speakers == 3 and cfg.seed == 7
     assert cfg.synth.marker_noise_px == 0.5 and cfg.units.alignment == "affine"
-    assert cfg.tracking.enabled is False
+    assert cfg.mlflow.enabled is False
     # untouched values keep the defaults
     assert cfg.synth.n_sentences == Config().synth.n_sentences
 
@@ -38,11 +38,34 @@ def test_set_overrides_parse_yaml_scalars():
     ("nosection.key=1", r"unknown config section 'nosection'; allowed: seed, synth"),
     ("synth.speakers=two", r"synth\.speakers must be an integer, got 'two'"),
     ("synth.speakers", r"--set expects section\.key=value, got 'synth\.speakers'"),
-    ("a.b.c=1", r"must be 'key' or 'section\.key'"),
+    ("synth.speakers.x=1", r"synth\.speakers must be an integer, got \{'x': 1\}"),
+    ("mapping.train.bogus=1", r"unknown config key mapping\.train\.bogus; allowed in "
+                              r"mapping\.train: validation_fraction, max_epochs"),
+    ("tracker.init=magic", r"tracker\.init is 'magic'; allowed: image, corners, markers"),
+    ("mapping..x=1", r"must be 'key', 'section\.key' or 'section\.sub\.key'"),
 ])
 def test_bad_overrides_are_refused(assignment, message):
     with pytest.raises(ParameterError, match=message):
         load_config(None, [assignment])
+
+
+def test_nested_training_settings_are_set_like_any_key():
+    cfg = load_config(None, ["mapping.train.max_epochs=5", "mapping.train.learning_rate=0.1"])
+    assert (cfg.mapping.train.max_epochs, cfg.mapping.train.learning_rate) == (5, 0.1)
+    assert cfg.mapping.train.patience == Config().mapping.train.patience
+    assert flatten(cfg)["mapping.train.max_epochs"] == 5
+
+
+def test_each_package_owns_its_section():
+    from data_synth.config import SynthConfig
+    from face_model.config import TrackerConfig, UnitsConfig
+    from mapping.config import MappingConfig, TrainSettings
+    from study.config import StudyConfig
+
+    cfg = Config()
+    assert (type(cfg.synth), type(cfg.units), type(cfg.tracker), type(cfg.mapping),
+            type(cfg.mapping.train), type(cfg.study)) == (SynthConfig, UnitsConfig, TrackerConfig,
+                                                          MappingConfig, TrainSettings, StudyConfig)
 
 
 def test_unknown_key_in_a_yaml_file_is_refused(tmp_path):

@@ -18,16 +18,17 @@ TINY = ["--set", "synth.n_sentences=4", "--set", "synth.workers=2"]
 
 
 def test_gated_mlp_beats_linear_and_vq_on_held_out_sentences(default_corpus):
-    from analysis.evaluation import ranking, run_experiment
+    from analysis.evaluation import evaluate_experiment, ranking
     from face_model.motion_units import fit_corpus_units
-    from mapping import build_dataset
+    from mapping import build_dataset, run_experiment
     from talkingface.config import Config
 
     cfg = Config()
     units, _ = fit_corpus_units(default_corpus)
     data = build_dataset(default_corpus, units)
-    results = run_experiment(data, units, cfg.mapping, seed=cfg.seed,
+    trained = run_experiment(data, cfg.mapping, n_utterance=units.n_utterance, seed=cfg.seed,
                              methods=["gated_mlp", "linear", "vq"], splits=["utterance"])
+    results = evaluate_experiment(trained, data, units)
     by = {x["method"]: x for x in ranking(results, "utterance")}
     for baseline in ("linear", "vq"):
         assert by["gated_mlp"]["R"] > by[baseline]["R"], by
@@ -43,7 +44,9 @@ def test_train_logs_a_pyfunc_model_that_predicts_from_a_wav(workdir, capsys):
     import mlflow
     import mlflow.pyfunc
 
-    from mapping.model import AudioMapping
+    from face_model.audio import read_wav, write_wav
+    from mapping.checkpoint import AudioMapping
+    from talkingface.animate import load_animator
 
     assert main(["train", "--name", "t", *TINY,
                  "--set", "mapping.baselines=[linear]"]) == 0
@@ -73,6 +76,14 @@ def test_train_logs_a_pyfunc_model_that_predicts_from_a_wav(workdir, capsys):
                        (wav.stem + ".npy")).shape[0]
     assert mups.shape == (n_frames, 9)
     assert np.all(mups[:, 7:] == 0)  # neutral by default: no expression MUPs
+    # one audio -> MUP entry point: the pyfunc model applies the silence rule as animate does
+    y, sr = read_wav(wav)
+    padded = workdir / "padded.wav"
+    write_wav(padded, np.concatenate([np.zeros(sr // 2), y, np.zeros(sr // 2)]), sr)
+    animator, _ = load_animator("t")
+    drawn = animator.mups(*read_wav(padded), "neutral")
+    np.testing.assert_array_equal(loaded.predict(str(padded)), drawn)
+    assert np.all(drawn[:5, :7] == animator.rest_.astype(np.float32))  # closed, neutral mouth
     smile = loaded.predict(str(wav), params={"expression": "smile"})
     assert np.abs(smile[:, 7:]).max() > 0
     from face_model.audio import read_wav
@@ -117,7 +128,7 @@ def test_ablate_leaves_a_parent_run_with_one_child_per_setting(workdir, capsys):
 ])
 def test_bad_grids_are_refused_with_the_file_and_the_problem(workdir, capsys, grid_text,
                                                              message):
-    from talkingface.ablate import load_grid
+    from talkingface.stages.ablations import load_grid
     from talkingface.config import Config
     from face_model.errors import ParameterError
 

@@ -7,7 +7,7 @@ import pytest
 
 from face_model.corpus import corpus_hash, load_corpus
 from face_model.errors import ParameterError
-from mapping.model import AudioMapping
+from mapping.checkpoint import AudioMapping
 from talkingface.cli import main
 from talkingface.config import Config, load_config
 
@@ -64,7 +64,7 @@ def test_closed_choices_are_checked_when_the_config_is_read(assignment, message)
 
 
 def test_an_ablation_child_may_not_change_the_visual_source(tmp_path):
-    from talkingface.ablate import load_grid
+    from talkingface.stages.ablations import load_grid
 
     grid = tmp_path / "g.yaml"
     grid.write_text("children:\n  t: {mapping.visual_source: tracked}\n")

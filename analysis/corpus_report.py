@@ -13,7 +13,7 @@ import numpy as np
 
 from analysis import figures
 from face_model.alignment import align_markers, unflatten
-from face_model.layout import LOWER_INNER, UPPER_INNER, default_layout
+from face_model.layout import default_layout, mouth_opening
 from face_model.phones import PHONES
 
 # Published values (Hong, Wen & Huang 2002, §IV-A and §VII-A).
@@ -85,8 +85,7 @@ def summarize_units(units) -> dict:
 def lip_aperture(markers: np.ndarray) -> np.ndarray:
     """Mean vertical distance (px) between the inner lower and inner upper lip, per frame, after
     alignment by the glasses."""
-    a = align_markers(markers)
-    return a[:, list(LOWER_INNER)[::-1], 1].mean(1) - a[:, list(UPPER_INNER), 1].mean(1)
+    return mouth_opening(align_markers(markers))
 
 
 def make_figures(corpus, units, summary: dict, out_dir) -> dict:

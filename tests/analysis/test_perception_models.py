@@ -1,25 +1,25 @@
-"""FLMP and WTAV per face (analysis/models.py): the formulas against hand computations, the
-fit statistics against direct computations, recovery of the generating model and of its
-parameters, seeded bootstrap and power, and refusals of bad input."""
+"""FLMP and WTAV per face (analysis/perception_models.py, analysis/planning.py): the formulas
+against hand computations, the fit statistics against direct computations, recovery of the
+generating model and of its parameters, seeded bootstrap and power, and refusals of bad input."""
 import json
 
 import numpy as np
 import pytest
 from scipy import stats
 
-from analysis.models import (
+from analysis.perception_models import (
     MODELS,
     FaceCounts,
     Params,
     bootstrap_intervals,
     face_counts,
     fit_model,
-    fit_study,
     g_squared,
     loglik,
     predict,
 )
 from analysis.planning import (
+    fit_study,
     mcnemar_exact,
     model_recovery,
     paper_fits,

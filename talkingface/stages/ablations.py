@@ -11,8 +11,10 @@ A grid file (``configs/ablations.yaml``)::
 
 Keys are ``section.key`` as for ``--set``; an unknown key is an error naming the grid file and the
 child. Each child trains only its ``mapping.method`` (the paper's mapping unless the child sets a
-baseline) on the run's corpus and Motion Units and writes ``runs/<name>/ablations/<child>/``.
-``results.csv`` gathers the children's test figures.
+baseline) on the run's corpus and Motion Units and writes ``runs/<name>/ablations/<child>/``
+(its tables and ``summary.json``). ``results.csv`` gathers the children's test figures. The
+stage's grid is ``ablations.grid`` of the config; MLflow logs the children afterwards
+(:func:`talkingface.experiment_log.log_ablations`).
 """
 from __future__ import annotations
 
@@ -26,10 +28,15 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from tqdm import tqdm
 
 from face_model.errors import ParameterError
-from talkingface.config import apply_overrides, flatten, parse_set, to_dict
+from talkingface.config import apply_overrides, parse_set
+from talkingface.paths import RunPaths
+from talkingface.stages.motion import training_corpus
+from talkingface.stages.training import train_and_evaluate
 
+DEFAULT_GRID = Path(__file__).resolve().parents[2] / "configs" / "ablations.yaml"
 _CHILD_NAME = "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_.-"
 
 
@@ -80,12 +87,12 @@ def _init_worker() -> None:
 
 
 def _run_child(name: str, corpus_dir: str, units_path: str, out_dir: str, cfg) -> dict:
-    from talkingface.train_stage import train_and_evaluate
-
     t0 = time.perf_counter()
     summary = train_and_evaluate(Path(corpus_dir), Path(units_path), Path(out_dir), cfg,
                                  methods=[cfg.mapping.method], progress=False)
-    return {"name": name, "summary": summary, "seconds": time.perf_counter() - t0}
+    summary["seconds"] = time.perf_counter() - t0
+    (Path(out_dir) / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
+    return {"name": name, "summary": summary, "seconds": summary["seconds"]}
 
 
 def child_metrics(summary: dict, method: str) -> dict:
@@ -109,11 +116,9 @@ def child_metrics(summary: dict, method: str) -> dict:
 
 
 def run_ablations(grid: dict, corpus_dir: Path, units_path: Path, out_dir: Path, *,
-                  workers: int = 0, progress: bool = True, mlf=None) -> list[dict]:
+                  workers: int = 0, progress: bool = True) -> list[dict]:
     """Train every child of ``grid`` (from :func:`load_grid`) with ``workers`` processes (0: all
-    cores); log each as a child run of the active MLflow run when ``mlf`` is given."""
-    from tqdm import tqdm
-
+    cores); write ``results.csv`` and return its rows."""
     out_dir.mkdir(parents=True, exist_ok=True)
     n = workers or os.cpu_count() or 1
     ctx = multiprocessing.get_context("spawn")  # torch is not fork-safe once its pools exist
@@ -126,8 +131,6 @@ def run_ablations(grid: dict, corpus_dir: Path, units_path: Path, out_dir: Path,
                         disable=not progress):
             res = fut.result()
             results[res["name"]] = res
-            if mlf is not None:
-                _log_child(mlf, res, grid[res["name"]], out_dir / res["name"])
     rows = [_result_row(name, grid[name], results[name]) for name in grid]
     fields = list(dict.fromkeys(k for r in rows for k in r))
     with open(out_dir / "results.csv", "w", newline="") as f:
@@ -152,11 +155,31 @@ def _result_row(name: str, cfg, res: dict) -> dict:
     return row
 
 
-def _log_child(mlf, res: dict, cfg, child_dir: Path) -> None:
-    with mlf.start_run(run_name=res["name"], nested=True):
-        mlf.set_tags({"ablation.setting": res["name"], "mapping.method": cfg.mapping.method})
-        mlf.log_params({k: str(v)[:500] for k, v in flatten(cfg).items()})
-        mlf.log_metrics({**child_metrics(res["summary"], cfg.mapping.method),
-                         "seconds": res["seconds"]})
-        mlf.log_artifact(str(child_dir / "tables.csv"))
-        mlf.log_dict(to_dict(cfg), "config.json")
+def grid_path(cfg) -> Path | None:
+    """The ablation grid file of ``ablations.grid`` (None: no ablations)."""
+    grid = cfg.ablations.grid
+    if not grid or grid.lower() == "none":
+        return None
+    return DEFAULT_GRID if grid == "default" else Path(grid)
+
+
+def has_grid(cfg) -> bool:
+    return grid_path(cfg) is not None
+
+
+def grid_file(paths: RunPaths, cfg) -> list:
+    """The grid file (its contents join the stage's key)."""
+    if not has_grid(cfg):
+        return []
+    if not grid_path(cfg).is_file():
+        raise ParameterError(f"ablation grid {grid_path(cfg)} not found (ablations.grid: "
+                             "default, none or a grid file)")
+    return [grid_path(cfg)]
+
+
+def ablate(paths: RunPaths, cfg) -> dict:
+    """Every setting of the ablation grid trained on the run's training corpus."""
+    grid = load_grid(grid_path(cfg), cfg)
+    rows = run_ablations(grid, training_corpus(paths, cfg), paths.units_model, paths.ablations,
+                         workers=cfg.ablations.workers, progress=True)
+    return {"grid": str(grid_path(cfg)), "children": list(grid), "rows": rows}

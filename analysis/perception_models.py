@@ -42,7 +42,8 @@ Choices
   own-emotion visual support — the model-based form of the paper's "comparable". A cell in
   which every participant gave the same answer does not vary under resampling: its interval
   reflects λ only and is too narrow.
-* **Simulation and planning**: :mod:`analysis.planning` (model recovery, power).
+* **Simulation and planning**: :mod:`analysis.planning` (model recovery, power, and
+  :func:`~analysis.planning.fit_study`, the models of one study for the report).
 """
 from __future__ import annotations
 
@@ -80,7 +81,7 @@ def _check_model(model) -> str:
     return model
 
 
-def _check_lam(lam) -> float:
+def check_lam(lam) -> float:
     if isinstance(lam, bool) or not isinstance(lam, (int, float, np.integer, np.floating)) \
             or not np.isfinite(lam) or lam < 0:
         raise ParameterError(f"lam (the L2 penalty on the logits) must be a finite number "
@@ -317,7 +318,7 @@ def fit_model(model: str, counts, *, lam: float = 0.05, n_starts: int = 3, seed:
     (a FitResult or Params) if given, the empirical unimodal proportions, then seeded
     perturbations — ``n_starts`` in all; the best penalised likelihood is kept."""
     _check_model(model)
-    lam, n_starts = _check_lam(lam), check_count("n_starts", n_starts)
+    lam, n_starts = check_lam(lam), check_count("n_starts", n_starts)
     cells = _cells(counts)
     wtav = model == "wtav"
     base = np.concatenate([_logits(cells[1], True), _logits(cells[0], True)]
@@ -395,7 +396,7 @@ def bootstrap_intervals(counts: dict, *, B: int = 200, lam: float = 0.05, seed: 
     ``visual[face][model]`` supports, ``w[face]``, and ``own_difference[model][expression]``
     (synthetic − real support of the expression's own emotion; ``mean`` over expressions).
     ``fits[face][model]`` (full-data fits) give the estimates and the first start."""
-    B, lam = check_count("B", B), _check_lam(lam)
+    B, lam = check_count("B", B), check_lam(lam)
     if set(counts) != set(FACES) or len({c.n for c in counts.values()}) != 1:
         raise ParameterError("bootstrap needs FaceCounts of both faces for the same participants")
     fits = fits or {f: {m: fit_model(m, counts[f], lam=lam, seed=seed) for m in MODELS}
@@ -423,32 +424,3 @@ def bootstrap_intervals(counts: dict, *, B: int = 200, lam: float = 0.05, seed: 
                            for m in MODELS} for f in FACES},
             "w": {f: _interval(w[f], fits[f]["wtav"].params.w, level) for f in FACES},
             "own_difference": diff}
-
-
-def fit_study(df: pd.DataFrame, *, lam: float = 0.05, bootstrap: int = 200,
-              seed: int = 0) -> dict:
-    """Both models for both faces with their comparison (LOPO-CV included), bootstrap
-    intervals (``bootstrap`` resamples; 0 skips them) and the power of the 15-point visual
-    drop from the data's real-face FLMP fit. JSON-ready."""
-    lam = _check_lam(lam)
-    bootstrap = check_count("bootstrap", bootstrap, lo=0)
-    counts = face_counts(df)
-    fits, faces = {}, {}
-    for f in FACES:
-        fits[f], comp = compare_models(counts[f], lam=lam, cv=True, seed=seed)
-        faces[f] = {**{m: fits[f][m].to_dict() for m in MODELS}, "comparison": comp}
-    out = {"lam": lam, "seed": seed, "participants": counts[FACES[0]].n,
-           "responses": list(RESPONSES), "audio_levels": list(AUDIO),
-           "expressions": list(EXPRESSIONS), "faces": faces,
-           "notes": "'not sure' is a 4th category with its own supports; the audio-only cells "
-                    "enter both faces' fits (45 df each, the faces' fits are not independent)"}
-    if bootstrap:
-        out["bootstrap"] = bootstrap_intervals(counts, B=bootstrap, lam=lam, seed=seed,
-                                               fits=fits)
-    from analysis.planning import power_visual_drop
-
-    try:
-        out["power"] = power_visual_drop(0.15, base=fits["real"]["flmp"], seed=seed)
-    except ParameterError as err:  # the real face is recognised too rarely for a 15-point drop
-        out["power"] = {"error": str(err)}
-    return out

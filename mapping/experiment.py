@@ -1,0 +1,89 @@
+"""Training the mapping methods of an experiment (paper §VI, §VII-A): every method × split.
+
+:func:`make_mapper` is the one place where a ``mapping`` config section becomes the estimators'
+explicit hyper-parameters. :func:`run_experiment` trains every method on every split and returns
+the fitted mappers with their predictions of every utterance; the paper's metrics and tables are
+computed from these by :mod:`analysis.evaluation`.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+from tqdm import tqdm
+
+from face_model.errors import ParameterError
+from mapping.baselines import BASELINES, Baseline
+from mapping.config import MappingConfig
+from mapping.dataset import split_masks
+from mapping.gate import gate_accuracy
+from mapping.gated import GatedMLP
+
+METHODS = ("gated_mlp", *BASELINES)
+SPLIT_SEED_OFFSET = 17  # the split of a run seed is drawn with seed + 17, the same for every method
+
+
+def make_mapper(method: str, mcfg: MappingConfig, *, n_utterance: int = 7,
+                random_state: int = 0):
+    """A fresh, untrained mapping method by name (one of :data:`METHODS`)."""
+    if method == "gated_mlp":
+        return GatedMLP(n_utterance=n_utterance, context_back=mcfg.context_back,
+                        context_forward=mcfg.context_forward, n_classes=mcfg.n_classes,
+                        gate_components=mcfg.gate_components,
+                        gate_covariance=mcfg.gate_covariance,
+                        min_class_frames=mcfg.min_class_frames, hidden_min=mcfg.hidden_min,
+                        hidden_max=mcfg.hidden_max, expression_model=mcfg.expression_model,
+                        cascade_hidden=mcfg.cascade_hidden, train=mcfg.train,
+                        random_state=random_state)
+    if method in BASELINES:
+        return Baseline(method, context_back=mcfg.context_back,
+                        context_forward=mcfg.context_forward, train=mcfg.train,
+                        random_state=random_state)
+    raise ParameterError(f"unknown mapping method {method!r}; allowed: {', '.join(METHODS)}")
+
+
+@dataclass
+class TrainedMethod:
+    """One method trained on one split: the fitted mapper and its estimate of every utterance."""
+
+    method: str
+    split: str
+    fit_seconds: float
+    reference: str
+    mapper: object = field(repr=False, default=None)
+    predictions: list = field(repr=False, default_factory=list)  # (n_frames, A0 + Ak) each
+    masks: list = field(repr=False, default_factory=list)  # training frames of each utterance
+    gate: dict | None = None  # gate accuracy and confusion (gated methods)
+
+
+def train_method(method: str, data: list, masks: list, mcfg: MappingConfig, *,
+                 n_utterance: int, split: str, seed: int) -> TrainedMethod:
+    """Train one method on a split's training frames and estimate every utterance."""
+    mapper = make_mapper(method, mcfg, n_utterance=n_utterance, random_state=seed)
+    t0 = time.perf_counter()
+    mapper.fit(data, masks)
+    seconds = time.perf_counter() - t0
+    preds = [mapper.predict(d.features, d.expression) for d in data]
+    gate = gate_accuracy(mapper, data, masks) if hasattr(mapper, "gate_") else None
+    return TrainedMethod(method, split, seconds, mapper.reference, mapper, preds, masks, gate)
+
+
+def experiment_methods(mcfg: MappingConfig) -> list[str]:
+    """The primary method, then every baseline that is not the primary one."""
+    return [mcfg.method, *[b for b in mcfg.baselines if b != mcfg.method]]
+
+
+def run_experiment(data: list, mcfg: MappingConfig, *, n_utterance: int, seed: int,
+                   methods=None, splits=None, progress: bool = False) -> list[TrainedMethod]:
+    """Every method × split (default: :func:`experiment_methods` × ``mcfg.splits``); the split
+    of a given seed is the same for every method."""
+    methods = list(methods or experiment_methods(mcfg))
+    splits = list(splits or mcfg.splits)
+    jobs = [(s, m) for s in splits for m in methods]
+    out = []
+    for split, method in tqdm(jobs, desc="training", unit="model", disable=not progress):
+        masks = split_masks(data, split, train_fraction=mcfg.train_fraction,
+                            seed=seed + SPLIT_SEED_OFFSET)
+        out.append(train_method(method, data, masks, mcfg, n_utterance=n_utterance, split=split,
+                                seed=seed))
+    return out

@@ -1,0 +1,263 @@
+"""The plan of one participant's session (paper §VII-C), made before any window opens.
+
+:func:`plan_session` takes every decision of :func:`study.runner.run_session` that needs no
+PsychoPy, and every refusal it can make: the participant id and the session's options, the
+stimulus set, the allocation slot (the list is created with the study seed if the folder has
+none; a list made with another seed is refused), the data file (a complete session is never
+reopened, an interrupted one only with ``resume``; a resumed session must use the same stimuli).
+It claims the participant's slot, holds the participant's session lock and opens the data file
+(``study.data.SessionFile``: a row cut short by a crash is dropped there).
+
+The :class:`SessionPlan` it returns says what the session will do: the 27 trials in their
+order, where it resumes, the trials still to run (:class:`Step`: which stimulus, whether it
+opens a part of the study and so follows that part's instruction, whether its response screen
+is captured), whether the practice trial is shown, the files it writes and the metadata of the
+sidecar. :mod:`study.runner` executes it in a PsychoPy window.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from filelock import FileLock, Timeout
+
+from face_model.errors import ParameterError
+from study import data as sdata
+from study.design import (RESPONSES, Trial, check_participant_id, group_of, participant_seed,
+                          session_trials)
+from study.stimuli import Stimulus, load_manifest, manifest_digest
+
+AUDIO_BACKENDS = ("sounddevice", "ptb", "none")
+# the practice trial: the neutral sentence's audio-only track, so neither face is seen before
+# its block; never written
+PRACTICE = Trial("audio", 0, -1, "none", "none", "normal", "audio-normal")
+
+
+@dataclass(frozen=True)
+class Step:
+    """One trial still to run: ``part`` is its ``(block, period)`` when it opens that part of
+    the study (its instruction is shown first), else None; ``screenshot`` whether its response
+    screen is saved (the first bimodal trial of the session, when a screenshot was asked for)."""
+
+    trial: Trial
+    stimulus: Stimulus
+    part: tuple | None
+    screenshot: bool
+
+
+@dataclass(frozen=True)
+class SessionPlan:
+    """What one session will do (see the module text); made by :func:`plan_session`.
+
+    ``trials`` are the participant's 27 trials in presentation order; ``start`` the number of
+    judgments already in the data file (the resume point) and ``steps`` the trials from there
+    on. ``session`` is this session's number and ``earlier_sessions`` the sidecar's records of
+    the earlier ones (one left ``running`` by a crash is marked ``interrupted``). ``file`` is the
+    open data file and ``lock`` the participant's session lock, held until :meth:`release`.
+    """
+
+    participant_id: str
+    sequence: str
+    slot: int
+    study_dir: Path
+    stimuli_dir: Path
+    study_seed: int
+    stimuli: dict
+    manifest_digest: str
+    keys: dict
+    resume: bool
+    practice: bool
+    fullscreen: bool
+    window_size: tuple
+    fixation_s: float
+    iti_s: float
+    audio_backend: str
+    responder_model: str
+    screenshot: Path | str | None
+    trials: tuple
+    start: int
+    steps: tuple
+    session: int
+    earlier_sessions: tuple
+    file: sdata.SessionFile
+    lock: FileLock
+
+    @property
+    def simulated(self) -> bool:
+        """Whether a simulated observer (``flmp…``) answers."""
+        return self.responder_model.startswith("flmp")
+
+    @property
+    def allocation_path(self) -> Path:
+        return sdata.Allocation(self.study_dir).path
+
+    @property
+    def data_path(self) -> Path:
+        return sdata.data_path(self.study_dir, self.participant_id)
+
+    @property
+    def sidecar_path(self) -> Path:
+        return sdata.sidecar_path(self.study_dir, self.participant_id)
+
+    def psychopy_base(self, stamp: str) -> Path:
+        """PsychoPy's file names without extension, for a session started at ``stamp``."""
+        return sdata.subject_dir(self.study_dir, self.participant_id) / "psychopy" / \
+            f"sub-{self.participant_id}_ses-{self.session}_{stamp}"
+
+    def record(self, *, start: str, versions: dict, audio_device: str) -> dict:
+        """This session's entry of the sidecar's ``sessions`` list, as it starts."""
+        return {"session": self.session, "start": start, "resumed": self.resume,
+                "rows_at_start": self.start, "dropped_partial_row": self.file.dropped_partial,
+                "end": None, "end_state": "running", "rows_at_end": None,
+                "versions": versions, "responder_model": self.responder_model,
+                "audio_backend": self.audio_backend, "audio_device": audio_device,
+                "fullscreen": self.fullscreen,
+                "window_size": [int(s) for s in self.window_size],
+                "practice": self.practice}
+
+    def metadata(self, versions: dict, record: dict) -> dict:
+        """The participant's sidecar, with ``record`` as the last session."""
+        return {"participant_id": self.participant_id, "task": sdata.TASK,
+                "group": group_of(self.sequence), "versions": versions,
+                "study_seed": self.study_seed,
+                "participant_seed": participant_seed(self.study_seed, self.participant_id),
+                "allocation": {"file": str(self.allocation_path), "slot": self.slot,
+                               "sequence": self.sequence},
+                "stimuli": {"folder": str(Path(self.stimuli_dir).resolve()),
+                            "manifest_digest": self.manifest_digest},
+                "responder_model": self.responder_model, "simulated": self.simulated,
+                "keys": dict(self.keys), "sessions": [*self.earlier_sessions, record]}
+
+    def result(self, end_state: str) -> dict:
+        """What :func:`study.runner.run_session` returns once the session has ended."""
+        return {"participant_id": self.participant_id, "sequence": self.sequence,
+                "rows": len(self.file.done), "complete": self.file.complete,
+                "aborted": end_state == "aborted", "data": str(self.file.path),
+                "session": self.session, "sidecar": str(self.sidecar_path)}
+
+    def release(self) -> None:
+        """Let another session of this participant start."""
+        self.lock.release()
+
+
+def check_options(keys, audio_backend, fixation_s, iti_s, window_size) -> list[str]:
+    """The response keys as strings, after checking the session's options."""
+    keys = [str(k) for k in keys]
+    if len(keys) != len(RESPONSES) or len(set(keys)) != len(keys) or \
+            any(not k or k in ("escape", "space") for k in keys):
+        raise ParameterError(f"keys {keys}: give {len(RESPONSES)} different keys for "
+                             f"{', '.join(RESPONSES)} (not escape or space)")
+    if audio_backend not in AUDIO_BACKENDS:
+        raise ParameterError(f"audio backend {audio_backend!r}; allowed: "
+                             f"{', '.join(AUDIO_BACKENDS)}")
+    for name, v in (("fixation_s", fixation_s), ("iti_s", iti_s)):
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and 0 <= v <= 10):
+            raise ParameterError(f"study.{name} = {v!r}; allowed: seconds in [0, 10]")
+    if not (len(window_size) == 2 and all(isinstance(s, (int, np.integer)) and s >= 320
+                                          for s in window_size)):
+        raise ParameterError(f"window size {window_size!r}; allowed: (width, height) >= 320 px")
+    return keys
+
+
+def session_lock(study_dir, pid: str) -> FileLock:
+    """One session per participant at a time (a second terminal is refused, not interleaved)."""
+    folder = sdata.subject_dir(study_dir, pid)
+    folder.mkdir(parents=True, exist_ok=True)
+    lock = FileLock(str(folder / ".session.lock"))
+    try:
+        lock.acquire(timeout=0)
+    except Timeout:
+        raise ParameterError(f"a session of participant {pid} is already running (lock "
+                             f"{folder / '.session.lock'}); wait for it to end") from None
+    return lock
+
+
+def claim_slot(study_dir, pid: str, *, study_seed: int, n_slots: int,
+               resume: bool) -> tuple[dict, bool]:
+    """The participant's allocation slot (the one they hold, else the first free one; the list
+    is created if the folder has none) and whether the session resumes: a participant who
+    stopped before the first judgment starts afresh. Refusals change nothing."""
+    alloc = sdata.Allocation(study_dir)
+    data_file = sdata.data_path(study_dir, pid)
+    held = [r for r in alloc.rows() if r["participant_id"] == pid] if alloc.path.is_file() else []
+    if resume and not data_file.is_file():
+        if not held:
+            raise ParameterError(f"--resume: participant {pid} has no session to resume "
+                                 f"({data_file} not found)")
+        resume = False  # stopped before the first judgment: nothing to resume, start afresh
+    if data_file.is_file() and not held:
+        raise ParameterError(f"{data_file} exists but participant {pid} holds no slot in "
+                             f"{alloc.path} (was it released?); use a new participant id")
+    if not alloc.path.is_file():
+        alloc.create(n_slots, study_seed)
+    made = json.loads(alloc.meta_path.read_text()).get("seed") if alloc.meta_path.is_file() \
+        else study_seed
+    if made != study_seed:
+        raise ParameterError(f"{alloc.path} was made with seed {made}, but this session's study "
+                             f"seed is {study_seed}; run with --seed {made} (one seed per study)")
+    return alloc.assign(pid), resume
+
+
+def plan_steps(trials, stimuli: dict, *, screenshot: bool) -> tuple[Step, ...]:
+    """The trials still to run as :class:`Step`\\ s: a part's instruction before its first
+    trial (also when a resumed session starts inside it), and the screenshot on the first
+    bimodal trial."""
+    steps, part, shot = [], None, bool(screenshot)
+    for trial in trials:
+        opens = (trial.block, trial.period) != part
+        part = (trial.block, trial.period)
+        take = shot and trial.block == "bimodal"
+        shot = shot and not take
+        steps.append(Step(trial, stimuli[trial.stimulus_id], part if opens else None, take))
+    return tuple(steps)
+
+
+def earlier_sessions(sidecar: dict) -> list[dict]:
+    """The sidecar's sessions, one left ``running`` (the process died) marked interrupted."""
+    return [dict(s, end_state="interrupted") if s.get("end_state") == "running" else s
+            for s in sidecar.get("sessions", [])]
+
+
+def plan_session(study_dir, stimuli_dir, participant_id: str, *, study_seed: int,
+                 n_slots: int = 20, resume: bool = False, fullscreen: bool = False,
+                 keys=("n", "h", "s", "u"), practice: bool = True, fixation_s: float = 0.5,
+                 iti_s: float = 0.5, audio_backend: str = "sounddevice",
+                 responder_model: str = "human", screenshot=None,
+                 window_size=(1024, 768)) -> SessionPlan:
+    """Check, claim the slot, lock and open the data file (see the module text); the
+    arguments are :func:`study.runner.run_session`'s. Refusals raise ParameterError."""
+    pid = check_participant_id(participant_id)
+    keys = check_options(keys, audio_backend, fixation_s, iti_s, window_size)
+    study_dir = Path(study_dir)
+    stimuli = load_manifest(stimuli_dir)
+    slot, resume = claim_slot(study_dir, pid, study_seed=study_seed, n_slots=n_slots,
+                              resume=resume)
+    sequence = slot["sequence"]
+    trials = session_trials(pid, sequence, study_seed)
+    side_path = sdata.sidecar_path(study_dir, pid)
+    side = json.loads(side_path.read_text()) if side_path.is_file() else {}
+    digest = manifest_digest(stimuli)
+    if resume and side.get("stimuli", {}).get("manifest_digest", digest) != digest:
+        raise ParameterError(f"the stimuli in {stimuli_dir} differ from those of {pid}'s earlier "
+                             f"session (manifest digest, see {side_path}); resume with the same "
+                             "stimulus set")
+    lock = session_lock(study_dir, pid)
+    try:
+        sf = sdata.SessionFile(study_dir, pid, trials, resume=resume)
+    except BaseException:
+        lock.release()
+        raise
+    earlier = earlier_sessions(side)
+    return SessionPlan(
+        participant_id=pid, sequence=sequence, slot=int(slot["slot"]), study_dir=study_dir,
+        stimuli_dir=Path(stimuli_dir), study_seed=int(study_seed), stimuli=stimuli,
+        manifest_digest=digest, keys=dict(zip(RESPONSES, keys)), resume=bool(resume),
+        practice=bool(practice and not resume), fullscreen=bool(fullscreen),
+        window_size=tuple(window_size), fixation_s=fixation_s, iti_s=iti_s,
+        audio_backend=audio_backend, responder_model=responder_model,
+        screenshot=screenshot or None, trials=tuple(trials), start=len(sf.done),
+        steps=plan_steps(sf.remaining, stimuli, screenshot=bool(screenshot)),
+        session=len(earlier) + 1, earlier_sessions=tuple(earlier), file=sf, lock=lock)

@@ -1,0 +1,134 @@
+"""MLflow at the entry points only: where the store is, the run helper, and what each stage
+logs (the library packages never import MLflow).
+
+Default store: ``sqlite:///<cwd>/mlflow.db`` with artifacts in ``<cwd>/mlartifacts``;
+``MLFLOW_TRACKING_URI`` (or ``mlflow.uri`` in the config) overrides it.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+from contextlib import contextmanager, nullcontext
+from pathlib import Path
+
+from talkingface.config import flatten, to_dict
+from talkingface.paths import RunPaths
+from talkingface.provenance import git_commit
+from talkingface.stages.ablations import child_metrics
+
+
+def tracking_uri(cfg) -> str:
+    if cfg.mlflow.uri:
+        return cfg.mlflow.uri
+    env = os.environ.get("MLFLOW_TRACKING_URI")
+    if env:
+        return env
+    return f"sqlite:///{Path.cwd() / 'mlflow.db'}"
+
+
+def artifact_root() -> str:
+    return (Path.cwd() / "mlartifacts").as_uri()
+
+
+@contextmanager
+def mlflow_run(cfg, *, run_name: str, tags: dict | None = None, nested: bool = False):
+    """Start an MLflow run with the resolved config as params and the git commit as a tag.
+
+    Yields the ``mlflow`` module (or ``None`` when tracking is disabled in the config).
+    ``nested`` makes the run a child of the active run (an ablation setting of its parent).
+    """
+    if not cfg.mlflow.enabled:
+        yield None
+        return
+    import mlflow
+
+    # Alembic prints every schema migration of a fresh SQLite store at INFO.
+    logging.getLogger("alembic").setLevel(logging.WARNING)
+    mlflow.set_tracking_uri(tracking_uri(cfg))
+    client = mlflow.tracking.MlflowClient()
+    exp = client.get_experiment_by_name(cfg.mlflow.experiment)
+    if exp is None:
+        loc = artifact_root() if tracking_uri(cfg).startswith("sqlite:") else None
+        exp_id = client.create_experiment(cfg.mlflow.experiment, artifact_location=loc)
+    else:
+        exp_id = exp.experiment_id
+    mlflow.set_experiment(experiment_id=exp_id)  # nested (child) runs go to the same experiment
+    with mlflow.start_run(experiment_id=exp_id, run_name=run_name, nested=nested) as run:
+        mlflow.set_tags({"git_commit": git_commit(), **(tags or {})})
+        mlflow.log_params({k: str(v)[:500] for k, v in flatten(cfg).items()})
+        yield mlflow
+        del run
+
+
+def train_metrics(summary: dict, primary: str) -> dict:
+    """MLflow metrics: the primary method as ``<split>.<expression>.<part>.<metric>``, every
+    other method under ``baseline.<method>.``, gate accuracy and training times."""
+    out = {}
+    for r in summary["rows"]:
+        prefix = "" if r["method"] == primary else f"baseline.{r['method']}."
+        for k in ("R", "nu_d", "nu_d_est", "MSE"):
+            out[f"{prefix}{r['split']}.{r['expression']}.{r['part']}.{k}"] = r[k]
+    for key, g in summary["gate"].items():
+        split = key.split("/")[1]
+        out.update({f"gate.{split}.{k}": v for k, v in g.items() if isinstance(v, float)})
+    for key, sec in summary["fit_seconds"].items():
+        method, split = key.split("/")
+        out[f"fit_seconds.{method}.{split}"] = sec
+    for split, rk in summary["ranking"].items():
+        for x in rk:
+            out[f"rank.{split}.{x['method']}"] = x["rank"]
+    out["feature_seconds"] = summary["feature_seconds"]
+    return out
+
+
+def log_train(mlf, summary: dict, out_dir: Path, cfg) -> None:
+    """Log the mapping stage to the active MLflow run: metrics, tables, plots, models, pyfunc."""
+    from talkingface.pyfunc import log_mapping_model  # imports mlflow
+
+    mlf.log_metrics(train_metrics(summary, cfg.mapping.method))
+    for p in sorted(out_dir.iterdir()):
+        if p.suffix in (".csv", ".json", ".png", ".yaml", ".tfmap"):
+            mlf.log_artifact(str(p), "mapping")
+    models = summary["models"]
+    if models:
+        split = "utterance" if "utterance" in models else next(iter(models))
+        log_mapping_model(mlf, out_dir / models[split], name="mapping")
+
+
+def log_ablations(mlf, done: dict, out_dir: Path, grid: dict, *, nested: bool = True) -> None:
+    """The ablation stage as MLflow runs: one child run per setting (``grid``: name → config)
+    under a parent, a new nested run of the active run (``nested``) or the active run itself."""
+    parent = (mlf.start_run(run_name=f"ablations:{Path(done['grid']).stem}", nested=True)
+              if nested else nullcontext())
+    with parent:
+        mlf.set_tags({"stage": "ablate", "grid": done["grid"]})
+        for name, cfg in grid.items():
+            child = json.loads((out_dir / name / "summary.json").read_text())
+            with mlf.start_run(run_name=name, nested=True):
+                mlf.set_tags({"ablation.setting": name, "mapping.method": cfg.mapping.method})
+                mlf.log_params({k: str(v)[:500] for k, v in flatten(cfg).items()})
+                mlf.log_metrics({**child_metrics(child, cfg.mapping.method),
+                                 "seconds": child["seconds"]})
+                mlf.log_artifact(str(out_dir / name / "tables.csv"))
+                mlf.log_dict(to_dict(cfg), "config.json")
+        mlf.log_artifact(str(out_dir / "results.csv"), "ablations")
+
+
+def log_replication(mlf, paths: RunPaths, done: dict) -> None:
+    """What ``replicate`` logs besides the mapping and the ablations: the corpus, the Motion
+    Units, the config, the report and the PDF."""
+    corpus, units = done["corpus"], done["units"]
+    mlf.set_tag("corpus_hash", corpus["corpus_hash"])
+    info = json.loads((paths.corpus / "corpus.json").read_text())
+    mlf.log_metrics({"corpus.n_frames": info["n_frames"],
+                     "corpus.n_utterances": info["n_utterances"],
+                     "corpus.seconds": corpus["seconds"],
+                     "units.fit_seconds": units["fit_seconds"],
+                     **{f"units.explained.{k}": v
+                        for k, v in units["summary"]["explained"].items()}})
+    mlf.log_artifact(str(paths.config))
+    mlf.log_artifact(str(paths.units / "variance.csv"), "units")
+    mlf.log_artifact(str(paths.units_model), "units")
+    mlf.log_artifacts(str(paths.report_dir), "report")
+    mlf.log_artifact(str(paths.pdf))

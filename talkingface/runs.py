@@ -1,0 +1,71 @@
+"""The run-level commands: prepare ``runs/<name>``, run the stages a command needs, log them.
+
+``replicate`` runs :data:`talkingface.stages.REPLICATION` in order; ``train``, ``track``,
+``ablate`` and ``study stimuli`` run their own stages (and whatever upstream stages are missing or
+stale). Reuse is decided by the stage layer alone (:mod:`talkingface.stages.base`); MLflow is
+written here and in :mod:`talkingface.experiment_log`, nowhere below.
+"""
+from __future__ import annotations
+
+from talkingface.experiment_log import log_ablations, log_replication, log_train, mlflow_run
+from talkingface.paths import RunPaths
+from talkingface.stages import REPLICATION, prepare_run, run
+from talkingface.stages.ablations import grid_path, load_grid
+
+
+def open_run(name: str, cfg, *, overwrite: bool = False, runs_dir="runs",
+             reports_dir="reports") -> RunPaths:
+    """``runs/<name>`` for ``cfg`` (refused if made with other settings, unless overwrite)."""
+    paths = RunPaths.create(name, runs_dir=runs_dir, reports_dir=reports_dir)
+    prepare_run(paths, cfg, overwrite=overwrite)
+    return paths
+
+
+def replicate(name: str, cfg, *, overwrite: bool = False, runs_dir="runs",
+              reports_dir="reports"):
+    """Every stage into ``runs/<name>``, ``reports/<name>.pdf``, one MLflow run (the mapping's
+    metrics and pyfunc model, the ablations as child runs). Returns the PDF's path."""
+    paths = open_run(name, cfg, overwrite=overwrite, runs_dir=runs_dir, reports_dir=reports_dir)
+    with mlflow_run(cfg, run_name=name, tags={"stage": "replicate"}) as mlf:
+        done = run(REPLICATION, paths, cfg)
+        if mlf is not None:
+            log_train(mlf, done["mapping"], paths.mapping, cfg)
+            if "ablations" in done:
+                log_ablations(mlf, done["ablations"], paths.ablations,
+                              load_grid(grid_path(cfg), cfg))
+            log_replication(mlf, paths, done)
+    return paths.pdf
+
+
+def train(name: str, cfg, *, overwrite: bool = False) -> dict:
+    """The mapping of ``runs/<name>`` (and its keyframes, which ``animate --keyframes`` uses),
+    logged as an MLflow run with the pyfunc model. Returns the mapping's done.json."""
+    paths = open_run(name, cfg, overwrite=overwrite)
+    with mlflow_run(cfg, run_name=f"train:{name}", tags={"stage": "train"}) as mlf:
+        done = run(["mapping", "keyframes"], paths, cfg)
+        if mlf is not None:
+            log_train(mlf, done["mapping"], paths.mapping, cfg)
+    return done["mapping"]
+
+
+def track(name: str, cfg, *, overwrite: bool = False) -> dict:
+    """The tracked corpus of ``runs/<name>`` (``cfg`` has ``mapping.visual_source: tracked``)."""
+    return run(["tracked"], open_run(name, cfg, overwrite=overwrite), cfg)["tracked"]
+
+
+def ablate(name: str, cfg, *, overwrite: bool = False) -> dict:
+    """The ablation grid ``ablations.grid`` on ``runs/<name>``, one MLflow child run per
+    setting under a parent run."""
+    paths = open_run(name, cfg, overwrite=overwrite)
+    grid = grid_path(cfg)
+    with mlflow_run(cfg, run_name=f"ablate:{grid.stem}",
+                    tags={"stage": "ablate", "grid": str(grid)}) as mlf:
+        done = run(["ablations"], paths, cfg)["ablations"]
+        if mlf is not None:
+            log_ablations(mlf, done, paths.ablations, load_grid(grid, cfg), nested=False)
+    return done
+
+
+def stimuli(name: str, cfg, *, overwrite: bool = False) -> dict:
+    """The study's stimuli of ``runs/<name>`` (its mapping trained first if needed)."""
+    return run(["stimuli"], open_run(name, cfg, overwrite=overwrite), cfg)["stimuli"]

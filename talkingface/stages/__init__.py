@@ -1,0 +1,59 @@
+"""Every stage of a run, its reuse rule, and the order ``replicate`` runs them in.
+
+Each line of :data:`STAGES` is one stage's whole reuse rule (see :mod:`talkingface.stages.base`):
+the config it depends on, the stages whose results it reads, and when the config switches it
+off. :data:`REPLICATION` is the order ``talkingface replicate`` runs them in; the other
+commands run the stages they need with :func:`run`, which runs missing or stale upstream stages
+first.
+"""
+from __future__ import annotations
+
+from talkingface.paths import RunPaths
+from talkingface.stages.base import Stage, prepare_run, read_done, run_stages, stale_stages
+from talkingface.stages.foundation import fit_keyframes, fit_units, make_corpus, sentence_file
+from talkingface.stages.motion import (evaluate_tracker, make_tracked_corpus, render_held_out,
+                                       uses_tracked_corpus)
+from talkingface.stages.report import build_report
+from talkingface.stages.study import analyze, make_stimuli, simulate_participants
+from talkingface.stages.ablations import ablate, grid_file, has_grid
+from talkingface.stages.training import train
+
+_TRAINING_INPUTS = ("corpus", "units", "tracked")
+
+STAGES = {s.name: s for s in (
+    Stage("corpus", make_corpus, config=("seed", "synth"), speed_only=("synth.workers",),
+          files=sentence_file),
+    Stage("units", fit_units, config=("units",), upstream=("corpus",)),
+    Stage("keyframes", fit_keyframes, upstream=("corpus", "units")),
+    Stage("tracking", evaluate_tracker, config=("seed", "tracker.n_utterances",
+          "tracker.noise_levels", "tracker.init"), upstream=("corpus", "units")),
+    Stage("tracked", make_tracked_corpus, config=("seed", "tracker.init",
+          "tracker.corpus_noise_sd"), upstream=("corpus", "units"), enabled=uses_tracked_corpus),
+    Stage("mapping", train, config=("seed", "mapping"), upstream=_TRAINING_INPUTS),
+    Stage("render", render_held_out, upstream=("corpus", "keyframes", "mapping")),
+    Stage("stimuli", make_stimuli, config=("seed", "synth"), speed_only=("synth.workers",),
+          upstream=("units", "mapping")),
+    Stage("study_data", simulate_participants, config=("seed", "study"),
+          upstream=("corpus", "stimuli")),
+    Stage("analysis", analyze, config=("seed",), upstream=("study_data",)),
+    Stage("ablations", ablate, config=("seed", "mapping", "ablations.grid"),
+          upstream=_TRAINING_INPUTS, enabled=has_grid, files=grid_file),
+    Stage("report", build_report, always=True),
+)}
+
+REPLICATION = ("corpus", "units", "keyframes", "tracking", "tracked", "mapping", "render",
+               "stimuli", "study_data", "analysis", "ablations", "report")
+
+
+def run(names, paths: RunPaths, cfg) -> dict:
+    """Run the named stages of ``paths`` (and the upstream stages they need); returns
+    ``{stage: done.json}`` of every stage that ran or was reused."""
+    return run_stages(names, STAGES, paths, cfg)
+
+
+def stale(names, paths: RunPaths, cfg) -> list[str]:
+    """The stages :func:`run` would run rather than reuse, in order."""
+    return stale_stages(names, STAGES, paths, cfg)
+
+
+__all__ = ["REPLICATION", "STAGES", "Stage", "prepare_run", "read_done", "run", "stale"]

@@ -1,0 +1,189 @@
+"""The one stage contract and the one helper that runs a stage.
+
+A stage is a function ``(paths, cfg) -> dict`` that writes the folder ``runs/<name>/<stage>/``
+and returns a summary of its results. :func:`run_stage` owns everything around it: the
+folder's ``config.yaml`` and its ``done.json`` (written last, atomically), and reuse. A stage is
+reused exactly when its *key* is unchanged; the key is
+
+* the config sections or keys the stage declares it depends on (minus the ones that only set
+  the speed, such as worker counts),
+* the fingerprints of the upstream stages whose results it reads (``None`` for an upstream
+  stage the config switches off), and
+* the SHA-256 of the files outside the run it reads (a user's sentence file, a grid file).
+
+So a changed mapping setting re-runs training and everything downstream of it, and a changed
+study setting re-runs the study stages and nothing upstream. A stale or interrupted stage
+folder is removed and made again, never mixed with new results.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+
+from face_model.errors import ParameterError
+from talkingface.config import dump_config, select, to_dict
+from talkingface.paths import RunPaths
+
+DONE = "done.json"
+
+
+def _always(cfg) -> bool:
+    return True
+
+
+def _no_files(paths, cfg) -> list:
+    return []
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One stage and its reuse rule (see the module docstring).
+
+    ``config``: dotted config keys the results depend on (``"synth"``, ``"tracker.init"``);
+    ``speed_only``: keys inside those that do not change the results; ``upstream``: stages whose
+    results it reads; ``enabled``: whether the config asks for the stage at all; ``files``:
+    files outside the run it reads; ``always``: never reused (the report).
+    """
+
+    name: str
+    run: Callable
+    config: tuple = ()
+    upstream: tuple = ()
+    speed_only: tuple = ()
+    enabled: Callable = _always
+    files: Callable = _no_files
+    always: bool = False
+
+
+def read_done(folder: Path) -> dict | None:
+    p = Path(folder) / DONE
+    return json.loads(p.read_text()) if p.is_file() else None
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def stage_key(stage: Stage, stages: dict, paths: RunPaths, cfg) -> dict:
+    """What a stage's results depend on, as plain data (see the module docstring)."""
+    tree = to_dict(cfg)
+    conf = {k: select(tree, k) for k in stage.config}
+    for key in stage.speed_only:
+        section, _, leaf = key.rpartition(".")
+        if section in conf and isinstance(conf[section], dict):
+            conf[section] = {k: v for k, v in conf[section].items() if k != leaf}
+    upstream = {}
+    for name in stage.upstream:
+        up = stages[name]
+        done = read_done(paths.stage(name)) if up.enabled(cfg) else None
+        upstream[name] = done["fingerprint"] if done else None
+    files = {str(p): _sha256(Path(p)) for p in stage.files(paths, cfg)}
+    return {"config": conf, "upstream": upstream, "files": files}
+
+
+def fingerprint(key: dict) -> str:
+    return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()
+
+
+def run_stage(stage: Stage, stages: dict, paths: RunPaths, cfg) -> dict:
+    """Run ``stage`` unless its folder holds a finished run with the same key; returns the
+    stage's ``done.json`` (its results plus ``stage``, ``fingerprint``, ``key``, ``seconds``)."""
+    out = paths.stage(stage.name)
+    key = stage_key(stage, stages, paths, cfg)
+    fp = fingerprint(key)
+    done = read_done(out)
+    if done is not None and done.get("fingerprint") == fp and not stage.always:
+        return done
+    if out.exists():
+        shutil.rmtree(out)
+    out.mkdir(parents=True)
+    t0 = time.perf_counter()
+    results = stage.run(paths, cfg)
+    record = {"stage": stage.name, "fingerprint": fp, "key": key,
+              "seconds": time.perf_counter() - t0, **results}
+    dump_config(cfg, out / "config.yaml")
+    tmp = out / (DONE + ".part")
+    tmp.write_text(json.dumps(record, indent=1, default=float))
+    os.replace(tmp, out / DONE)
+    return record
+
+
+def run_stages(names, stages: dict, paths: RunPaths, cfg) -> dict:
+    """Run the named stages, each after the upstream stages it needs (in order, once each);
+    stages the config switches off are skipped. Returns ``{stage: done.json}``."""
+    return {n: run_stage(stages[n], stages, paths, cfg) for n in _run_order(names, stages)
+            if stages[n].enabled(cfg)}
+
+
+def _run_order(names, stages: dict) -> list[str]:
+    """``names`` with their upstream stages, each after what it reads."""
+    order: list[str] = []
+
+    def visit(name: str) -> None:
+        if name not in stages:
+            raise ParameterError(f"unknown stage {name!r}; allowed: {', '.join(stages)}")
+        if name in order:
+            return
+        for up in stages[name].upstream:
+            visit(up)
+        order.append(name)
+
+    for n in names:
+        visit(n)
+    return order
+
+
+def stale_stages(names, stages: dict, paths: RunPaths, cfg) -> list[str]:
+    """The stages among ``names`` and their upstream stages that :func:`run_stages` would run
+    (not reuse) for ``cfg``, in run order: those without a finished run of the same key, those
+    downstream of one, and those never reused."""
+    order = _run_order(names, stages)
+    stale: list[str] = []
+    for name in order:
+        stage = stages[name]
+        if not stage.enabled(cfg):
+            continue
+        done = read_done(paths.stage(name))
+        if (stage.always or done is None or any(u in stale for u in stage.upstream)
+                or done.get("fingerprint") != fingerprint(stage_key(stage, stages, paths, cfg))):
+            stale.append(name)
+    return stale
+
+
+# Settings that change neither results nor outputs: a run made with other values is the same run.
+RUN_INDEPENDENT = ("synth.workers", "tracker.workers", "mlflow", "ablations")
+
+
+def _result_settings(tree: dict) -> dict:
+    tree = json.loads(json.dumps(tree))
+    for key in RUN_INDEPENDENT:
+        section, _, leaf = key.rpartition(".")
+        node = tree.get(section, {}) if section else tree
+        node.pop(leaf, None)
+    return tree
+
+
+def prepare_run(paths: RunPaths, cfg, *, overwrite: bool) -> None:
+    """Create ``runs/<name>`` and record the config. A run made with other settings is refused
+    unless ``overwrite``; with it, the stages whose keys changed are made again when they run
+    and the others are reused (nothing is deleted here)."""
+    if paths.config.is_file():
+        old = yaml.safe_load(paths.config.read_text()) or {}
+        if _result_settings(old) != _result_settings(to_dict(cfg)) and not overwrite:
+            raise ParameterError(
+                f"{paths.root} was made with a different config; choose another --name, or "
+                f"pass --overwrite to re-run the stages it changes (compare {paths.config})")
+    paths.root.mkdir(parents=True, exist_ok=True)
+    dump_config(cfg, paths.config)

@@ -1,0 +1,92 @@
+"""The corpus, the Motion Units and the keyframes (paper §IV, §VII-A): three stages.
+
+``corpus/``: the synthetic corpus (:mod:`data_synth`). ``units/``: the Motion Units fitted on it
+and their variance table. ``keyframes/``: the Eq. 3–4 keyframe model, its MUP → keyframe → MUP
+round trip per expression (``roundtrip.csv``) and the keyframe shapes drawn on the face.
+"""
+from __future__ import annotations
+
+import csv
+import time
+from pathlib import Path
+
+import numpy as np
+
+from analysis.corpus_report import summarize_units
+from data_synth.generate import synthesize_corpus
+from face_model.alignment import corpus_deformations, unflatten
+from face_model.corpus import corpus_hash, load_corpus
+from face_model.errors import ParameterError
+from face_model.keyframes import KEYFRAMES, KeyframeModel
+from face_model.layout import default_layout
+from face_model.motion_units import MotionUnits, fit_corpus_units
+from face_model.render import FaceRenderer, face_grid
+from talkingface.paths import RunPaths
+
+def make_corpus(paths: RunPaths, cfg) -> dict:
+    """The synthetic corpus of the run."""
+    synthesize_corpus(paths.corpus, cfg.synth, cfg.seed, overwrite=True, progress=True)
+    return {"corpus_hash": corpus_hash(paths.corpus)}
+
+
+def sentence_file(paths: RunPaths, cfg) -> list:
+    """The user's sentence file, when the corpus reads one (its contents join the key)."""
+    if not cfg.synth.text_file:
+        return []
+    if not Path(cfg.synth.text_file).is_file():
+        raise ParameterError(f"synth.text_file {cfg.synth.text_file} not found")
+    return [Path(cfg.synth.text_file)]
+
+
+def fit_units_folder(corpus_dir: Path, out_dir: Path, cfg) -> dict:
+    """Fit the Motion Units on a corpus folder; write ``motion_units.npz`` and
+    ``variance.csv`` into ``out_dir``. Used by the stage and by ``talkingface units``."""
+    corpus = load_corpus(corpus_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    units, _ = fit_corpus_units(corpus, n_utterance=cfg.units.n_utterance,
+                                n_expression=cfg.units.n_expression,
+                                alignment=cfg.units.alignment,
+                                metadata={"corpus_hash": corpus_hash(corpus_dir)})
+    seconds = time.perf_counter() - t0
+    units.save(out_dir / "motion_units.npz")
+    summary = summarize_units(units)
+    with open(out_dir / "variance.csv", "w") as f:
+        f.write("motion_units,number,explained,paper\n")
+        for k, v in summary["explained"].items():
+            n = units.n_utterance if k == "neutral" else units.n_expression
+            f.write(f"{k},{n},{v:.6f},{summary['paper'][k]}\n")
+    return {"fit_seconds": seconds, "summary": summary}
+
+
+def fit_units(paths: RunPaths, cfg) -> dict:
+    """The Motion Units of the run's corpus."""
+    return fit_units_folder(paths.corpus, paths.units, cfg)
+
+
+def fit_keyframes(paths: RunPaths, cfg) -> dict:
+    """The keyframe model of the run's corpus and Motion Units, with its round trip."""
+    corpus = load_corpus(paths.corpus)
+    units = MotionUnits.load(paths.units_model)
+    defs = corpus_deformations(corpus, model=units.metadata_.get("alignment", "similarity"))
+    model = KeyframeModel().fit(corpus, units, deformations=defs)
+    out_dir = paths.keyframes
+    model.save(paths.keyframes_model)
+    rows = []
+    for expr in dict.fromkeys(u.expression for u in corpus.utterances):
+        mups = np.concatenate([units.transform(defs[u.utt_id], expr)
+                               for u in corpus.utterances if u.expression == expr])
+        e = model.round_trip_error(mups, expr)
+        rows.append({"expression": expr, "frames": e.n_frames, "mup_relative": e.mup_relative,
+                     "pixel_rmse": e.pixel_rmse, "pixel_max": e.pixel_max,
+                     "shape_relative": e.shape_relative})
+    with open(out_dir / "roundtrip.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    neutral = default_layout().neutral
+    renderer = FaceRenderer(mesh=False)
+    images = [renderer.render(neutral + unflatten(s[None])[0]) for s in model.shapes_]
+    face_grid(images, list(KEYFRAMES), out_dir / "keyframes.png", ncols=4)
+    return {"roundtrip": rows, "condition": float(model.condition_),
+            "samples": {k: len(v) for k, v in model.selection_.items()}}

@@ -1,0 +1,131 @@
+"""The face in motion (paper §V, §VII-B, Figs. 6 and 7): three stages.
+
+``tracking/``: rendered video of a corpus subset tracked at several image noise levels (raw
+Lucas–Kanade vs the MU-constrained fit), the error curve. ``tracked/``: the whole corpus rendered
+as marker video and tracked (``mapping.visual_source: tracked``; see :mod:`data_synth.tracked`).
+``render/``: a held-out sentence animated from its audio by the trained mapping (Fig. 6 style),
+the same moment in neutral, smile and sad (Fig. 7 style), and that sentence's keyframe tracks.
+"""
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from analysis.figures import tracking_curve
+from data_synth.tracked import track_corpus
+from data_synth.video import tracking_error_curve
+from face_model.alignment import speaker_neutrals
+from face_model.corpus import load_corpus
+from face_model.keyframes import KeyframeModel, write_keyframe_tracks
+from face_model.layout import mouth_opening
+from face_model.motion_units import MotionUnits
+from face_model.phones import PHONES
+from face_model.render import FaceRenderer, face_grid
+from talkingface.animate import load_animator
+from talkingface.paths import RunPaths
+from talkingface.stages.base import read_done
+
+INIT_WORDS = {"markers": "true first-frame markers",
+              "corners": "neutral face placed by the true mouth corners",
+              "image": "markers found in the first image (mouth corners, then the dots)"}
+
+
+def _write_csv(path: Path, rows: list[dict]) -> Path:
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    return path
+
+
+def _tracking_subset(corpus, n: int) -> list:
+    """``n`` utterances taken round robin over the expressions."""
+    by_expr: dict = {}
+    for u in corpus.utterances:
+        by_expr.setdefault(u.expression, []).append(u)
+    subset, i = [], 0
+    while len(subset) < min(n, len(corpus.utterances)):
+        for utts in by_expr.values():
+            if i < len(utts) and len(subset) < n:
+                subset.append(utts[i])
+        i += 1
+    return subset
+
+
+def evaluate_tracker(paths: RunPaths, cfg) -> dict:
+    """Track rendered video of a corpus subset at several noise levels and plot the error
+    curve."""
+    t = cfg.tracker
+    corpus = load_corpus(paths.corpus)
+    units = MotionUnits.load(paths.units_model)
+    subset = _tracking_subset(corpus, t.n_utterances)
+    neutrals = speaker_neutrals(corpus, model=units.metadata_.get("alignment", "similarity"))
+    curve = tracking_error_curve(subset, units, neutrals=neutrals, noise_levels=t.noise_levels,
+                                 seed=cfg.seed, init=t.init)
+    rows = curve.rows()
+    _write_csv(paths.tracking / "error_curve.csv", rows)
+    fig = tracking_curve(rows, paths.tracking / "error_curve.png")
+    worst = rows[-1]
+    summary = (f"Tracker (§V, Eq. 5 solved as in Appendix A): {len(subset)} utterances "
+               f"({curve.n_frames} frames) rendered as marker video and tracked from the "
+               f"{INIT_WORDS[t.init]}. Mean "
+               f"marker error at image noise sd {worst['noise_sd']:.0f}: raw Lucas-Kanade "
+               f"{worst['lk_px']:.2f} px, MU-constrained {worst['constrained_px']:.2f} px.")
+    return {"rows": rows, "utterances": [u.utt_id for u in subset], "summary": summary,
+            "figure": fig.name, "caption": "Mean marker error (pixels) against image noise: raw "
+            "pyramidal Lucas-Kanade tracks, the measurements the fit uses, and the "
+            "MU-constrained tracker."}
+
+
+def uses_tracked_corpus(cfg) -> bool:
+    return cfg.mapping.visual_source == "tracked"
+
+
+def make_tracked_corpus(paths: RunPaths, cfg) -> dict:
+    """The whole corpus rendered as marker video and tracked."""
+    t = cfg.tracker
+    return track_corpus(load_corpus(paths.corpus), MotionUnits.load(paths.units_model),
+                        paths.tracked, noise_sd=t.corpus_noise_sd, init=t.init, seed=cfg.seed,
+                        workers=t.workers, progress=True, overwrite=True)
+
+
+def training_corpus(paths: RunPaths, cfg) -> Path:
+    """The corpus the mapping learns from: the run's corpus or its tracked copy."""
+    return paths.tracked if uses_tracked_corpus(cfg) else paths.corpus
+
+
+def held_out_utterance(corpus, mapping_done: dict):
+    """The first neutral utterance held out by the utterance split (any neutral one if none)."""
+    held = set(mapping_done.get("test_utterances", []))
+    neutral = [u for u in corpus.utterances if u.expression == "neutral"] or corpus.utterances
+    return next((u for u in neutral if u.utt_id in held), neutral[0])
+
+
+def render_held_out(paths: RunPaths, cfg) -> dict:
+    """Fig. 6 / Fig. 7-style pictures and keyframe tracks of a held-out sentence."""
+    animator, tfmap = load_animator(str(paths.root))
+    corpus = load_corpus(paths.corpus)
+    utt = held_out_utterance(corpus, read_done(paths.mapping))
+    out_dir = paths.render
+    renderer = FaceRenderer(mesh=False)
+    mups, markers = animator.animate(utt.audio, utt.sample_rate, "neutral")
+    picks = np.linspace(0, len(markers) - 1, 10).round().astype(int)
+    phones = utt.phone_per_frame()
+    fig6 = face_grid([renderer.render(markers[k]) for k in picks],
+                     [f"{k / 30:.2f} s /{PHONES[phones[k]]}/" for k in picks],
+                     out_dir / "fig6_sentence.png", ncols=5)
+    k = int(np.argmax(mouth_opening(markers)))  # Fig. 7: the frame of widest mouth opening
+    faces, titles = [], []
+    for expr in animator.mapping.expressions:
+        _, m = animator.animate(utt.audio, utt.sample_rate, expr)
+        faces.append(renderer.render(m[k]))
+        titles.append(expr)
+    fig7 = face_grid(faces, titles, out_dir / "fig7_expressions.png", ncols=len(faces))
+    kf = KeyframeModel.load(paths.keyframes_model)
+    tracks = write_keyframe_tracks(out_dir / "keyframe_tracks.json",
+                                   kf.mups_to_keyframes(mups, "neutral"), 30,
+                                   expression="neutral", source=utt.utt_id)
+    return {"utterance": utt.utt_id, "text": utt.text, "fig6": fig6.name, "fig7": fig7.name,
+            "fig7_frame": k, "tracks": Path(tracks).name, "model": str(tfmap)}

@@ -1,0 +1,64 @@
+"""The report stage: ``runs/<name>/report/`` (figures and the summary) and ``reports/<name>.pdf``
+from whatever stages of the run are finished."""
+from __future__ import annotations
+
+import json
+
+from analysis.corpus_report import corpus_section, make_figures, summarize_corpus, units_section
+from analysis.mapping_report import mapping_section
+from analysis.motion_report import motion_section
+from analysis.perception_report import perception_section
+from analysis.report import Report
+from analysis.study_report import study_section
+from face_model.corpus import load_corpus
+from face_model.motion_units import MotionUnits
+from talkingface.config import dump_config, flatten
+from talkingface.provenance import git_commit
+from talkingface.paths import RunPaths
+from talkingface.stages.base import read_done
+
+
+def build_report(paths: RunPaths, cfg) -> dict:
+    """Summaries and figures from the run's stage folders, then ``reports/<name>.pdf``."""
+    corpus = load_corpus(paths.corpus)
+    units = MotionUnits.load(paths.units_model)
+    summary = {"corpus": summarize_corpus(corpus), "units": read_done(paths.units)["summary"]}
+    dump_config(cfg, paths.report_dir / "config.yaml")
+    (paths.report_dir / "summary.json").write_text(json.dumps(summary, indent=1))
+    figs = make_figures(corpus, units, summary, paths.report_dir)
+    rep = Report(f"talkingface replication: {paths.name}",
+                 "Hong, Wen &amp; Huang (2002), Real-Time Speech-Driven Face Animation with "
+                 "Expressions Using Neural Networks — rebuilt on a synthetic corpus")
+    corpus_section(rep, summary["corpus"], figs)
+    units_section(rep, summary["units"], figs)
+    mapping = read_done(paths.mapping)
+    if mapping:
+        ablations = paths.ablations / "results.csv"
+        mapping_section(rep, mapping, paths.mapping, ablations if ablations.is_file() else None)
+    if read_done(paths.keyframes):
+        motion_section(rep, paths.keyframes, paths.render, paths.tracking)
+    if (paths.stimuli / "stimuli.json").is_file():
+        study_section(rep, paths.stimuli, paths.study_data)
+    study = read_done(paths.analysis)
+    if study is not None:
+        perception_section(rep, study, paths.analysis)
+    methods_section(rep, cfg, corpus.info, study=study)
+    pdf = rep.build(paths.pdf)
+    return {"pdf": str(pdf)}
+
+
+def methods_section(rep, cfg, corpus_info: dict, *, study: dict | None = None) -> None:
+    rep.heading("Settings and versions")
+    rep.paragraph(f"Source commit {git_commit()}; run seed {cfg.seed}. Every table and figure "
+                  "above was computed by the pipeline from this run's folders.")
+    if study is not None:
+        who = "simulated (FLMP observers)" if study["simulated"] else (
+            "real people" if not study["any_simulated"] else "partly simulated")
+        rep.paragraph(f"Perception study: {study['participants']} participants, {who}; study "
+                      f"seed {cfg.seed} (allocation list and trial orders), Monte Carlo, "
+                      f"bootstrap and power simulations seeded with {cfg.seed}.")
+    versions = corpus_info.get("versions", {})
+    rep.table("Package versions", ["package", "version"], sorted(versions.items()))
+    flat = [[k, json.dumps(v)] for k, v in flatten(cfg).items() if "." in k]
+    rep.table("Resolved configuration", ["key", "value"], flat, col_widths=[200, 250])
+

@@ -1,0 +1,125 @@
+"""The mapping and its ablations (paper §VI, §VII-A): two stages.
+
+``mapping/`` — every method (the paper's gated MLP and the baselines) trained on both splits by
+:mod:`mapping.experiment` and measured by :mod:`analysis.evaluation`:
+
+    tables.csv        every method × split × expression × train/test: R, ν, ν', MSE, paper values
+    ranking_<split>.csv   methods ranked by mean test R
+    gate.json         gate accuracy per split, the small-class merges
+    confusion_<split>.csv/.png  the gate's confusion on neutral test frames (true class per row)
+    <method>_<split>.tfmap the primary method trained on each split (AudioMapping file)
+    trajectories.png  predicted vs true MUPs of test sentences
+
+The ``ablations/`` stage (:mod:`talkingface.stages.ablations`) trains with the same function.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import time
+from pathlib import Path
+
+from analysis.evaluation import evaluate_experiment, ranking, table_rows
+from analysis.figures import confusion_matrix, mup_trajectories
+from face_model.corpus import corpus_hash, load_corpus
+from face_model.motion_units import MotionUnits
+from mapping.checkpoint import AudioMapping, rest_mups
+from mapping.dataset import build_dataset
+from mapping.experiment import run_experiment
+from talkingface.config import to_dict
+from talkingface.paths import RunPaths
+from talkingface.stages.motion import training_corpus
+
+
+def _write_csv(path: Path, rows: list[dict]) -> Path:
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    return path
+
+
+def _write_gate(out_dir: Path, r) -> dict:
+    """The gate's confusion (CSV and heat map) of one trained method; its accuracy figures."""
+    gate = dict(r.trained.gate)
+    conf = gate.pop("confusion")
+    with open(out_dir / f"confusion_{r.split}.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["true\\gated", *gate["class_names"]])
+        for name, row in zip(gate["class_names"], conf):
+            w.writerow([name, *row.tolist()])
+    confusion_matrix(conf, gate["class_names"], out_dir / f"confusion_{r.split}.png",
+                     title=f"Gate confusion, neutral test frames ({r.split} split)")
+    return gate
+
+
+def train_and_evaluate(corpus_dir: Path, units_path: Path, out_dir: Path, cfg, *,
+                       methods=None, splits=None, progress: bool = True) -> dict:
+    """Train and evaluate ``methods`` (default: the primary method and every baseline) on
+    ``splits``; write the files listed in the module docstring into ``out_dir`` and return the
+    summary the report and MLflow read."""
+    m = cfg.mapping
+    corpus = load_corpus(corpus_dir)
+    units = MotionUnits.load(units_path)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    data = build_dataset(corpus, units, n_mfcc=m.n_mfcc, deltas=m.deltas)
+    feature_seconds = time.perf_counter() - t0
+    trained = run_experiment(data, m, n_utterance=units.n_utterance, seed=cfg.seed,
+                             methods=methods, splits=splits, progress=progress)
+    results = evaluate_experiment(trained, data, units)
+    rows = table_rows(results)
+    _write_csv(out_dir / "tables.csv", rows)
+    splits_run = list(dict.fromkeys(r.split for r in results))
+    ranks = {s: ranking(results, s) for s in splits_run}
+    for s, rk in ranks.items():
+        _write_csv(out_dir / f"ranking_{s}.csv", rk)
+    gate, models = {}, {}
+    meta = {"corpus_hash": corpus_hash(corpus_dir), "seed": cfg.seed, "config": to_dict(cfg)}
+    first = corpus.utterances[0]
+    for r in results:
+        if r.trained.gate is not None:
+            gate[f"{r.method}/{r.split}"] = _write_gate(out_dir, r)
+        if r.method == m.method:
+            path = out_dir / f"{r.method}_{r.split}.tfmap"
+            AudioMapping(r.trained.mapper, sample_rate=first.sample_rate, fps=first.fps,
+                         n_mfcc=m.n_mfcc, deltas=m.deltas, n_utterance=units.n_utterance,
+                         rest_mups=rest_mups(units), metadata={**meta, "split": r.split}).save(path)
+            models[r.split] = str(path.name)
+    (out_dir / "gate.json").write_text(json.dumps(gate, indent=1))
+    traj = mup_trajectories(_trajectory_items(data, results, m.method, units.n_utterance),
+                            out_dir / "trajectories.png")
+    held = next((r for r in results if r.split == "utterance"), None)
+    test_utts = ([d.utt_id for d, mk in zip(data, held.trained.masks) if not mk.any()]
+                 if held is not None else [])
+    return {"rows": rows, "ranking": ranks, "gate": gate, "models": models,
+            "test_utterances": test_utts,
+            "feature_seconds": feature_seconds, "trajectories": traj.name,
+            "fit_seconds": {f"{r.method}/{r.split}": r.fit_seconds for r in results},
+            "config": to_dict(cfg)}
+
+
+def _trajectory_items(data, results, primary: str, n_utterance: int) -> list[dict]:
+    """For one test sentence per expression (utterance split if run): the true MUPs and the
+    estimates of the primary method and of the best-ranked baseline."""
+    split = "utterance" if any(r.split == "utterance" for r in results) else results[0].split
+    by = {r.method: r for r in results if r.split == split}
+    others = [x["method"] for x in ranking(results, split) if x["method"] != primary]
+    shown = [primary] + others[:1]
+    masks = (by[primary] if primary in by else next(iter(by.values()))).trained.masks
+    items = []
+    for expr in dict.fromkeys(d.expression for d in data):
+        idx = [i for i, d in enumerate(data) if d.expression == expr and not masks[i].any()]
+        if not idx:  # random_frames: every sentence has training frames; take the first
+            idx = [i for i, d in enumerate(data) if d.expression == expr]
+        i = idx[0]
+        items.append({"title": f"{data[i].utt_id} ({expr}, {split} split)",
+                      "truth": data[i].mups, "n_utterance": n_utterance,
+                      "estimates": {meth: by[meth].trained.predictions[i] for meth in shown
+                                    if meth in by}})
+    return items
+
+
+def train(paths: RunPaths, cfg) -> dict:
+    """The mapping and the baselines trained and evaluated on the run's training corpus."""
+    return train_and_evaluate(training_corpus(paths, cfg), paths.units_model, paths.mapping, cfg)

@@ -1,0 +1,145 @@
+"""The stage contract (talkingface.stages.base): reuse decided by exactly the declared config
+keys, upstream fingerprints and input files; stale folders remade, never mixed; and the real
+registry's rules for a study and a mapping setting."""
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import pytest
+
+from face_model.errors import ParameterError
+from talkingface.config import Config, load_config
+from talkingface.paths import RunPaths
+from talkingface.stages import REPLICATION, STAGES, stale
+from talkingface.stages.base import Stage, prepare_run, read_done, run_stages, stale_stages
+
+
+def _toy_stages(calls: list, text_file):
+    """corpus ← units ← mapping, and tracking beside them: each records that it ran."""
+
+    def make(name):
+        def run(paths, cfg):
+            calls.append(name)
+            (paths.stage(name) / "out.txt").write_text(name)
+            return {"ran": name}
+        return run
+
+    return {s.name: s for s in (
+        Stage("corpus", make("corpus"), config=("seed", "synth"), speed_only=("synth.workers",),
+              files=lambda paths, cfg: [text_file]),
+        Stage("units", make("units"), config=("units",), upstream=("corpus",)),
+        Stage("mapping", make("mapping"), config=("mapping",), upstream=("corpus", "units")),
+        Stage("tracking", make("tracking"), config=("tracker.init",), upstream=("corpus",)),
+        Stage("report", make("report"), always=True),
+    )}
+
+
+@pytest.fixture
+def toy(tmp_path):
+    calls: list = []
+    text = tmp_path / "sentences.txt"
+    text.write_text("One sentence.\n")
+    stages = _toy_stages(calls, text)
+    paths = RunPaths.create("toy", runs_dir=tmp_path / "runs", reports_dir=tmp_path / "reports")
+    return stages, paths, calls, text
+
+
+def test_a_finished_stage_is_reused_and_its_done_file_says_why(toy):
+    stages, paths, calls, _ = toy
+    cfg = Config()
+    first = run_stages(["mapping", "tracking"], stages, paths, cfg)
+    assert calls == ["corpus", "units", "mapping", "tracking"]
+    again = run_stages(["mapping", "tracking"], stages, paths, cfg)
+    assert calls == ["corpus", "units", "mapping", "tracking"]  # nothing ran twice
+    assert again == first
+    done = read_done(paths.stage("units"))
+    assert done["key"]["config"] == {"units": dataclasses.asdict(cfg.units)}
+    assert done["key"]["upstream"] == {"corpus": first["corpus"]["fingerprint"]}
+    assert (paths.stage("units") / "config.yaml").is_file()
+
+
+@pytest.mark.parametrize("override, reruns", [
+    ("units.n_utterance=6", ["units", "mapping"]),
+    ("mapping.train.max_epochs=3", ["mapping"]),
+    ("tracker.init=corners", ["tracking"]),
+    ("tracker.workers=1", []),  # not in any key
+    ("synth.workers=1", []),  # speed only
+    ("seed=7", ["corpus", "units", "mapping", "tracking"]),
+    ("study.n_participants=4", []),
+])
+def test_a_changed_setting_reruns_its_stage_and_what_reads_it(toy, override, reruns):
+    stages, paths, calls, _ = toy
+    run_stages(["mapping", "tracking"], stages, paths, Config())
+    cfg = load_config(None, [override])
+    assert stale_stages(["mapping", "tracking"], stages, paths, cfg) == reruns
+    calls.clear()
+    run_stages(["mapping", "tracking"], stages, paths, cfg)
+    assert calls == reruns
+
+
+def test_a_changed_input_file_reruns_and_a_missing_done_file_remakes_the_folder(toy):
+    stages, paths, calls, text = toy
+    run_stages(["mapping"], stages, paths, Config())
+    text.write_text("Another sentence.\n")
+    calls.clear()
+    run_stages(["mapping"], stages, paths, Config())
+    assert calls == ["corpus", "units", "mapping"]
+    # an interrupted stage: its leftovers are removed, never mixed with the new results
+    (paths.stage("units") / "done.json").unlink()
+    (paths.stage("units") / "half_written.npz").write_text("x")
+    calls.clear()
+    run_stages(["units"], stages, paths, Config())
+    assert calls == ["units"] and not (paths.stage("units") / "half_written.npz").exists()
+
+
+def test_the_report_is_never_reused_and_unknown_stages_are_refused(toy):
+    stages, paths, calls, _ = toy
+    run_stages(["report"], stages, paths, Config())
+    run_stages(["report"], stages, paths, Config())
+    assert calls == ["report", "report"]
+    with pytest.raises(ParameterError, match=r"unknown stage 'nope'; allowed: corpus, units"):
+        run_stages(["nope"], stages, paths, Config())
+
+
+def test_a_run_refuses_other_settings_unless_overwrite_and_deletes_nothing(tmp_path):
+    paths = RunPaths.create("r", runs_dir=tmp_path / "runs")
+    prepare_run(paths, Config(), overwrite=False)
+    (paths.root / "corpus").mkdir()
+    prepare_run(paths, load_config(None, ["synth.workers=1", "mlflow.enabled=false"]),
+                overwrite=False)  # speed and logging settings: the same run
+    with pytest.raises(ParameterError, match="was made with a different config"):
+        prepare_run(paths, load_config(None, ["seed=1"]), overwrite=False)
+    prepare_run(paths, load_config(None, ["seed=1"]), overwrite=True)
+    assert (paths.root / "corpus").is_dir()  # kept: the stages decide what is remade
+    assert "seed: 1" in paths.config.read_text()
+
+
+def test_the_replication_order_runs_every_stage_after_what_it_reads():
+    assert set(REPLICATION) == set(STAGES)
+    for i, name in enumerate(REPLICATION):
+        assert all(REPLICATION.index(u) < i for u in STAGES[name].upstream), name
+
+
+def test_real_stages_declare_what_a_study_and_a_mapping_setting_rerun(tmp_path):
+    """The registry's rules on a run whose stages all look finished (fingerprints written as
+    run_stages would write them, without running anything heavy)."""
+    from talkingface.stages.base import fingerprint, stage_key
+
+    paths = RunPaths.create("r", runs_dir=tmp_path / "runs")
+    cfg = Config()
+    for name in REPLICATION:
+        stage = STAGES[name]
+        if not stage.enabled(cfg) or stage.always:
+            continue
+        paths.stage(name).mkdir(parents=True)
+        fp = fingerprint(stage_key(stage, STAGES, paths, cfg))
+        (paths.stage(name) / "done.json").write_text(json.dumps({"fingerprint": fp}))
+    assert stale(REPLICATION, paths, cfg) == ["report"]
+    study = load_config(None, ["study.n_participants=12"])
+    assert stale(REPLICATION, paths, study) == ["study_data", "analysis", "report"]
+    mapping = load_config(None, ["mapping.hidden_max=30"])
+    assert stale(REPLICATION, paths, mapping) == ["mapping", "render", "stimuli", "study_data",
+                                                  "analysis", "ablations", "report"]
+    tracked = load_config(None, ["mapping.visual_source=tracked"])
+    assert stale(REPLICATION, paths, tracked)[:2] == ["tracked", "mapping"]
