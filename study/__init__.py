@@ -1,2 +1,2 @@
 """The perception study (paper §VII-C): stimuli, design and counterbalancing, the PsychoPy
-session runner and simulated participants. Built in the study stage's issue."""
+session runner and simulated participants."""

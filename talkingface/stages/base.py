@@ -17,6 +17,7 @@ folder is removed and made again, never mixed with new results.
 """
 from __future__ import annotations
 
+import csv
 import hashlib
 import json
 import os
@@ -66,6 +67,15 @@ class Stage:
 def read_done(folder: Path) -> dict | None:
     p = Path(folder) / DONE
     return json.loads(p.read_text()) if p.is_file() else None
+
+
+def write_csv(path: Path, rows: list[dict]) -> Path:
+    """``rows`` (dicts with the same keys) as a CSV file with a header."""
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    return path
 
 
 def _sha256(path: Path) -> str:

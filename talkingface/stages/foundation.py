@@ -6,7 +6,6 @@ round trip per expression (``roundtrip.csv``) and the keyframe shapes drawn on t
 """
 from __future__ import annotations
 
-import csv
 import time
 from pathlib import Path
 
@@ -22,6 +21,7 @@ from face_model.layout import default_layout
 from face_model.motion_units import MotionUnits, fit_corpus_units
 from face_model.render import FaceRenderer, face_grid
 from talkingface.paths import RunPaths
+from talkingface.stages.base import write_csv
 
 def make_corpus(paths: RunPaths, cfg) -> dict:
     """The synthetic corpus of the run."""
@@ -80,10 +80,7 @@ def fit_keyframes(paths: RunPaths, cfg) -> dict:
         rows.append({"expression": expr, "frames": e.n_frames, "mup_relative": e.mup_relative,
                      "pixel_rmse": e.pixel_rmse, "pixel_max": e.pixel_max,
                      "shape_relative": e.shape_relative})
-    with open(out_dir / "roundtrip.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_csv(out_dir / "roundtrip.csv", rows)
     neutral = default_layout().neutral
     renderer = FaceRenderer(mesh=False)
     images = [renderer.render(neutral + unflatten(s[None])[0]) for s in model.shapes_]

@@ -8,7 +8,6 @@ the same moment in neutral, smile and sad (Fig. 7 style), and that sentence's ke
 """
 from __future__ import annotations
 
-import csv
 from pathlib import Path
 
 import numpy as np
@@ -25,19 +24,11 @@ from face_model.phones import PHONES
 from face_model.render import FaceRenderer, face_grid
 from talkingface.animate import load_animator
 from talkingface.paths import RunPaths
-from talkingface.stages.base import read_done
+from talkingface.stages.base import read_done, write_csv
 
 INIT_WORDS = {"markers": "true first-frame markers",
               "corners": "neutral face placed by the true mouth corners",
               "image": "markers found in the first image (mouth corners, then the dots)"}
-
-
-def _write_csv(path: Path, rows: list[dict]) -> Path:
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-    return path
 
 
 def _tracking_subset(corpus, n: int) -> list:
@@ -65,7 +56,7 @@ def evaluate_tracker(paths: RunPaths, cfg) -> dict:
     curve = tracking_error_curve(subset, units, neutrals=neutrals, noise_levels=t.noise_levels,
                                  seed=cfg.seed, init=t.init)
     rows = curve.rows()
-    _write_csv(paths.tracking / "error_curve.csv", rows)
+    write_csv(paths.tracking / "error_curve.csv", rows)
     fig = tracking_curve(rows, paths.tracking / "error_curve.png")
     worst = rows[-1]
     summary = (f"Tracker (§V, Eq. 5 solved as in Appendix A): {len(subset)} utterances "

@@ -28,15 +28,8 @@ from mapping.dataset import build_dataset
 from mapping.experiment import run_experiment
 from talkingface.config import to_dict
 from talkingface.paths import RunPaths
+from talkingface.stages.base import write_csv
 from talkingface.stages.motion import training_corpus
-
-
-def _write_csv(path: Path, rows: list[dict]) -> Path:
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-    return path
 
 
 def _write_gate(out_dir: Path, r) -> dict:
@@ -69,11 +62,11 @@ def train_and_evaluate(corpus_dir: Path, units_path: Path, out_dir: Path, cfg, *
                              methods=methods, splits=splits, progress=progress)
     results = evaluate_experiment(trained, data, units)
     rows = table_rows(results)
-    _write_csv(out_dir / "tables.csv", rows)
+    write_csv(out_dir / "tables.csv", rows)
     splits_run = list(dict.fromkeys(r.split for r in results))
     ranks = {s: ranking(results, s) for s in splits_run}
     for s, rk in ranks.items():
-        _write_csv(out_dir / f"ranking_{s}.csv", rk)
+        write_csv(out_dir / f"ranking_{s}.csv", rk)
     gate, models = {}, {}
     meta = {"corpus_hash": corpus_hash(corpus_dir), "seed": cfg.seed, "config": to_dict(cfg)}
     first = corpus.utterances[0]

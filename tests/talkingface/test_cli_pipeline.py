@@ -87,6 +87,15 @@ def test_replicate_refuses_a_different_config_under_the_same_name(workdir, capsy
     assert main(["replicate", "--name", "r", *TINY, "--ablations", "none",
                  "--set", "mlflow.enabled=false"]) == 0
     assert (workdir / "runs" / "r" / "corpus" / "done.json").read_text() == stamp
+    # a study setting with --overwrite re-runs the study stages and nothing upstream of them
+    run = workdir / "runs" / "r"
+    kept = {s: (run / s / "done.json").read_text() for s in ("corpus", "units", "mapping",
+                                                            "stimuli")}
+    assert main(["replicate", "--name", "r", *TINY, "--ablations", "none", "--overwrite",
+                 "--set", "mlflow.enabled=false", "--set", "study.n_participants=4"]) == 0
+    assert {s: (run / s / "done.json").read_text() for s in kept} == kept
+    assert len(list((run / "study_data").glob("sub-*/sub-*_task-emotion_beh.csv"))) == 4
+    assert json.loads((run / "analysis" / "done.json").read_text())["participants"] == 4
 
 
 def test_synth_then_units_print_the_variance(workdir, capsys):
