@@ -7,6 +7,7 @@ written here and in :mod:`talkingface.experiment_log`, nowhere below.
 """
 from __future__ import annotations
 
+from face_model.errors import ParameterError
 from talkingface.experiment_log import log_ablations, log_replication, log_train, mlflow_run
 from talkingface.paths import RunPaths
 from talkingface.stages import REPLICATION, prepare_run, run
@@ -56,8 +57,10 @@ def track(name: str, cfg, *, overwrite: bool = False) -> dict:
 def ablate(name: str, cfg, *, overwrite: bool = False) -> dict:
     """The ablation grid ``ablations.grid`` on ``runs/<name>``, one MLflow child run per
     setting under a parent run."""
-    paths = open_run(name, cfg, overwrite=overwrite)
     grid = grid_path(cfg)
+    if grid is None:
+        raise ParameterError("talkingface ablate needs a grid file (--grid FILE), not 'none'")
+    paths = open_run(name, cfg, overwrite=overwrite)
     with mlflow_run(cfg, run_name=f"ablate:{grid.stem}",
                     tags={"stage": "ablate", "grid": str(grid)}) as mlf:
         done = run(["ablations"], paths, cfg)["ablations"]

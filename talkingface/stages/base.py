@@ -9,7 +9,8 @@ reused exactly when its *key* is unchanged; the key is
   the speed, such as worker counts),
 * the fingerprints of the upstream stages whose results it reads (``None`` for an upstream
   stage the config switches off), and
-* the SHA-256 of the files outside the run it reads (a user's sentence file, a grid file).
+* the SHA-256 of the files outside the run it reads (a user's sentence file, a grid file), by
+  content, so moving a file or the checkout changes nothing.
 
 So a changed mapping setting re-runs training and everything downstream of it, and a changed
 study setting re-runs the study stages and nothing upstream. A stale or interrupted stage
@@ -99,7 +100,7 @@ def stage_key(stage: Stage, stages: dict, paths: RunPaths, cfg) -> dict:
         up = stages[name]
         done = read_done(paths.stage(name)) if up.enabled(cfg) else None
         upstream[name] = done["fingerprint"] if done else None
-    files = {str(p): _sha256(Path(p)) for p in stage.files(paths, cfg)}
+    files = [_sha256(Path(p)) for p in stage.files(paths, cfg)]  # contents, wherever they are
     return {"config": conf, "upstream": upstream, "files": files}
 
 
