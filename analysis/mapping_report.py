@@ -119,7 +119,7 @@ def mapping_section(report, summary: dict, mapping_dir: Path, ablations_csv: Pat
                      note="Mean over expressions of the test-set figures. Baselines are trained "
                           "per expression on the same frames and evaluated the same way.")
     if ablations_csv is not None:
-        with open(ablations_csv, newline="") as f:
+        with open(ablations_csv, newline="", encoding="utf-8-sig") as f:
             ab = list(csv.DictReader(f))
         splits = [s for s in ("utterance", "random_frames") if ab and f"{s}_R" in ab[0]]
         head = ["setting", "method", "classes", "context", "MFCC", "hidden", "expressions"]

@@ -24,9 +24,10 @@ from analysis.study_data import (  # noqa: E402
     PAPER_TALLIES,
     RESPONSE_LABEL,
     Tally,
-    load_study_data,
+    read_study,
     tallies,
 )
+from study.design import N_TRIALS  # noqa: E402
 
 TITLES = {"III": "TABLE III: emotion inference based on the animation sequences without audio",
           "IV": "TABLE IV: emotion inference based on the audio",
@@ -77,14 +78,23 @@ def tally_figure(tabs: dict, path: Path) -> Path:
     return path
 
 
-def analyze_study(study_dir, out_dir, *, seed: int = 0, bootstrap: int = 200) -> dict:
+def analyze_study(study_dir, out_dir, *, seed: int = 0, bootstrap: int = 200,
+                  allow_incomplete: bool = False) -> dict:
     """Tallies, statistics and model fits of a study folder into ``out_dir`` (JSON, CSV, PNG);
-    returns the summary the report is built from."""
+    returns the summary the report is built from.
+
+    A folder with an incomplete session is refused (:func:`analysis.study_data.read_study`)
+    unless ``allow_incomplete``: then the complete sessions are analysed and the summary's
+    ``incomplete`` lists the others (participant, judgments, slot status, reason, whether
+    analysed); it is ``[]`` for a complete data set.
+    """
+    study = read_study(study_dir, allow_incomplete=allow_incomplete)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    df = load_study_data(study_dir)
+    df = study.trials
     tabs = tallies(df)
     summary = {"study_dir": str(study_dir), "participants": int(df["participant_id"].nunique()),
+               "incomplete": [asdict(i) for i in study.incomplete],
                "sequences": {s: int(df[df["sequence"] == s]["participant_id"].nunique())
                              for s in ("SR", "RS")},
                "simulated": bool(df["simulated"].all()),
@@ -122,6 +132,29 @@ def _json(v):
     return str(v)
 
 
+def incomplete_sentence(summary: dict) -> str:
+    """The sentence the perception section adds for a summary made with ``allow_incomplete``
+    from a folder with incomplete sessions (who was left out, who was analysed); "" else."""
+    items = summary.get("incomplete") or []
+    if not items:
+        return ""
+    left = [i for i in items if not i["analysed"]]
+    kept = [i for i in items if i["analysed"]]
+    parts = []
+    if left:
+        many = len(left) != 1
+        parts.append(f"{len(left)} incomplete session{'s' * many} {'are' if many else 'is'} "
+                     "left out: " + ", ".join(f"{escape(i['participant_id'])} "
+                                              f"({i['judgments']} of {N_TRIALS} judgments)"
+                                              for i in left))
+    if kept:
+        parts.append(", ".join(escape(i["participant_id"]) for i in kept)
+                     + f" gave all {N_TRIALS} judgments but their allocation slot is not marked "
+                     "complete, and are analysed")
+    return (" The data set is incomplete (analysed with --allow-incomplete): "
+            + "; ".join(parts) + ".")
+
+
 def perception_section(report, summary: dict, out_dir: Path) -> None:
     """Tables III–VII (ours beside the paper's), the tally figure, statistics and models."""
     n, seqs = summary["participants"], summary["sequences"]
@@ -133,7 +166,7 @@ def perception_section(report, summary: dict, out_dir: Path) -> None:
         f"{n} {who}: {seqs['SR']} saw the synthetic face first in the bimodal blocks (SR), "
         f"{seqs['RS']} the real face first (RS). Each cell below is our count and, in "
         "parentheses, the paper's count of its 20 subjects. S: synthetic face; R: real face. "
-        "Data: " + escape(summary["study_dir"]) + ".")
+        "Data: " + escape(summary["study_dir"]) + "." + incomplete_sentence(summary))
     for k in ("III", "IV", "V", "VI", "VII"):
         t = summary["tallies"][k]
         tally = Tally(k, TITLES[k], tuple(t["rows"]),

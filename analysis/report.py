@@ -31,6 +31,8 @@ from reportlab.platypus import (
     TableStyle,
 )
 
+from face_model.atomic import atomic_file
+
 _STYLES = getSampleStyleSheet()
 _WIDTH = A4[0] - 4 * cm
 _ENTITIES = {"&quot;": '"', "&#39;": "'", "&apos;": "'"}  # beyond &amp; &lt; &gt;
@@ -70,21 +72,31 @@ class Report:
         ``&amp;`` prints as ``&``, as it does in a paragraph.
         """
         data = [[_cell(c) for c in header]] + [[_cell(c) for c in r] for r in rows]
+        t = self._table(data, col_widths, 8.5)
+        width = t.wrap(_WIDTH, A4[1])[0]
+        if width > _WIDTH and col_widths is None:  # too wide for the page: a smaller font
+            t = self._table(data, None, max(5.0, 8.5 * _WIDTH / width - 0.3), padding=3)
+        parts = [Paragraph(f"<b>{caption}</b>", _STYLES["BodyText"]), t]
+        if note:
+            parts.append(Paragraph(f"<font size=7.5>{note}</font>", _STYLES["BodyText"]))
+        parts.append(Spacer(1, 0.3 * cm))
+        self.story.append(KeepTogether(parts))
+
+    @staticmethod
+    def _table(data: list, col_widths, size: float, padding: float = 6) -> Table:
         t = Table(data, colWidths=col_widths, hAlign="LEFT", repeatRows=1)
         t.setStyle(TableStyle([
-            ("FONT", (0, 0), (-1, 0), "Helvetica-Bold", 8.5),
-            ("FONT", (0, 1), (-1, -1), "Helvetica", 8.5),
+            ("FONT", (0, 0), (-1, 0), "Helvetica-Bold", size),
+            ("FONT", (0, 1), (-1, -1), "Helvetica", size),
+            ("LEFTPADDING", (0, 0), (-1, -1), padding),
+            ("RIGHTPADDING", (0, 0), (-1, -1), padding),
             ("LINEABOVE", (0, 0), (-1, 0), 0.8, colors.black),
             ("LINEBELOW", (0, 0), (-1, 0), 0.5, colors.black),
             ("LINEBELOW", (0, -1), (-1, -1), 0.8, colors.black),
             ("ROWBACKGROUNDS", (0, 1), (-1, -1), [colors.white, colors.HexColor("#f3f3f3")]),
             ("VALIGN", (0, 0), (-1, -1), "TOP"),
         ]))
-        parts = [Paragraph(f"<b>{caption}</b>", _STYLES["BodyText"]), t]
-        if note:
-            parts.append(Paragraph(f"<font size=7.5>{note}</font>", _STYLES["BodyText"]))
-        parts.append(Spacer(1, 0.3 * cm))
-        self.story.append(KeepTogether(parts))
+        return t
 
     def figure(self, path, caption: str, *, width: float = 1.0) -> None:
         """A PNG scaled to ``width`` × the text width, with its caption underneath."""
@@ -101,6 +113,11 @@ class Report:
     def build(self, path) -> Path:
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_file(path) as tmp:  # an interrupted build never leaves a short PDF
+            self._build(tmp)
+        return path
+
+    def _build(self, path: Path) -> None:
         doc = SimpleDocTemplate(str(path), pagesize=A4, leftMargin=2 * cm, rightMargin=2 * cm,
                                 topMargin=1.8 * cm, bottomMargin=1.8 * cm, title=self.title,
                                 author="talkingface", invariant=1)
@@ -112,4 +129,3 @@ class Report:
             canvas.restoreState()
 
         doc.build(list(self.story), onFirstPage=footer, onLaterPages=footer)
-        return path

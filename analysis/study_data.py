@@ -1,9 +1,18 @@
 """Reading and validating study data (the contract of DESIGN.md), and the paper's tallies.
 
-:func:`load_study_data` reads every ``sub-*/sub-*_task-emotion_beh.csv`` of a study folder into
-one table and refuses, naming the file and the row: an unknown code (block, face, expression,
-audio, response, sequence), a duplicated trial, a participant missing a block (a session that
-is not complete), a row that contradicts the design (e.g. a visual-only trial with sound).
+:func:`read_study` (and :func:`load_study_data`, its table alone) reads every
+``sub-*/sub-*_task-emotion_beh.csv`` of a study folder into one table and refuses, naming the
+file and the row: an unknown code (block, face, expression, audio, response, sequence), a
+duplicated trial, a row that contradicts the design (e.g. a visual-only trial with sound).
+Files are read as UTF-8 with or without a byte-order mark (a CSV saved by Excel has one).
+
+An incomplete data set is refused too, naming each participant and their number of judgments:
+a participant with fewer than the 27 judgments (a missing block), or whose slot in the
+folder's ``allocation.csv`` is not marked complete (a session that was interrupted), or who
+holds a slot and has no data file (a session that never wrote a judgment, or a lost file).
+With ``allow_incomplete=True`` the complete sessions are analysed and the others are listed
+(:class:`Incomplete`); a participant with fewer than 27 judgments is left out, one with all
+27 is analysed.
 
 :func:`tallies` builds the paper's tables in their exact layout, counts of participants:
 
@@ -18,6 +27,7 @@ analysis is checked against known tables.
 from __future__ import annotations
 
 import csv
+import io
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,8 +35,9 @@ import numpy as np
 import pandas as pd
 
 from face_model.errors import ParameterError
-from study.data import COLUMNS
-from study.design import AUDIO, EXPRESSIONS, FACES, N_TRIALS, RESPONSES, SEQUENCES
+from study.data import COLUMNS, Allocation
+from study.design import (AUDIO, EXPRESSIONS, FACES, N_TRIALS, RESPONSES, SEQUENCES,
+                          check_participant_id)
 
 FACE_CODE = {"synthetic": "S", "real": "R"}
 RESPONSE_LABEL = {"neutral": "Neutral", "happy": "Happy", "sad": "Sad", "not_sure": "Not sure"}
@@ -56,37 +67,123 @@ def _fail(path, line, msg):
     raise ParameterError(f"{path}, row {line}: {msg}")
 
 
-def load_study_data(study_dir) -> pd.DataFrame:
-    """All judgments of a study folder, validated (see the module text).
+@dataclass(frozen=True)
+class Incomplete:
+    """A participant whose session is not complete: ``judgments`` of 27 in ``file`` ("" if
+    there is none), their allocation slot's status ("" without an allocation list), why, and
+    whether their judgments are analysed (all 27 there) or left out."""
 
-    Returns a DataFrame with the contract's columns (``period`` and ``trial_index`` as ints,
+    participant_id: str
+    judgments: int
+    file: str
+    slot_status: str
+    reason: str
+    analysed: bool
+
+    def describe(self) -> str:
+        return f"{self.participant_id} ({self.judgments} of {N_TRIALS} judgments; {self.reason})"
+
+
+@dataclass(frozen=True)
+class StudyData:
+    """The validated judgments of a study folder (``trials``: one row per judgment, of the
+    sessions analysed) and the participants whose session is incomplete."""
+
+    trials: pd.DataFrame
+    incomplete: tuple  # of Incomplete
+
+
+def _read_csv(path: Path) -> tuple[list | None, list[dict]]:
+    """Header and complete rows of a data file (a last line cut short by a crash is the trial
+    that was in progress: not a judgment)."""
+    raw = path.read_bytes()
+    if raw and not raw.endswith(b"\n"):
+        raw = raw[:raw.rfind(b"\n") + 1]
+    reader = csv.DictReader(io.StringIO(raw.decode("utf-8-sig"), newline=""))
+    rows = list(reader)
+    return reader.fieldnames, rows
+
+
+def read_study(study_dir, *, allow_incomplete: bool = False) -> StudyData:
+    """All judgments of a study folder, validated, and its incomplete sessions (see the
+    module text); refused if any session is incomplete, unless ``allow_incomplete``.
+
+    ``trials`` has the contract's columns (``period`` and ``trial_index`` as ints,
     ``simulated`` as bool) plus ``file`` and ``row`` (where each judgment came from).
     """
     root = Path(study_dir)
     files = sorted(root.glob("sub-*/sub-*_task-emotion_beh.csv"))
     if not files:
         raise ParameterError(f"{root}: no study data (sub-<id>/sub-<id>_task-emotion_beh.csv)")
-    frames = []
+    slots = _slots(root)
+    frames, incomplete, problems = [], [], []
     for path in files:
-        with open(path, newline="", encoding="utf-8") as f:
-            reader = csv.DictReader(f)
-            missing = [c for c in REQUIRED if c not in (reader.fieldnames or [])]
-            if missing:
-                raise ParameterError(f"{path}: missing columns {missing}")
-            rows = list(reader)
-        frames.append(_check_participant(path, rows))
+        fields, rows = _read_csv(path)
+        missing = [c for c in REQUIRED if c not in (fields or [])]
+        if missing:
+            raise ParameterError(f"{path}: missing columns {missing}")
+        df, short = _check_participant(path, rows)
+        pid = path.parent.name.removeprefix("sub-")
+        slot = slots.pop(pid, None)
+        status = "" if slot is None else slot["status"]
+        if short is None and status in ("", "complete"):
+            frames.append(df)
+            continue
+        reason = short or (f"holds slot {slot['slot']} of allocation.csv, marked {status!r}, "
+                           "not 'complete'")
+        incomplete.append(Incomplete(pid, len(rows), str(path), status, reason,
+                                     analysed=short is None))
+        problems.append(f"{path}: participant {pid} {reason} ({len(rows)} of {N_TRIALS} "
+                        "judgments)")
+        if short is None:
+            frames.append(df)
+    for pid, slot in sorted(slots.items()):  # a slot taken, and no data file (or a lost one)
+        reason = (f"holds slot {slot['slot']} of allocation.csv, marked {slot['status']!r}, "
+                  "and has no data file")
+        incomplete.append(Incomplete(pid, 0, "", slot["status"], reason, analysed=False))
+        problems.append(f"participant {pid} {reason} (0 of {N_TRIALS} judgments)")
+    if incomplete and not allow_incomplete:
+        raise ParameterError(
+            f"{root} holds incomplete sessions, which are not analysed unless allowed: "
+            + "; ".join(problems) + ". Analyse the complete sessions alone with "
+            "`talkingface analyze DIR --allow-incomplete` (allow_incomplete=True), or complete "
+            "the sessions first (`talkingface study run --participant ID --resume`)")
+    if not frames:
+        raise ParameterError(f"{root}: no complete session to analyse (incomplete: "
+                             + "; ".join(i.describe() for i in incomplete) + ")")
     df = pd.concat(frames, ignore_index=True)
     seen: dict[str, str] = {}
     for pid, file in zip(df["participant_id"], df["file"]):
         if seen.setdefault(pid, file) != file:
             raise ParameterError(f"participant {pid} appears in two files: {seen[pid]} and {file}")
-    return df
+    return StudyData(df, tuple(incomplete))
 
 
-def _check_participant(path: Path, rows: list[dict]) -> pd.DataFrame:
+def load_study_data(study_dir, *, allow_incomplete: bool = False) -> pd.DataFrame:
+    """The judgments of :func:`read_study` (the complete sessions' only, when
+    ``allow_incomplete``)."""
+    return read_study(study_dir, allow_incomplete=allow_incomplete).trials
+
+
+def _slots(root: Path) -> dict[str, dict]:
+    """The allocation list's rows by participant ({} if the folder has no list)."""
+    alloc = Allocation(root)
+    if not alloc.path.is_file():
+        return {}
+    return {r["participant_id"]: r for r in alloc.rows() if r.get("participant_id")}
+
+
+def _check_participant(path: Path, rows: list[dict]) -> tuple[pd.DataFrame, str | None]:
+    """The participant's rows, validated, and what is missing ("has 0 of 3 judgments in the
+    audio block"; None for a complete session)."""
     if not rows:
-        raise ParameterError(f"{path}: no judgments")
+        return pd.DataFrame(columns=[*REQUIRED, "file", "row"]), \
+            f"has no judgments in {path.name}"
     pid = rows[0]["participant_id"]
+    try:
+        check_participant_id(pid)
+    except ParameterError as exc:
+        _fail(path, 2, str(exc))
     seen_trials: dict[int, int] = {}
     for line, r in enumerate(rows, start=2):
         for col, allowed in _ALLOWED.items():
@@ -132,12 +229,9 @@ def _check_participant(path: Path, rows: list[dict]) -> pd.DataFrame:
     df["period"] = df["period"].astype(int)
     df["trial_index"] = df["trial_index"].astype(int)
     counts = df.groupby(["block", "period"]).size().to_dict()
-    for (block, period), n in BLOCK_SIZES.items():
-        if counts.get((block, period), 0) != n:
-            raise ParameterError(
-                f"{path}: participant {pid} has {counts.get((block, period), 0)} of {n} "
-                f"judgments in the {block} block" + (f" (period {period})" if period else "")
-                + f"; an incomplete session ({len(df)} of {N_TRIALS}) cannot be analysed")
+    short = next((f"has {counts.get(bp, 0)} of {n} judgments in the {bp[0]} block"
+                  + (f" (period {bp[1]})" if bp[1] else "")
+                  for bp, n in BLOCK_SIZES.items() if counts.get(bp, 0) != n), None)
     seq = rows[0]["sequence"]
     first = "synthetic" if seq == "SR" else "real"
     bim = df[df["block"] == "bimodal"]
@@ -150,7 +244,7 @@ def _check_participant(path: Path, rows: list[dict]) -> pd.DataFrame:
         .str.lower().eq("true")
     df["file"] = str(path)
     df["row"] = np.arange(2, len(df) + 2)
-    return df
+    return df, short
 
 
 @dataclass(frozen=True)

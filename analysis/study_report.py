@@ -25,7 +25,7 @@ def study_section(report, stimuli_dir: Path, study_dir: Path | None) -> None:
                       "synthetic and real face, neutral, smile and sad.", width=0.75)
     if study_dir is None or not (study_dir / "allocation.csv").is_file():
         return
-    with open(study_dir / "allocation.csv", newline="") as f:
+    with open(study_dir / "allocation.csv", newline="", encoding="utf-8-sig") as f:
         slots = list(csv.DictReader(f))
     done = [s for s in slots if s["status"] == "complete"]
     rows = [[seq, sum(s["sequence"] == seq for s in slots),

@@ -1,64 +1,73 @@
 """The synthetic corpus's settings (paper §IV-A, §VII-A), owned by ``data_synth``.
 
 ``talkingface.config`` composes this section (``synth``) with the other packages' sections.
+Every value is checked when the config is made (:mod:`face_model.settings`).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 from face_model.corpus import EXPRESSIONS
+from face_model.settings import (check_fields, choice, integer, number, require, span,
+                                 subset)
 
 
 @dataclass(frozen=True)
 class SynthConfig:
     """The synthetic audio-visual corpus (paper §IV-A, §VII-A). Units: seconds, pixels, wpm."""
 
-    n_sentences: int = 100
-    expressions: tuple = EXPRESSIONS
-    speakers: int = 1
+    n_sentences: int = integer(100, ge=0)  # 0: every sentence of the source
+    expressions: tuple = subset(EXPRESSIONS, EXPRESSIONS)
+    speakers: int = integer(1, ge=1)
     text_file: str = ""  # empty: the built-in sentences
-    backend: str = "espeak"
-    workers: int = 0  # 0: all cores
-    # speech
+    backend: str = choice("espeak", "flite", "espeak-ng")  # espeak-ng: another name of espeak
+    workers: int = integer(0, ge=0)  # 0: all cores
+    # speech (pitch and its range on espeak's 0–100 scale)
     voice: str = "en-us+m3"
-    rate_wpm: int = 165
-    pitch: int = 45
-    pitch_range: int = 50
-    lead_silence_s: float = 0.20
-    trail_silence_s: float = 0.20
-    audio_noise_dbfs: float = -66.0  # a recording-room noise floor
+    rate_wpm: int = integer(165, gt=0)
+    pitch: int = integer(45, ge=0, le=100)
+    pitch_range: int = integer(50, ge=0, le=100)
+    lead_silence_s: float = number(0.20, ge=0)
+    trail_silence_s: float = number(0.20, ge=0)
+    audio_noise_dbfs: float = number(-66.0, le=0)  # a recording-room noise floor
     # expression prosody (added to the speaker's voice)
-    smile_pitch_delta: int = 6
-    smile_rate_delta: int = 5
-    sad_pitch_delta: int = -8
-    sad_rate_delta: int = -15
+    smile_pitch_delta: int = integer(6, ge=-100, le=100)
+    smile_rate_delta: int = integer(5)
+    sad_pitch_delta: int = integer(-8, ge=-100, le=100)
+    sad_rate_delta: int = integer(-15)
     # coarticulation (Cohen & Massaro 1993)
-    theta_anticipation: float = 16.0  # 1/s
-    theta_carryover: float = 25.0  # 1/s
-    dominance_power: float = 1.0
+    theta_anticipation: float = number(16.0, gt=0)  # 1/s
+    theta_carryover: float = number(25.0, gt=0)  # 1/s
+    dominance_power: float = number(1.0, gt=0)
     # articulation → marker displacement gains, pixels at parameter value 1
-    jaw_px: float = 10.0
-    aperture_px: float = 6.0
-    spread_px: float = 7.0
-    protrusion_px: float = 8.0
-    upper_raise_px: float = 4.0
-    lower_tuck_px: float = 6.0
-    brow_px: float = 2.5
-    # expressions: envelope and interaction with speech
-    expression_onset_s: tuple = (0.25, 0.5)
-    expression_offset_s: tuple = (0.3, 0.6)
-    expression_intensity: tuple = (0.7, 1.0)
-    smile_rounding_damping: float = 0.6
-    smile_widening: float = 0.3
-    sad_jaw_reduction: float = 0.35
+    jaw_px: float = number(10.0, ge=0)
+    aperture_px: float = number(6.0, ge=0)
+    spread_px: float = number(7.0, ge=0)
+    protrusion_px: float = number(8.0, ge=0)
+    upper_raise_px: float = number(4.0, ge=0)
+    lower_tuck_px: float = number(6.0, ge=0)
+    brow_px: float = number(2.5, ge=0)
+    # expressions: envelope (each utterance draws from these ranges) and interaction with speech
+    expression_onset_s: tuple = span((0.25, 0.5), gt=0)
+    expression_offset_s: tuple = span((0.3, 0.6), gt=0)
+    expression_intensity: tuple = span((0.7, 1.0), ge=0)
+    smile_rounding_damping: float = number(0.6, ge=0, le=1)  # fraction of the lip rounding
+    smile_widening: float = number(0.3, ge=0)
+    sad_jaw_reduction: float = number(0.35, ge=0, le=1)  # fraction of the jaw opening
     # speaker variation (standard deviations)
-    speaker_scale_sd: float = 0.04
-    speaker_shape_sd_px: float = 1.5
-    speaker_gain_sd: float = 0.10
-    speaker_rate_sd: float = 12.0
-    speaker_pitch_sd: float = 8.0
+    speaker_scale_sd: float = number(0.04, ge=0)
+    speaker_shape_sd_px: float = number(1.5, ge=0)
+    speaker_gain_sd: float = number(0.10, ge=0)
+    speaker_rate_sd: float = number(12.0, ge=0)
+    speaker_pitch_sd: float = number(8.0, ge=0)
     # nuisances
-    head_rotation_deg: float = 2.0
-    head_scale: float = 0.02
-    head_translation_px: float = 6.0
-    marker_noise_px: float = 0.15  # sub-pixel marker localisation
+    head_rotation_deg: float = number(2.0, ge=0)
+    head_scale: float = number(0.02, ge=0)
+    head_translation_px: float = number(6.0, ge=0)
+    marker_noise_px: float = number(0.15, ge=0)  # sub-pixel marker localisation
+
+    def __post_init__(self):
+        check_fields(self)
+        for delta in ("smile_rate_delta", "sad_rate_delta"):  # the expression's rate stays > 0
+            require(self, delta, self.rate_wpm + getattr(self, delta) > 0,
+                    f"an integer > -rate_wpm ({-self.rate_wpm})", ("rate_wpm",))

@@ -12,7 +12,6 @@ from __future__ import annotations
 import json
 import os
 import platform
-import shutil
 from dataclasses import asdict, dataclass
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -26,6 +25,7 @@ from data_synth.face import Speaker, articulate, expression_envelope, make_speak
 from data_synth.nuisance import add_marker_noise, apply_head_motion, brow_track, head_motion
 from data_synth.speech import SynthRequest, phone_segments
 from data_synth.text import select_sentences
+from face_model.atomic import fresh_partial_folder, swap_in
 from face_model.corpus import EXPRESSIONS, FPS, write_manifest, write_utterance
 from face_model.errors import ParameterError
 from face_model.layout import LAYOUT_VERSION
@@ -107,7 +107,10 @@ def build_utterance(plan: UtterancePlan, speaker: Speaker, result, backend, cfg,
     return audio, segs, markers.astype(np.float32)
 
 
-def _prepare_out(out: Path, overwrite: bool) -> None:
+def _check_out(out: Path, overwrite: bool) -> None:
+    """Refuse a target that holds anything but a corpus, or a corpus without ``overwrite``."""
+    if out.exists() and not out.is_dir():
+        raise ParameterError(f"corpus folder {out} is a file; give a folder to create")
     if out.exists() and any(out.iterdir()):
         if not overwrite:
             raise ParameterError(f"corpus folder {out} already exists and is not empty; "
@@ -115,11 +118,6 @@ def _prepare_out(out: Path, overwrite: bool) -> None:
         if not (out / "manifest.csv").is_file():
             raise ParameterError(f"{out} is not empty and holds no manifest.csv: refusing to "
                                  "overwrite a folder that is not a corpus")
-        for sub in ("audio", "markers", "phones"):
-            shutil.rmtree(out / sub, ignore_errors=True)
-        for name in ("manifest.csv", "corpus.json"):
-            (out / name).unlink(missing_ok=True)
-    out.mkdir(parents=True, exist_ok=True)
 
 
 def package_versions() -> dict:
@@ -141,14 +139,17 @@ def synthesize_corpus(out, cfg, seed: int, *, overwrite: bool = False,
     ----------
     out : path-like
         Target folder; refused if it exists and is not empty, unless ``overwrite`` (and then only
-        if it is a corpus folder).
+        if it is a corpus folder). The corpus is built beside it and renamed into place when
+        complete, so a failure leaves an existing corpus as it was.
     cfg : talkingface.config.SynthConfig
     seed : int
     """
-    out = Path(out)
+    final = Path(out)
     speakers, plans = plan_corpus(cfg, seed)
-    _prepare_out(out, overwrite)
+    _check_out(final, overwrite)
     backend = get_backend(cfg.backend)
+    # built beside the target and swapped in when complete: a failure keeps the old corpus
+    out = fresh_partial_folder(final)
     workers = cfg.workers if cfg.workers > 0 else (os.cpu_count() or 1)
     with tqdm(total=len(plans), desc="speech", unit="utt", disable=not progress) as bar:
         results = backend.synthesize_many([p.request for p in plans], workers=workers,
@@ -182,4 +183,4 @@ def synthesize_corpus(out, cfg, seed: int, *, overwrite: bool = False,
         "versions": package_versions(),
     }
     (out / "corpus.json").write_text(json.dumps(info, indent=1))
-    return out
+    return swap_in(out, final)

@@ -139,7 +139,7 @@ def track_corpus(corpus, units, out_dir, *, noise_sd: float = 10.0, init: str = 
             results.append(r)
             bar.update()
     src = Path(corpus.root)
-    with open(src / "manifest.csv", newline="") as f:
+    with open(src / "manifest.csv", newline="", encoding="utf-8-sig") as f:
         listed = {row["utt_id"]: row for row in csv.DictReader(f)}
     manifest = []
     for r in results:  # the utterances tracked, in corpus order, with their audio and phones

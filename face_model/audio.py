@@ -1,8 +1,11 @@
-"""WAV reading and writing with explicit checks, and the one seconds ↔ samples helper.
+"""Audio reading (every format libsndfile reads) and writing (mono PCM16 WAV) with explicit
+checks, and the one seconds ↔ samples helper.
 
-The corpus stores mono 16-bit PCM. Reading refuses what it cannot read faithfully (a truncated
-file, a non-PCM encoding) with a message naming the file; stereo and other sample rates are
-handled by the caller's choice (mix down / resample, or refuse).
+The corpus stores mono 16-bit PCM WAV. Reading goes through soundfile (libsndfile), so WAV
+(PCM 8/16/24/32-bit, float 32/64-bit), FLAC, OGG/Vorbis, MP3 and libsndfile's other formats are
+read; it refuses what it cannot read faithfully (a truncated WAV, an empty or corrupt file, an
+unknown format, NaN/inf samples) with a message naming the file. Stereo and other sample rates
+are handled by the caller's choice (mix down / resample, or refuse).
 """
 from __future__ import annotations
 
@@ -11,11 +14,17 @@ from math import gcd
 from pathlib import Path
 
 import numpy as np
+import soundfile as sf
 from scipy.signal import resample_poly
 
 from face_model.errors import CorpusError, ParameterError
 
-_PCM_DTYPES = {1: np.uint8, 2: np.int16, 4: np.int32}
+_UNKNOWN_LENGTH = 0xFFFFFFFF  # a streamed WAV's data size: read to the end of the file
+
+
+class AudioFileError(CorpusError, ParameterError):
+    """An audio file that cannot be read faithfully: a corpus file (:class:`CorpusError`) or a
+    file the user gave (:class:`ParameterError`), whichever the caller catches."""
 
 
 def seconds_to_samples(seconds: float, sr: int) -> int:
@@ -23,8 +32,33 @@ def seconds_to_samples(seconds: float, sr: int) -> int:
     return int(round(seconds * sr))
 
 
+def _wav_data_sizes(path: Path) -> tuple[int, int, int] | None:
+    """``(declared bytes, bytes in the file, bytes per frame)`` of a RIFF WAVE file's data
+    chunk, or None when ``path`` is not RIFF WAVE (libsndfile reads a truncated WAV without a
+    word, so the header is compared with the file here)."""
+    with open(path, "rb") as f:
+        head = f.read(12)
+        if len(head) < 12 or head[:4] != b"RIFF" or head[8:] != b"WAVE":
+            return None
+        align = 0
+        while len(chunk := f.read(8)) == 8:
+            cid, size = chunk[:4], int.from_bytes(chunk[4:], "little")
+            if cid == b"data":
+                start = f.tell()
+                return size, f.seek(0, 2) - start, align
+            body = f.read(size + size % 2)  # chunks are padded to an even size
+            if cid == b"fmt " and len(body) >= 14:
+                align = int.from_bytes(body[12:14], "little")
+    return None
+
+
 def read_wav(path, *, mix_to_mono: bool = False) -> tuple[np.ndarray, int]:
-    """Read a PCM WAV file.
+    """Read an audio file: WAV, and every other format libsndfile reads.
+
+    The name stays ``read_wav`` (the corpus format is WAV), but FLAC, OGG/Vorbis, MP3, float
+    WAV … (``soundfile.available_formats()``) are read the same way. Integer PCM is scaled by
+    1 / 2^(bits - 1) (8-bit: unsigned, offset 128), so PCM files read bit-identically to the
+    ``wave``-module reader this replaced.
 
     Parameters
     ----------
@@ -34,50 +68,49 @@ def read_wav(path, *, mix_to_mono: bool = False) -> tuple[np.ndarray, int]:
 
     Returns
     -------
-    y : ndarray, shape (n_samples,), float32 in [-1, 1]
+    y : ndarray, shape (n_samples,), float32
+        In [-1, 1] for integer PCM (WAV, FLAC); float WAV and lossy (OGG, MP3) files keep their
+        decoded values, which may exceed full scale.
     sr : int, Hz
 
     Raises
     ------
-    CorpusError
-        The file is missing, not a PCM WAV, truncated, empty, or (without ``mix_to_mono``) not mono.
+    AudioFileError
+        (both a :class:`CorpusError` and a :class:`ParameterError`) The file is missing, empty,
+        in an unknown format, corrupt or truncated, holds no samples or NaN/inf samples, or
+        (without ``mix_to_mono``) is not mono.
     """
     path = Path(path)
     if not path.is_file():
-        raise CorpusError(f"{path}: audio file not found")
+        raise AudioFileError(f"{path}: audio file not found")
+    if path.stat().st_size == 0:
+        raise AudioFileError(f"{path}: empty file (0 bytes), not audio")
     try:
-        with wave.open(str(path), "rb") as w:
-            n_ch, width, sr, n_declared = (
-                w.getnchannels(),
-                w.getsampwidth(),
-                w.getframerate(),
-                w.getnframes(),
-            )
-            raw = w.readframes(n_declared)
-    except (wave.Error, EOFError) as exc:
-        raise CorpusError(f"{path}: not a readable PCM WAV file ({exc}); "
-                          "allowed: uncompressed PCM, 8/16/24/32-bit") from exc
-    n_read = len(raw) // (width * n_ch)
-    if n_read != n_declared:
-        raise CorpusError(
-            f"{path}: truncated WAV: header declares {n_declared} samples per channel, "
-            f"the file holds {n_read}"
-        )
-    if n_read == 0:
-        raise CorpusError(f"{path}: WAV file holds no samples")
+        sizes = _wav_data_sizes(path)
+        with sf.SoundFile(str(path)) as f:
+            n_ch, sr, n_declared = f.channels, f.samplerate, f.frames
+            y = f.read(dtype="float64", always_2d=True)
+    except (sf.SoundFileError, RuntimeError, OSError) as exc:
+        why = (getattr(exc, "error_string", None) or str(exc)).rstrip(".")
+        raise AudioFileError(f"{path}: not a readable PCM WAV, float WAV, FLAC, OGG or MP3 file, "
+                             f"nor another format of libsndfile {sf.__libsndfile_version__} "
+                             f"({why})") from None
+    declared, present, align = sizes or (0, 0, 0)
+    if align and declared != _UNKNOWN_LENGTH and declared > present:
+        raise AudioFileError(f"{path}: truncated WAV: header declares {declared // align} "
+                             f"samples per channel, the file holds {present // align}")
+    if len(y) != n_declared:
+        raise AudioFileError(f"{path}: corrupt or truncated audio: the header declares "
+                             f"{n_declared} samples per channel, {len(y)} could be decoded")
+    if len(y) == 0:
+        raise AudioFileError(f"{path}: audio file holds no samples")
     if n_ch != 1 and not mix_to_mono:
-        raise CorpusError(f"{path}: {n_ch} channels; the corpus format requires mono audio")
-    if width == 3:
-        b = np.frombuffer(raw, dtype=np.uint8).reshape(-1, 3)
-        ints = (b[:, 0].astype(np.int32) | (b[:, 1].astype(np.int32) << 8)
-                | (b[:, 2].astype(np.int32) << 16))
-        ints = np.where(ints >= 1 << 23, ints - (1 << 24), ints)
-        y = ints.astype(np.float64) / (1 << 23)
-    else:
-        ints = np.frombuffer(raw, dtype=_PCM_DTYPES[width]).astype(np.float64)
-        y = (ints - 128.0) / 128.0 if width == 1 else ints / float(1 << (8 * width - 1))
-    y = y.reshape(-1, n_ch).mean(axis=1)
-    return y.astype(np.float32), sr
+        raise AudioFileError(f"{path}: {n_ch} channels; the corpus format requires mono audio")
+    bad = ~np.isfinite(y)
+    if bad.any():
+        raise AudioFileError(f"{path}: {int(bad.sum())} non-finite samples (NaN/inf), the "
+                             f"first at sample {int(np.argmax(bad.any(axis=1)))}")
+    return y.mean(axis=1).astype(np.float32), int(sr)
 
 
 def write_wav(path, y: np.ndarray, sr: int) -> None:

@@ -101,7 +101,7 @@ def _read_phones(path: Path, duration_s: float, fps: int) -> list[PhoneSegment]:
     if not path.is_file():
         raise CorpusError(f"{path}: phone file not found")
     segs: list[PhoneSegment] = []
-    with open(path, newline="") as f:
+    with open(path, newline="", encoding="utf-8-sig") as f:
         reader = csv.DictReader(f)
         if reader.fieldnames is None or list(reader.fieldnames)[:3] != ["start_s", "end_s", "phone"]:
             raise CorpusError(f"{path}: header must be 'start_s,end_s,phone', got {reader.fieldnames}")
@@ -211,7 +211,7 @@ def load_corpus(root, *, resample_to: int | None = None) -> Corpus:
         raise CorpusError(f"{manifest}: manifest not found (is {root} a corpus folder?)")
     info_path = root / "corpus.json"
     info = json.loads(info_path.read_text()) if info_path.is_file() else {}
-    with open(manifest, newline="") as f:
+    with open(manifest, newline="", encoding="utf-8-sig") as f:
         reader = csv.DictReader(f)
         missing = [c for c in MANIFEST_COLUMNS if c not in (reader.fieldnames or [])]
         if missing:
@@ -266,7 +266,7 @@ def corpus_hash(root) -> str:
     h = hashlib.sha256()
     manifest = root / "manifest.csv"
     h.update(manifest.read_bytes())
-    with open(manifest, newline="") as f:
+    with open(manifest, newline="", encoding="utf-8-sig") as f:
         for row in csv.DictReader(f):
             for k in ("audio", "markers", "phones"):
                 h.update((root / row[k]).read_bytes())

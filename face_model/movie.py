@@ -11,6 +11,8 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
+from face_model.atomic import atomic_file
+
 
 def write_mp4(path, frames_iter, n_frames: int | None, size, *, fps: int, audio_path,
               progress: bool = True, quality: int = 7, macro_block_size: int = 16) -> Path:
@@ -47,13 +49,16 @@ def write_mp4(path, frames_iter, n_frames: int | None, size, *, fps: int, audio_
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     audio = {} if audio_path is None else {"audio_path": str(audio_path), "audio_codec": "aac"}
-    writer = imageio_ffmpeg.write_frames(str(path), size, fps=fps, codec="libx264",
-                                         pix_fmt_in="rgb24", pix_fmt_out="yuv420p",
-                                         quality=quality, macro_block_size=macro_block_size,
-                                         **audio)
-    writer.send(None)
-    for frame in tqdm(frames_iter, total=n_frames, desc="render", unit="frame",
-                      disable=not progress):
-        writer.send(np.ascontiguousarray(frame))
-    writer.close()
+    with atomic_file(path) as tmp:  # a killed render never leaves a short MP4 under the name
+        writer = imageio_ffmpeg.write_frames(str(tmp), size, fps=fps, codec="libx264",
+                                             pix_fmt_in="rgb24", pix_fmt_out="yuv420p",
+                                             quality=quality, macro_block_size=macro_block_size,
+                                             **audio)
+        writer.send(None)
+        try:
+            for frame in tqdm(frames_iter, total=n_frames, desc="render", unit="frame",
+                              disable=not progress):
+                writer.send(np.ascontiguousarray(frame))
+        finally:
+            writer.close()
     return path

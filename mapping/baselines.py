@@ -25,17 +25,21 @@ from scipy.special import logsumexp
 from sklearn.cluster import KMeans
 from sklearn.linear_model import Ridge
 from sklearn.mixture import GaussianMixture
+from sklearn.utils._openmp_helpers import _openmp_effective_n_threads
 
 from face_model.errors import NotFittedError, ParameterError
 from face_model.numerics import single_threaded
 from mapping.features import ContextFeatures, check_context, check_seed
 from mapping.config import TrainSettings
 from mapping.nets import GRUNet, MLP, TDNN, NetRegressor
+from mapping.state import (ArrayGroup, nest, part_name, settings_from_params,
+                           settings_to_params)
 
 BASELINES = ("vq", "linear", "gmm_regression", "mlp_large", "tdnn", "gru")
 REFERENCES = {"vq": "[43] vector quantisation", "linear": "[44] affine transformation",
               "gmm_regression": "[45] Gaussian mixture", "mlp_large": "[48] MLP, 11 frames, 600 "
               "hidden", "tdnn": "[49], [50] TDNN", "gru": "modern: GRU sequence model"}
+NETWORK_OF = {"mlp_large": "MLP", "tdnn": "TDNN", "gru": "GRUNet"}  # the networks' classes
 
 
 class VQRegressor:
@@ -54,6 +58,27 @@ class VQRegressor:
 
     def predict(self, X):
         return self.table_[self.km_.predict(X)]
+
+    def to_arrays(self) -> tuple[dict, dict]:
+        """``centers`` (n_codes, n_in), ``table`` (n_codes, n_out); ``n_codes``, ``seed``."""
+        if not hasattr(self, "km_"):
+            raise NotFittedError("VQRegressor is not fitted yet: call fit() first")
+        return ({"centers": self.km_.cluster_centers_, "table": self.table_},
+                {"n_codes": self.n_codes, "seed": self.seed})
+
+    @classmethod
+    def from_arrays(cls, arrays, params: dict) -> "VQRegressor":
+        """The codebook of :meth:`to_arrays`, as a fitted k-means that ``predict`` asks."""
+        g = ArrayGroup.of(arrays)
+        vq = cls(params["n_codes"], params["seed"])
+        centers = g.take("centers", (None, None), kinds="f")
+        vq.table_ = g.take("table", (len(centers), None), kinds="f")
+        km = KMeans(len(centers), n_init=4, random_state=vq.seed)
+        # the fitted state KMeans.predict reads (fit sets the same)
+        km.cluster_centers_, km.n_features_in_ = centers, centers.shape[1]
+        km._n_threads = _openmp_effective_n_threads()
+        vq.km_ = km
+        return vq
 
 
 class GMMRegressor:
@@ -92,6 +117,49 @@ class GMMRegressor:
         est = np.stack([self.my_[i] + (X - self.mx_[i]) @ self.gain_[i].T
                         for i in range(len(self.weights_))], axis=1)
         return (post[:, :, None] * est).sum(1)
+
+    _ARRAYS = ("weights", "mx", "my", "gain", "chol")
+
+    def to_arrays(self) -> tuple[dict, dict]:
+        """``weights`` (k,), ``mx`` (k, d), ``my`` (k, n_out), ``gain`` (k, n_out, d),
+        ``chol`` (k, d, d); ``n_components``, ``seed``, ``n_features`` (d)."""
+        if not hasattr(self, "gain_"):
+            raise NotFittedError("GMMRegressor is not fitted yet: call fit() first")
+        return ({name: getattr(self, name + "_") for name in self._ARRAYS},
+                {"n_components": self.n_components, "seed": self.seed, "n_features": self.d_})
+
+    @classmethod
+    def from_arrays(cls, arrays, params: dict) -> "GMMRegressor":
+        """The fitted regression of :meth:`to_arrays`."""
+        g = ArrayGroup.of(arrays)
+        reg = cls(params["n_components"], params["seed"])
+        reg.d_ = d = int(params["n_features"])
+        reg.weights_ = g.take("weights", (None,), kinds="f")
+        k = len(reg.weights_)
+        reg.mx_ = g.take("mx", (k, d), kinds="f")
+        reg.my_ = g.take("my", (k, None), kinds="f")
+        reg.gain_ = g.take("gain", (k, reg.my_.shape[1], d), kinds="f")
+        reg.chol_ = g.take("chol", (k, d, d), kinds="f")
+        return reg
+
+
+def ridge_to_arrays(model: Ridge) -> tuple[dict, dict]:
+    """A fitted scikit-learn ``Ridge`` as data: ``coef`` (n_out, n_in), ``intercept``
+    (n_out,); ``alpha``."""
+    if not hasattr(model, "coef_"):
+        raise NotFittedError("Ridge is not fitted yet: call fit() first")
+    return ({"coef": model.coef_, "intercept": np.asarray(model.intercept_)},
+            {"alpha": float(model.alpha)})
+
+
+def ridge_from_arrays(arrays, params: dict) -> Ridge:
+    """The fitted ``Ridge`` of :func:`ridge_to_arrays` (its fitted attributes set back)."""
+    g = ArrayGroup.of(arrays)
+    model = Ridge(alpha=params["alpha"])
+    model.coef_ = g.take("coef", (None, None), kinds="f")
+    model.intercept_ = g.take("intercept", model.coef_.shape[:1], kinds="f")
+    model.n_features_in_ = model.coef_.shape[1]
+    return model
 
 
 class Baseline:
@@ -191,6 +259,63 @@ class Baseline:
             raise ParameterError(f"expression {expression!r} was not trained; allowed: "
                                  f"{', '.join(sorted(self.models_))}")
         return np.asarray(self.models_[expression].predict(X), dtype=np.float32)
+
+    # -- persistence (see mapping.state) -----------------------------------------------------
+    def to_arrays(self) -> tuple[dict, dict]:
+        """The trained baseline as data: ``context/`` (the
+        :class:`~mapping.features.ContextFeatures`) and ``models/<expression>/`` (that
+        expression's regressor: :class:`VQRegressor`, ``Ridge``, :class:`GMMRegressor` or a
+        :class:`~mapping.nets.NetRegressor`); parameters: the constructor's, ``context``,
+        ``expressions`` in training order and their regressors' parameters (``models``)."""
+        if not hasattr(self, "models_"):
+            raise NotFittedError(f"baseline {self.kind} is not trained yet: call fit() first")
+        arrays, context = self.context_.to_arrays()
+        arrays = nest("context", arrays)
+        models = []
+        for e, model in self.models_.items():
+            a, p = ridge_to_arrays(model) if self.kind == "linear" else model.to_arrays()
+            arrays.update(nest(f"models/{part_name(e)}", a))
+            models.append(p)
+        params = {"kind": self.kind, "context_back": self.context_back,
+                  "context_forward": self.context_forward,
+                  "train": settings_to_params(self.train), "random_state": self.random_state,
+                  "context": context, "expressions": list(self.models_), "models": models}
+        return arrays, params
+
+    @classmethod
+    def from_arrays(cls, arrays, params: dict) -> "Baseline":
+        """The trained baseline of :meth:`to_arrays`."""
+        g = ArrayGroup.of(arrays)
+        kind = params["kind"]
+        if kind not in BASELINES:
+            raise ParameterError(f"unknown baseline {kind!r}; allowed: {', '.join(BASELINES)}")
+        b = cls(kind, context_back=params["context_back"],
+                context_forward=params["context_forward"],
+                train=settings_from_params(params["train"]), random_state=params["random_state"])
+        check_context(b.context_back, b.context_forward)
+        check_seed(b.random_state)
+        b.context_ = ContextFeatures.from_arrays(g.group("context"), params["context"])
+        if (b.context_.back, b.context_.forward) != b._context():
+            raise ParameterError(f"baseline {kind}: context window ({b.context_.back}, "
+                                 f"{b.context_.forward}), expected {b._context()}")
+        expressions, models = params["expressions"], params["models"]
+        if len(expressions) != len(models):
+            raise ParameterError(f"{len(expressions)} expressions but {len(models)} models")
+        b.models_ = {}
+        for e, p in zip(expressions, models):
+            part = g.group("models").group(e)
+            if kind == "vq":
+                b.models_[e] = VQRegressor.from_arrays(part, p)
+            elif kind == "linear":
+                b.models_[e] = ridge_from_arrays(part, p)
+            elif kind == "gmm_regression":
+                b.models_[e] = GMMRegressor.from_arrays(part, p)
+            else:
+                if p.get("module") != NETWORK_OF[kind]:
+                    raise ParameterError(f"baseline {kind} uses a {NETWORK_OF[kind]} network, "
+                                         f"got {p.get('module')!r}")
+                b.models_[e] = NetRegressor.from_arrays(part, p)
+        return b
 
 
 def _pad(xs, ys, masks):

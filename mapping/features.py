@@ -17,6 +17,7 @@ import librosa
 import numpy as np
 
 from face_model.errors import NotFittedError, ParameterError
+from mapping.state import ArrayGroup, nest
 
 MFCC_SETTINGS = {"window_s": 0.025, "window": "hamming", "n_mels": 26, "fmin": 0.0,
                  "fmax": "sr/2", "mel_scale": "htk", "log_floor": 1e-10, "dct": "II, ortho",
@@ -125,6 +126,21 @@ class FeatureNormalizer:
     def inverse_transform(self, Z: np.ndarray) -> np.ndarray:
         return np.asarray(Z, dtype=np.float64) * self.scale_ + self.mean_
 
+    def to_arrays(self) -> tuple[dict, dict]:
+        """``({"mean": (n_features,), "scale": (n_features,)}, {})`` (see :mod:`mapping.state`)."""
+        if not hasattr(self, "mean_"):
+            raise NotFittedError("FeatureNormalizer is not fitted yet: call fit() first")
+        return {"mean": self.mean_, "scale": self.scale_}, {}
+
+    @classmethod
+    def from_arrays(cls, arrays, params: dict) -> "FeatureNormalizer":
+        """The fitted normaliser of :meth:`to_arrays`."""
+        g = ArrayGroup.of(arrays)
+        norm = cls()
+        norm.mean_ = g.take("mean", (None,))
+        norm.scale_ = g.take("scale", norm.mean_.shape)
+        return norm
+
 
 def audio_features(y: np.ndarray, *, sr: int, fps: int = 30, n_mfcc: int = 10,
                    deltas: bool = False, n_frames: int | None = None) -> np.ndarray:
@@ -161,6 +177,22 @@ class ContextFeatures:
                 for f, m in zip(features, masks if masks is not None else [None] * len(features))]
         self.normalizer_ = FeatureNormalizer().fit(np.concatenate(rows))
         return self
+
+    def to_arrays(self) -> tuple[dict, dict]:
+        """The normaliser's arrays under ``normalizer/``; parameters ``back``, ``forward``."""
+        if not hasattr(self, "normalizer_"):
+            raise NotFittedError("ContextFeatures is not fitted yet: call fit() first")
+        arrays, _ = self.normalizer_.to_arrays()
+        return nest("normalizer", arrays), {"back": self.back, "forward": self.forward}
+
+    @classmethod
+    def from_arrays(cls, arrays, params: dict) -> "ContextFeatures":
+        """The fitted context window of :meth:`to_arrays`."""
+        check_context(params["back"], params["forward"])
+        ctx = cls(params["back"], params["forward"])
+        ctx.normalizer_ = FeatureNormalizer.from_arrays(ArrayGroup.of(arrays).group("normalizer"),
+                                                        {})
+        return ctx
 
     @property
     def n_inputs(self) -> int:

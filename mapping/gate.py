@@ -20,8 +20,12 @@ from sklearn.mixture import GaussianMixture
 from face_model.errors import NotFittedError, ParameterError
 from face_model.numerics import single_threaded
 from face_model.phones import PHONES, viseme
+from mapping.state import ArrayGroup, nest
 
 N_CLASS_CHOICES = (1, 8, 44)
+COVARIANCE_TYPES = ("diag", "full", "tied", "spherical")
+# The fitted arrays of a scikit-learn GaussianMixture that a saved gate keeps.
+_MIXTURE_ARRAYS = ("weights", "means", "covariances", "precisions", "precisions_cholesky")
 _GROUPS_8 = ("i", "a", "o", "f", "u", "m", "other", "sil")
 
 
@@ -108,13 +112,16 @@ class PhoneGate:
             if len(rows) == 0:
                 raise ParameterError(f"phone class {c!r} has no frames in the training data; "
                                      "merge it (mapping.min_class_frames) or leave it out")
-            k = int(max(1, min(self.n_components, len(rows) // 10)))
-            gmm = GaussianMixture(k, covariance_type=self.covariance_type, reg_covar=1e-3,
-                                  random_state=self.random_state + i, max_iter=200)
+            gmm = self._mixture(int(max(1, min(self.n_components, len(rows) // 10))), i)
             self.mixtures_.append(gmm.fit(rows) if len(rows) > 1 else
                                   gmm.fit(np.concatenate([rows, rows + 1e-3])))
         self._pack()
         return self
+
+    def _mixture(self, k: int, i: int) -> GaussianMixture:
+        """The (unfitted) mixture of ``k`` components of the ``i``-th class."""
+        return GaussianMixture(k, covariance_type=self.covariance_type, reg_covar=1e-3,
+                               random_state=self.random_state + i, max_iter=200)
 
     def _pack(self) -> None:
         """For diagonal mixtures, stack every component of every class so one matrix product
@@ -149,6 +156,62 @@ class PhoneGate:
         """The class label of each frame (the highest likelihood)."""
         ll = self.log_likelihood(X)  # checks that the gate is fitted first
         return self.classes_[ll.argmax(1)]
+
+    # -- persistence (see mapping.state) -----------------------------------------------------
+    def to_arrays(self) -> tuple[dict, dict]:
+        """The gate as data: ``classes`` (n_classes,) and, for the i-th class's mixture,
+        ``mixtures/<i>/weights``, ``means``, ``covariances``, ``precisions`` and
+        ``precisions_cholesky`` (scikit-learn's fitted arrays: what ``score_samples`` and the
+        packed real-time path read); parameters: the hyper-parameters, ``n_features`` and per
+        mixture its ``n_components``, ``converged``, ``n_iter`` and ``lower_bound``."""
+        if not hasattr(self, "mixtures_"):
+            raise NotFittedError("PhoneGate is not fitted yet: call fit() first")
+        if self.classes_.dtype.kind not in "iu":
+            raise ParameterError(f"only a gate with integer class labels can be saved, got "
+                                 f"{self.classes_.dtype}")
+        arrays = {"classes": self.classes_}
+        mixtures = []
+        for i, g in enumerate(self.mixtures_):
+            arrays.update(nest(f"mixtures/{i}", {name: getattr(g, name + "_")
+                                                  for name in _MIXTURE_ARRAYS}))
+            mixtures.append({"n_components": int(g.n_components), "converged": bool(g.converged_),
+                             "n_iter": int(g.n_iter_), "lower_bound": float(g.lower_bound_)})
+        params = {"n_components": self.n_components, "covariance_type": self.covariance_type,
+                  "random_state": self.random_state,
+                  "n_features": int(self.mixtures_[0].means_.shape[1]), "mixtures": mixtures}
+        return arrays, params
+
+    @classmethod
+    def from_arrays(cls, arrays, params: dict) -> "PhoneGate":
+        """The fitted gate of :meth:`to_arrays`: each ``GaussianMixture`` is rebuilt with the
+        hyper-parameters ``fit`` gives it and its fitted arrays set back."""
+        g = ArrayGroup.of(arrays)
+        if params["covariance_type"] not in COVARIANCE_TYPES:
+            raise ParameterError(f"gate covariance_type must be one of {COVARIANCE_TYPES}, got "
+                                 f"{params['covariance_type']!r}")
+        gate = cls(params["n_components"], params["covariance_type"], params["random_state"])
+        d = int(params["n_features"])
+        gate.classes_ = g.take("classes", (None,), kinds="iu")
+        if len(params["mixtures"]) != len(gate.classes_):
+            raise ParameterError(f"the gate has {len(gate.classes_)} classes but "
+                                 f"{len(params['mixtures'])} mixtures")
+        gate.mixtures_ = []
+        for i, p in enumerate(params["mixtures"]):
+            k = int(p["n_components"])
+            cov = {"full": (k, d, d), "diag": (k, d), "tied": (d, d),
+                   "spherical": (k,)}[gate.covariance_type]
+            shapes = {"weights": (k,), "means": (k, d), "covariances": cov, "precisions": cov,
+                      "precisions_cholesky": cov}
+            mix = g.group("mixtures").group(i)
+            gmm = gate._mixture(k, i)
+            for name in _MIXTURE_ARRAYS:
+                setattr(gmm, name + "_", mix.take(name, shapes[name], kinds="f"))
+            gmm.n_features_in_ = d
+            gmm.converged_, gmm.n_iter_ = bool(p["converged"]), int(p["n_iter"])
+            gmm.lower_bound_ = float(p["lower_bound"])
+            gate.mixtures_.append(gmm)
+        gate._pack()
+        return gate
 
 
 def confusion(true: np.ndarray, pred: np.ndarray, n: int) -> np.ndarray:

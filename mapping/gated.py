@@ -25,12 +25,18 @@ import numpy as np
 
 from face_model.errors import NotFittedError, ParameterError
 from mapping.features import ContextFeatures, check_context, check_seed
-from mapping.gate import PhoneGate, class_groups, merge_small_classes
+from mapping.gate import COVARIANCE_TYPES, PhoneGate, class_groups, merge_small_classes
 from mapping.config import TrainSettings
 from mapping.nets import MLP, NetRegressor
+from mapping.state import (ArrayGroup, nest, part_name, settings_from_params,
+                           settings_to_params)
 
 EXPRESSION_MODELS = ("cascade", "bank")
-GATE_COVARIANCES = ("diag", "full", "tied", "spherical")
+GATE_COVARIANCES = COVARIANCE_TYPES
+# GatedMLP's hyper-parameters, as its constructor takes them (``train`` apart: a TrainSettings).
+_HYPER_PARAMETERS = ("n_utterance", "context_back", "context_forward", "n_classes",
+                     "gate_components", "gate_covariance", "min_class_frames", "hidden_min",
+                     "hidden_max", "expression_model", "cascade_hidden", "random_state")
 
 
 def hidden_units(n_frames: int, smallest: int, largest: int, lo: int = 15, hi: int = 25) -> int:
@@ -80,6 +86,44 @@ class MLPBank:
                 out = np.zeros((len(X), pred.shape[1]), np.float32)
             out[rows] = pred
         return out
+
+    # -- persistence (see mapping.state) -----------------------------------------------------
+    def to_arrays(self) -> tuple[dict, dict]:
+        """The bank as data: the arrays of class c's network under ``nets/<c>/``; parameters:
+        the hyper-parameters, the ``classes`` in training order and per class its ``hidden``
+        units and network parameters (``nets``)."""
+        if not hasattr(self, "nets_"):
+            raise NotFittedError("MLPBank is not fitted yet: call fit() first")
+        arrays, nets = {}, []
+        for c, net in self.nets_.items():
+            a, p = net.to_arrays()
+            arrays.update(nest(f"nets/{part_name(c)}", a))
+            nets.append(p)
+        params = {"hidden_min": self.hidden_min, "hidden_max": self.hidden_max,
+                  "settings": settings_to_params(self.settings), "seed": self.seed,
+                  "classes": [int(c) for c in self.nets_],
+                  "hidden": [int(self.hidden_[c]) for c in self.nets_], "nets": nets}
+        return arrays, params
+
+    @classmethod
+    def from_arrays(cls, arrays, params: dict) -> "MLPBank":
+        """The trained bank of :meth:`to_arrays`."""
+        g = ArrayGroup.of(arrays)
+        bank = cls(params["hidden_min"], params["hidden_max"],
+                   settings_from_params(params["settings"]), params["seed"])
+        classes, hidden, nets = params["classes"], params["hidden"], params["nets"]
+        if not len(classes) == len(hidden) == len(nets) or len(classes) == 0:
+            raise ParameterError(f"an MLP bank needs one hidden size and one network per class, "
+                                 f"got {len(classes)} classes, {len(hidden)} sizes and "
+                                 f"{len(nets)} networks")
+        if not all(isinstance(v, int) and not isinstance(v, bool) for v in [*classes, *hidden]):
+            raise ParameterError(f"MLP bank classes and hidden sizes must be integers, got "
+                                 f"{classes!r} and {hidden!r}")
+        bank.nets_, bank.hidden_ = {}, {}
+        for c, h, p in zip(classes, hidden, nets):
+            bank.nets_[c] = NetRegressor.from_arrays(g.group("nets").group(c), p)
+            bank.hidden_[c] = h
+        return bank
 
 
 class GatedMLP:
@@ -237,3 +281,63 @@ class GatedMLP:
         if self.expression_model == "cascade":
             return self.experts_[expression].predict(c0)
         return self.experts_[expression].predict(X, gated)
+
+    # -- persistence (see mapping.state) ---------------------------------------------------
+    def to_arrays(self) -> tuple[dict, dict]:
+        """The trained mapping as data.
+
+        Arrays: ``group_of_phone`` (44,), and the arrays of the parts under ``context/``
+        (:class:`~mapping.features.ContextFeatures`), ``gate/``
+        (:class:`~mapping.gate.PhoneGate`), ``bank/`` (:class:`MLPBank`) and ``experts/<k>/``
+        (expression k's Υ_k, a :class:`~mapping.nets.NetRegressor`, or its
+        :class:`MLPBank`). Parameters: the
+        constructor's hyper-parameters (``train`` as a record), ``merges``, ``class_names``,
+        ``expressions``, ``n_mups`` and the parameters of each part under the same keys.
+        """
+        self._check_fitted()
+        params = {name: getattr(self, name) for name in _HYPER_PARAMETERS}
+        params["train"] = settings_to_params(self.train)
+        params.update(merges=dict(self.merges_), class_names=list(self.class_names_),
+                      expressions=list(self.expressions_), n_mups=int(self.n_mups_))
+        arrays = {"group_of_phone": self.group_of_phone_}
+        for key, part in (("context", self.context_), ("gate", self.gate_),
+                          ("bank", self.bank_)):
+            a, params[key] = part.to_arrays()
+            arrays.update(nest(key, a))
+        params["experts"] = []
+        for k in self.expressions_:
+            a, p = self.experts_[k].to_arrays()
+            arrays.update(nest(f"experts/{part_name(k)}", a))
+            params["experts"].append(p)
+        return arrays, params
+
+    @classmethod
+    def from_arrays(cls, arrays, params: dict) -> "GatedMLP":
+        """The trained mapping of :meth:`to_arrays` (hyper-parameters checked as in ``fit``)."""
+        g = ArrayGroup.of(arrays)
+        m = cls(**{name: params[name] for name in _HYPER_PARAMETERS},
+                train=settings_from_params(params["train"]))
+        m._validate()
+        m.context_ = ContextFeatures.from_arrays(g.group("context"), params["context"])
+        if (m.context_.back, m.context_.forward) != (m.context_back, m.context_forward):
+            raise ParameterError(f"the context window ({m.context_.back}, "
+                                 f"{m.context_.forward}) differs from the hyper-parameters "
+                                 f"({m.context_back}, {m.context_forward})")
+        m.gate_ = PhoneGate.from_arrays(g.group("gate"), params["gate"])
+        m.bank_ = MLPBank.from_arrays(g.group("bank"), params["bank"])
+        if set(m.bank_.nets_) != set(m.gate_.classes_.tolist()):
+            raise ParameterError(f"the MLP bank's classes {sorted(m.bank_.nets_)} are not the "
+                                 f"gate's {m.gate_.classes_.tolist()}")
+        group_of_phone, _, _ = class_groups(m.n_classes)
+        m.group_of_phone_ = g.take("group_of_phone", group_of_phone.shape, kinds="iu")
+        m.merges_ = dict(params["merges"])
+        m.class_names_ = tuple(params["class_names"])
+        m.expressions_ = tuple(params["expressions"])
+        m.n_mups_ = int(params["n_mups"])
+        if len(params["experts"]) != len(m.expressions_):
+            raise ParameterError(f"{len(m.expressions_)} expressions but "
+                                 f"{len(params['experts'])} expression models")
+        expert = NetRegressor if m.expression_model == "cascade" else MLPBank
+        m.experts_ = {k: expert.from_arrays(g.group("experts").group(k), p)
+                      for k, p in zip(m.expressions_, params["experts"])}
+        return m

@@ -19,6 +19,7 @@ from torch import nn
 
 from face_model.errors import NotFittedError, ParameterError
 from mapping.config import TrainSettings
+from mapping.state import ArrayGroup, settings_from_params, settings_to_params
 
 
 class MLP(nn.Module):
@@ -26,6 +27,7 @@ class MLP(nn.Module):
 
     def __init__(self, n_in: int, n_hidden: int, n_out: int):
         super().__init__()
+        self.arguments = {"n_in": n_in, "n_hidden": n_hidden, "n_out": n_out}
         self.net = nn.Sequential(nn.Linear(n_in, n_hidden), nn.Tanh(), nn.Linear(n_hidden, n_out))
 
     def forward(self, x):
@@ -39,6 +41,8 @@ class TDNN(nn.Module):
 
     def __init__(self, n_in: int, n_hidden: int, n_out: int, *, layers: int = 2, width: int = 2):
         super().__init__()
+        self.arguments = {"n_in": n_in, "n_hidden": n_hidden, "n_out": n_out, "layers": layers,
+                          "width": width}
         mods, c = [], n_in
         for _ in range(layers):
             mods += [nn.Conv1d(c, n_hidden, 2 * width + 1, padding=width, padding_mode="replicate"),
@@ -57,11 +61,16 @@ class GRUNet(nn.Module):
 
     def __init__(self, n_in: int, n_hidden: int, n_out: int):
         super().__init__()
+        self.arguments = {"n_in": n_in, "n_hidden": n_hidden, "n_out": n_out}
         self.gru = nn.GRU(n_in, n_hidden, batch_first=True)
         self.out = nn.Linear(n_hidden, n_out)
 
     def forward(self, x):
         return self.out(self.gru(x)[0])
+
+
+# The networks a saved model may name (its ``module``), each rebuilt from its ``arguments``.
+NETWORKS = {"MLP": MLP, "TDNN": TDNN, "GRUNet": GRUNet}
 
 
 def _check_xy(X, Y, mask):
@@ -132,13 +141,63 @@ class NetRegressor:
             out = self.module(torch.from_numpy((X - self.x_mean_) / self.x_std_)).numpy()
         return out * self.y_std_ + self.y_mean_
 
-
     def _mlp_weights(self):
         if getattr(self, "_np_weights", None) is None:
             first, last = self.module.net[0], self.module.net[2]
             self._np_weights = tuple(t.detach().numpy().astype(np.float64) for t in (
                 first.weight.T, first.bias, last.weight.T, last.bias))
         return self._np_weights
+
+    # -- persistence (see mapping.state) -----------------------------------------------------
+    def to_arrays(self) -> tuple[dict, dict]:
+        """The network as data: the standardisation (``x_mean``, ``x_std`` (n_in,), ``y_mean``,
+        ``y_std`` (n_out,)) and every tensor of the module's ``state_dict`` as ``state/<key>``;
+        parameters: the module's class and constructor ``arguments``, the training settings,
+        the seed and the training history."""
+        if not hasattr(self, "y_mean_"):
+            raise NotFittedError("the network is not trained yet: call fit() first")
+        kind = type(self.module).__name__
+        if NETWORKS.get(kind) is not type(self.module):
+            raise ParameterError(f"network {kind} cannot be saved; savable: "
+                                 f"{', '.join(NETWORKS)}")
+        arrays = {"x_mean": self.x_mean_, "x_std": self.x_std_, "y_mean": self.y_mean_,
+                  "y_std": self.y_std_}
+        for key, t in self.module.state_dict().items():
+            arrays[f"state/{key}"] = t.detach().cpu().numpy().copy()
+        params = {"module": kind, "arguments": dict(self.module.arguments),
+                  "settings": settings_to_params(self.settings), "seed": self.seed,
+                  "history": dict(getattr(self, "history_", {}))}
+        return arrays, params
+
+    @classmethod
+    def from_arrays(cls, arrays, params: dict) -> "NetRegressor":
+        """The trained network of :meth:`to_arrays`: the module is rebuilt from its class and
+        arguments and given the stored tensors (``load_state_dict``)."""
+        g = ArrayGroup.of(arrays)
+        kind = params["module"]
+        if kind not in NETWORKS:
+            raise ParameterError(f"unknown network {kind!r}; allowed: {', '.join(NETWORKS)}")
+        args = params["arguments"]
+        if not isinstance(args, dict) or not all(
+                isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in args.values()):
+            raise ParameterError(f"the arguments of network {kind} must be positive integers, "
+                                 f"got {args!r}")
+        with torch.device("meta"):  # the tensors' shapes, without allocating them
+            expected = NETWORKS[kind](**args).state_dict()
+        state = {key: torch.from_numpy(g.take(f"state/{key}", tuple(t.shape),
+                                              dtype=np.float32).copy())
+                 for key, t in expected.items()}
+        module = NETWORKS[kind](**args)
+        module.load_state_dict(state)
+        net = cls(module, settings_from_params(params["settings"]), params["seed"])
+        n_in, n_out = args["n_in"], args["n_out"]
+        net.x_mean_ = g.take("x_mean", (n_in,), dtype=np.float32)  # as fit leaves them
+        net.x_std_ = g.take("x_std", (n_in,), dtype=np.float32)
+        net.y_mean_ = g.take("y_mean", (n_out,), dtype=np.float32)
+        net.y_std_ = g.take("y_std", (n_out,), dtype=np.float32)
+        net.history_ = dict(params.get("history", {}))
+        net._np_weights = None
+        return net
 
 
 def fit_module(module: nn.Module, X: np.ndarray, Y: np.ndarray, mask: np.ndarray,

@@ -101,12 +101,48 @@ def write_dataset_description(study_dir, *, name: str, simulated: bool) -> Path:
 
 
 def read_rows(path: Path) -> tuple[list[dict], bool]:
-    """The complete rows of a data file and whether a cut-short last line was found."""
+    """The complete rows of a data file and whether a cut-short last line was found (a file
+    saved by Excel starts with a byte-order mark: it is read as UTF-8 all the same)."""
     raw = Path(path).read_bytes()
     torn = bool(raw) and not raw.endswith(b"\n")
     if torn:
         raw = raw[:raw.rfind(b"\n") + 1]
-    rows = list(csv.DictReader(io.StringIO(raw.decode("utf-8"), newline="")))
+    rows = list(csv.DictReader(io.StringIO(raw.decode("utf-8-sig"), newline="")))
+    return rows, torn
+
+
+def check_session_file(study_dir, participant_id: str, trials: list[Trial], *,
+                       resume: bool = False) -> tuple[list[dict], bool]:
+    """The refusals of :class:`SessionFile`, without writing anything: the rows already in the
+    participant's data file (none if it does not exist) and whether its last line was cut
+    short. Raises ParameterError for a complete session, an interrupted one without
+    ``resume``, rows that do not follow ``trials``, and ``resume`` without a data file."""
+    pid = check_participant_id(participant_id)
+    path = data_path(study_dir, pid)
+    if len(trials) != N_TRIALS:
+        raise ParameterError(f"a session has {N_TRIALS} trials, got {len(trials)}")
+    if not path.is_file():
+        if resume:
+            raise ParameterError(f"--resume: participant {pid} has no session to resume "
+                                 f"({path} not found)")
+        return [], False
+    rows, torn = read_rows(path)
+    if len(rows) >= N_TRIALS:
+        raise ParameterError(
+            f"participant {pid} has a complete session ({len(rows)} judgments in {path}); it "
+            "is never overwritten or extended. Use a new participant id.")
+    if not resume:
+        raise ParameterError(
+            f"participant {pid} has an interrupted session ({len(rows)} of {N_TRIALS} "
+            f"judgments in {path}); continue it with --resume, or use a new participant id")
+    for i, row in enumerate(rows):
+        t = trials[i]
+        if (int(row["trial_index"]), row["stimulus_id"], row["block"]) != \
+                (t.trial_index, t.stimulus_id, t.block):
+            raise ParameterError(
+                f"{path}, row {i + 2}: trial {row['trial_index']} ({row['stimulus_id']}) does "
+                f"not match the planned order (trial {t.trial_index}, {t.stimulus_id}); was "
+                "the study seed or the allocation changed? Nothing was written.")
     return rows, torn
 
 
@@ -130,41 +166,16 @@ class SessionFile:
         self.trials = list(trials)
         if len(self.trials) != N_TRIALS:
             raise ParameterError(f"a session has {N_TRIALS} trials, got {len(self.trials)}")
-        self.done: list[dict] = []
-        self.dropped_partial = False
-        if self.path.is_file():
-            rows, torn = read_rows(self.path)
-            if len(rows) >= N_TRIALS:
-                raise ParameterError(
-                    f"participant {self.pid} has a complete session ({len(rows)} judgments in "
-                    f"{self.path}); it is never overwritten or extended. Use a new participant "
-                    "id.")
-            if not resume:
-                raise ParameterError(
-                    f"participant {self.pid} has an interrupted session ({len(rows)} of "
-                    f"{N_TRIALS} judgments in {self.path}); continue it with --resume, or use "
-                    "a new participant id")
-            for i, row in enumerate(rows):
-                t = self.trials[i]
-                if (int(row["trial_index"]), row["stimulus_id"], row["block"]) != \
-                        (t.trial_index, t.stimulus_id, t.block):
-                    raise ParameterError(
-                        f"{self.path}, row {i + 2}: trial {row['trial_index']} "
-                        f"({row['stimulus_id']}) does not match the planned order (trial "
-                        f"{t.trial_index}, {t.stimulus_id}); was the study seed or the "
-                        "allocation changed? Nothing was written.")
-            if torn:  # the trial in progress when the session died: it is asked again
-                with open(self.path, "r+b") as f:
-                    data = f.read()
-                    f.seek(0)
-                    f.truncate(data.rfind(b"\n") + 1)
-                    f.flush()
-                    os.fsync(f.fileno())
-                self.dropped_partial = True
-            self.done = rows
-        elif resume:
-            raise ParameterError(f"--resume: participant {self.pid} has no session to resume "
-                                 f"({self.path} not found)")
+        rows, torn = check_session_file(study_dir, self.pid, self.trials, resume=resume)
+        if torn:  # the trial in progress when the session died: it is asked again
+            with open(self.path, "r+b") as f:
+                data = f.read()
+                f.seek(0)
+                f.truncate(data.rfind(b"\n") + 1)
+                f.flush()
+                os.fsync(f.fileno())
+        self.dropped_partial = torn
+        self.done: list[dict] = rows
 
     @property
     def remaining(self) -> list[Trial]:
@@ -265,7 +276,7 @@ class Allocation:
         if not self.path.is_file():
             raise ParameterError(f"no allocation list in {self.dir} ({self.path.name} missing): "
                                  "create one with `talkingface study allocate`")
-        with open(self.path, newline="") as f:
+        with open(self.path, newline="", encoding="utf-8-sig") as f:  # as saved by Excel, too
             return list(csv.DictReader(f))
 
     def _write(self, rows: list[dict]) -> None:
@@ -286,20 +297,28 @@ class Allocation:
             f.flush()
             os.fsync(f.fileno())
 
+    def slot_for(self, pid: str, rows: list[dict] | None = None) -> dict:
+        """The slot ``pid`` holds, else the first free one, in ``rows`` (default: the list as
+        it is); nothing is written. A full list is refused."""
+        rows = self.rows() if rows is None else rows
+        held = [r for r in rows if r["participant_id"] == pid]
+        if held:
+            return held[0]
+        free = [r for r in rows if r["status"] == "free"]
+        if not free:
+            raise ParameterError(f"every slot of {self.path} is taken ({len(rows)} "
+                                 "participants); extend the study with a new list in "
+                                 "another folder, or release an aborted slot")
+        return free[0]
+
     def assign(self, pid: str) -> dict:
         """The participant's slot: the one they hold, else the first free one (logged)."""
         check_participant_id(pid)
         with self._lock():
             rows = self.rows()
-            held = [r for r in rows if r["participant_id"] == pid]
-            if held:
-                return held[0]
-            free = [r for r in rows if r["status"] == "free"]
-            if not free:
-                raise ParameterError(f"every slot of {self.path} is taken ({len(rows)} "
-                                     "participants); extend the study with a new list in "
-                                     "another folder, or release an aborted slot")
-            slot = free[0]
+            slot = self.slot_for(pid, rows)
+            if slot["participant_id"] == pid:
+                return slot
             slot.update(participant_id=pid, status="assigned", updated=now_iso())
             self._write(rows)
             self._log("assigned", slot["slot"], slot["sequence"], pid)
@@ -320,6 +339,7 @@ class Allocation:
 
     def release(self, pid: str, note: str = "") -> dict:
         """Give an aborted participant's slot back to the pool (their data stay; logged)."""
+        check_participant_id(pid)
         with self._lock():
             rows = self.rows()
             for r in rows:

@@ -27,13 +27,13 @@ participants is exactly balanced and the list can be printed and audited before 
 from __future__ import annotations
 
 import hashlib
-import re
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from face_model.corpus import EXPRESSIONS  # the corpus's expressions, also the study's
 from face_model.errors import ParameterError
+from face_model.identifiers import check_identifier
 
 SENTENCES = {"normal": "It is normal.", "good": "It is good.", "bad": "It is bad."}
 AUDIO = tuple(SENTENCES)  # audio track 1, 2, 3 of the paper
@@ -46,17 +46,23 @@ BLOCKS = ("visual", "audio", "bimodal")
 N_TRIALS = 27
 VISUAL_AUDIO = "normal"  # the sentence whose animation the visual-only block shows, silent
 ALLOCATION_BLOCK = 4
-_ID = re.compile(r"^[A-Za-z0-9]{1,32}$")
+_ID = r"[A-Za-z0-9]{1,32}"
+_STIMULUS_ID = r"[a-z]+(?:-[a-z]+){1,2}"  # face-expression-audio, audio-<audio>
 
 
 def check_participant_id(pid) -> str:
     """A participant id is 1–32 letters or digits (BIDS/psych-DS ``sub-<id>``), nothing else:
     no path characters, no spaces, and it should not be a name or any other personal data."""
-    if not isinstance(pid, str) or not _ID.match(pid):
-        raise ParameterError(
-            f"participant id {pid!r} is not allowed: use 1-32 letters or digits (e.g. P01); no "
-            "path characters, spaces or punctuation, and no personal data such as names")
-    return pid
+    return check_identifier("participant id", pid, _ID, "use 1-32 letters or digits (e.g. P01); "
+                            "no path characters, spaces or punctuation, and no personal data "
+                            "such as names")
+
+
+def check_stimulus_id(sid) -> str:
+    """A stimulus id is two or three lowercase words joined by ``-`` (:func:`stimulus_id`:
+    ``synthetic-smile-good``, ``audio-good``); it names the stimulus's files and data rows."""
+    return check_identifier("stimulus id", sid, _STIMULUS_ID, "two or three lowercase words "
+                            "joined by '-', e.g. synthetic-smile-good or audio-good")
 
 
 def group_of(sequence: str) -> str:

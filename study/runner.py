@@ -1,13 +1,17 @@
 """One participant's session of the perception study (paper §VII-C), run in PsychoPy.
 
-:func:`run_session` first checks everything that can be refused and plans the session without a
-window (:func:`study.session.plan_session`: participant id, stimuli, allocation slot, data file:
-a complete session is never reopened, an interrupted one only with ``resume``), then checks the
-audio backend, then executes the plan in a window: instructions; one practice trial, not
-written (skipped on resume; the neutral sentence's audio-only track, so neither face is seen
-before its block); then each block after a short instruction. A trial is a fixation cross, the
-stimulus, and the response screen (the face's last frame, or a speaker symbol, above the four
-keys and their labels) until a response key; the response time runs from that screen's onset.
+:func:`run_session` first checks everything that can be refused, and only then writes anything:
+:func:`study.session.check_session` (participant id, options, stimuli and their checksums,
+allocation list, data file: a complete session is never reopened, an interrupted one only with
+``resume``; another session running, free disk space), then the display (:func:`check_display`)
+and the audio backend, which need PsychoPy. A refused session takes no allocation slot and
+leaves no lock file or folder. Then :func:`study.session.open_session` locks, claims the slot
+and opens the data file, and the plan is executed in a window: instructions; one practice
+trial, not written (skipped on resume; the neutral sentence's audio-only track, so neither face
+is seen before its block); then each block after a short instruction. A trial is a fixation
+cross, the stimulus, and the response screen (the face's last frame, or a speaker symbol, above
+the four keys and their labels) until a response key; the response time runs from that
+screen's onset.
 
 Video frames are decoded, and their ImageStims built, before the trial; the frame drawn is
 chosen from the time elapsed since the onset flip, and the sentence's audio is scheduled on
@@ -25,7 +29,9 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
 import platform
+import sys
 import time
 import wave
 from pathlib import Path
@@ -37,7 +43,7 @@ from PIL import Image
 from face_model.errors import ParameterError
 from study import data as sdata
 from study.design import RESPONSES, required_stimuli
-from study.session import PRACTICE, SessionPlan, plan_session
+from study.session import PRACTICE, SessionPlan, check_session, open_session
 from study.stimuli import read_video_frames
 
 LABELS = {"neutral": "Neutral", "happy": "Happy", "sad": "Sad", "not_sure": "Not sure"}
@@ -67,7 +73,7 @@ def scripted_responder(path):
     if not path.is_file():
         raise ParameterError(f"response script {path} not found (a CSV with columns "
                              "stimulus_id,response[,rt_s])")
-    with open(path, newline="") as f:
+    with open(path, newline="", encoding="utf-8-sig") as f:  # as saved by Excel, too
         reader = csv.DictReader(f)
         missing = [c for c in ("stimulus_id", "response") if c not in (reader.fieldnames or [])]
         if missing:
@@ -109,6 +115,27 @@ def _silent_sound(path):
                            stop=lambda **_: None)
 
 
+def check_display() -> None:
+    """Refuse, in one line, a session that cannot open its window: on Linux, PsychoPy's
+    windows (pyglet) need an X display. Connects to it once (pyglet keeps the connection for
+    the window)."""
+    if not sys.platform.startswith("linux"):
+        return  # Windows and macOS: the desktop is always there
+    name = os.environ.get("DISPLAY", "")
+    hint = ("run the session from the lab computer's desktop, or headless under "
+            "xvfb-run -a -s '-screen 0 1024x768x24' talkingface study run ...")
+    if not name:
+        raise ParameterError(f"no display: DISPLAY is not set, so no window can open; {hint}")
+    import pyglet
+    from pyglet.canvas.xlib import NoSuchDisplayException
+
+    try:
+        pyglet.canvas.get_display()
+    except NoSuchDisplayException:
+        raise ParameterError(f"no display: cannot connect to the X display DISPLAY={name!r}; "
+                             f"{hint}") from None
+
+
 def _psychopy(audio_backend, probe_wav):
     """Import PsychoPy (audio library chosen first) and check the backend can play a file."""
     import psychopy
@@ -131,8 +158,9 @@ def _psychopy(audio_backend, probe_wav):
         try:
             probe = sound.Sound(str(probe_wav))
         except Exception as exc:  # no device, no library: refuse before any window opens
+            reason = " ".join(str(exc).split()).rstrip(".")  # one line
             raise ParameterError(
-                f"audio backend {audio_backend!r} cannot play {probe_wav}: {exc}. Check the "
+                f"audio backend {audio_backend!r} cannot play {probe_wav}: {reason}. Check the "
                 "sound device, or choose another: --set study.audio_backend=sounddevice|ptb"
             ) from exc
         psy.speaker = str(getattr(probe.speaker, "name", probe.speaker))
@@ -401,16 +429,18 @@ def run_session(study_dir, stimuli_dir, participant_id: str, *, study_seed: int,
     Returns ``{"participant_id", "sequence", "rows", "complete", "aborted", "data",
     "session", "sidecar"}``: the number of judgments in the data file, whether all 27 are
     there, whether Escape ended the session, the data file's path, this session's number and
-    the sidecar's path. Refusals raise ParameterError before any window opens
-    (:func:`study.session.plan_session`, then the audio backend's check).
+    the sidecar's path. Refusals raise ParameterError before anything is written
+    (:func:`study.session.check_session`, the display, the audio backend).
     """
-    plan = plan_session(study_dir, stimuli_dir, participant_id, study_seed=study_seed,
-                        n_slots=n_slots, resume=resume, fullscreen=fullscreen, keys=keys,
-                        practice=practice, fixation_s=fixation_s, iti_s=iti_s,
-                        audio_backend=audio_backend, responder_model=responder_model,
-                        screenshot=screenshot, window_size=window_size)
+    check = check_session(study_dir, stimuli_dir, participant_id, study_seed=study_seed,
+                          n_slots=n_slots, resume=resume, fullscreen=fullscreen, keys=keys,
+                          practice=practice, fixation_s=fixation_s, iti_s=iti_s,
+                          audio_backend=audio_backend, responder_model=responder_model,
+                          screenshot=screenshot, window_size=window_size)
+    check_display()
+    psy = _psychopy(audio_backend, check.probe_wav)
+    plan = open_session(check)
     try:  # the participant's session lock is held until the session ends
-        psy = _psychopy(audio_backend, plan.stimuli[PRACTICE.stimulus_id].wav)
         end_state = _execute(plan, psy, responder)
     finally:
         plan.release()

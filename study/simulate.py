@@ -80,10 +80,15 @@ come from ``study_seed`` exactly as for real participants. Simulated rows carry 
 byte. Simulated participants are ``SIM01``, ``SIM02``, …; a study folder that holds a slot of
 any other participant is refused (simulated and real data are kept in separate folders), and
 nothing that exists is ever overwritten.
+
+An interrupted simulation (a crash, Ctrl-C) is resumed by running it again with the same
+settings: the participants already complete are kept, and a participant cut short is
+completed, so the folder ends up byte for byte as an uninterrupted run would have left it.
+Every file already there is first checked against what this simulation writes; a file written
+with other settings (another seed, other stimuli …) is refused before anything is written.
 """
 from __future__ import annotations
 
-import json
 import platform
 from dataclasses import asdict, dataclass
 from importlib.metadata import PackageNotFoundError, version
@@ -98,31 +103,19 @@ from study.classifier import (  # noqa: F401  (ExpressionClassifier, visual_evid
     is_finite_number,
     visual_evidence,
 )
-from study.data import (
-    Allocation,
-    SessionFile,
-    data_path,
-    sidecar_path,
-    trial_row,
-    write_atomic,
-    write_dataset_description,
-)
+from study.data import Allocation, data_path, sidecar_path, write_dataset_description
 from study.design import (
     AUDIO_EMOTION,
     BLOCKS,
     EMOTION_OF,
-    N_TRIALS,
     RESPONSES,
     SENTENCES,
     Trial,
     check_participant_id,
-    group_of,
-    participant_seed,
-    session_trials,
 )
+from study.simulated_files import RESPONDER_MODEL, SimulatedParticipant, check_allocation
 from study.stimuli import manifest_digest
 
-RESPONDER_MODEL = "flmp-v1"
 EMOTIONS = ("neutral", "happy", "sad")  # the responses other than not_sure, in class order
 EXPRESSION_EMOTION, CONTENT_EMOTION = EMOTION_OF, AUDIO_EMOTION  # study.design's mappings
 DEFAULT_KEYS = ("n", "h", "s", "u")  # neutral, happy, sad, not sure (the study's default keys)
@@ -339,15 +332,17 @@ def simulate_study(study_dir, stimuli: dict, classifier: ExpressionClassifier, *
                    seed: int, study_seed: int, progress: bool = False,
                    population: PopulationParams = PopulationParams(),
                    keys: tuple = DEFAULT_KEYS) -> dict:
-    """Run ``n`` simulated participants through the study into ``study_dir``.
+    """Run ``n`` simulated participants through the study into ``study_dir``, or resume an
+    interrupted run (see the module text).
 
     Parameters
     ----------
     study_dir : path
         The study data folder (``study.data`` layout). Its allocation list is created with
-        ``(n, study_seed)``, or reused if it is that list; a folder whose list differs, that holds
-        a slot of a participant who is not simulated, or that has data of any ``SIM`` participant
-        already, is refused before anything is written.
+        ``(n, study_seed)``, or reused if it is that list. Refused before anything is written:
+        a folder whose list differs, that holds a slot of a participant who is not simulated,
+        whose ``SIM`` files are not those this simulation writes, or whose simulation is
+        complete already (simulations are never overwritten or extended).
     stimuli : dict
         :func:`study.stimuli.load_manifest`'s stimulus set (video markers are needed).
     classifier : ExpressionClassifier
@@ -358,6 +353,8 @@ def simulate_study(study_dir, stimuli: dict, classifier: ExpressionClassifier, *
         Seeds the participants' parameters and answers.
     study_seed : int
         The study seed: allocation list and trial orders, as for real participants.
+    progress : bool
+        A progress bar over the participants (on stderr).
     population : PopulationParams
     keys : tuple of 4 str
         The response keys recorded for neutral, happy, sad and not sure.
@@ -366,7 +363,8 @@ def simulate_study(study_dir, stimuli: dict, classifier: ExpressionClassifier, *
     -------
     dict: ``n``, ``participants``, ``sequences`` (count per sequence), ``study_dir``,
     ``data`` and ``sidecars`` (paths), ``dataset_description``, ``allocation``,
-    ``responder_model``.
+    ``responder_model``, ``kept`` (participants complete before this call) and ``resumed``
+    (participants cut short by an interruption and completed by this call).
     """
     if len(keys) != len(RESPONSES) or len(set(keys)) != len(keys):
         raise ParameterError(f"keys must be {len(RESPONSES)} distinct keys for "
@@ -378,20 +376,6 @@ def simulate_study(study_dir, stimuli: dict, classifier: ExpressionClassifier, *
     visual = visual_evidence(classifier, stimuli)
     pids = participant_ids(n)
     study_dir = Path(study_dir)
-    existing = [str(p) for pid in pids for p in (data_path(study_dir, pid),
-                                                 sidecar_path(study_dir, pid)) if p.exists()]
-    if existing:
-        raise ParameterError(f"simulated participants' files exist already ({', '.join(existing)})"
-                             "; simulations are never overwritten or extended: use a new study "
-                             "folder")
-    alloc = Allocation(study_dir)
-    rows = alloc.create(int(n), int(study_seed))
-    foreign = sorted({r["participant_id"] for r in rows if r["participant_id"]} - set(pids))
-    if foreign:
-        raise ParameterError(f"{alloc.path} holds slots of participants {foreign}, who are not "
-                             "simulated; simulate into a separate study folder")
-    description = write_dataset_description(study_dir, name="talkingface emotion perception "
-                                            "study (simulated participants)", simulated=True)
     key_of = dict(zip(RESPONSES, keys))
     common = {"simulated": True, "responder_model": RESPONDER_MODEL, "simulation_seed": int(seed),
               "study_seed": int(study_seed), "population": asdict(population),
@@ -399,37 +383,50 @@ def simulate_study(study_dir, stimuli: dict, classifier: ExpressionClassifier, *
               "visual_evidence": {sid: [round(float(x), 6) for x in p]
                                   for sid, p in visual.items()},
               "sentences": SENTENCES, "keys": key_of, "versions": _versions()}
+    make = lambda i, slot: SimulatedParticipant(  # noqa: E731
+        pids[i], slot, responder(observers[i], visual), study_seed=int(study_seed),
+        key_of=key_of, sidecar={"participant_index": i, "observer_seed": observers[i].seed,
+                                "observer": asdict(observers[i].params)}, common=common)
+
+    # every check before anything is written
+    alloc = Allocation(study_dir)
+    rows = check_allocation(alloc, pids, n=int(n), study_seed=int(study_seed))
+    held = {r["participant_id"]: r for r in rows}
+    found, kept, resumed = {}, [], []
+    for i, pid in enumerate(pids):
+        files = [p for p in (data_path(study_dir, pid), sidecar_path(study_dir, pid))
+                 if p.exists()]
+        if files and pid not in held:
+            raise ParameterError(f"{', '.join(map(str, files))} exist(s), but {pid} holds no "
+                                 f"slot in {alloc.path}; these are not the files of an "
+                                 "interrupted simulation: use a new study folder")
+        if pid in held:  # from an earlier, interrupted call
+            found[pid] = make(i, held[pid])
+            complete = found[pid].check_files(study_dir)
+            (kept if complete and held[pid]["status"] == "complete" else resumed).append(pid)
+    if len(kept) == len(pids):
+        raise ParameterError(f"the simulation in {study_dir} is complete ({n} participants); "
+                             "simulations are never overwritten or extended: use a new study "
+                             "folder")
+
+    alloc.create(int(n), int(study_seed))
+    description = write_dataset_description(study_dir, name="talkingface emotion perception "
+                                            "study (simulated participants)", simulated=True)
     counts = {s: 0 for s in ("SR", "RS")}
     data_files, sidecars = [], []
-    for i, (pid, obs) in enumerate(tqdm(list(zip(pids, observers)), desc="simulated participants",
-                                        unit="participant", disable=not progress)):
-        slot = alloc.assign(pid)
-        sequence = slot["sequence"]
-        trials = session_trials(pid, sequence, study_seed)
-        session = SessionFile(study_dir, pid, trials)
-        answer = responder(obs, visual)
-        for trial in trials:
-            response, rt = answer(trial)
-            row = trial_row(trial, participant_id=pid, sequence=sequence, response=response,
-                            response_key=key_of[response], rt_s=rt, simulated=True,
-                            responder_model=RESPONDER_MODEL, session=1, qc=None,
-                            timestamp="")  # no session happened at any time: reproducible files
-            session.append(row)
-        side = sidecar_path(study_dir, pid)
-        write_atomic(side, json.dumps({
-            "participant_id": pid, "participant_index": i, "sequence": sequence,
-            "group": group_of(sequence), "slot": int(slot["slot"]),
-            "participant_seed": participant_seed(study_seed, pid), "observer_seed": obs.seed,
-            "observer": asdict(obs.params), "n_trials": N_TRIALS,
-            "sessions": [{"session": 1, "n_trials": N_TRIALS, "complete": True}],
-            **common}, indent=1) + "\n")
-        alloc.set_status(pid, "complete")
-        counts[sequence] += 1
-        data_files.append(session.path)
-        sidecars.append(side)
+    bar = tqdm(pids, desc="simulated participants", unit="participant", disable=not progress)
+    for i, pid in enumerate(bar):
+        who = found.get(pid) or make(i, alloc.assign(pid))
+        who.write(study_dir, alloc)
+        counts[who.sequence] += 1
+        data_files.append(data_path(study_dir, pid))
+        sidecars.append(sidecar_path(study_dir, pid))
+        if kept or resumed:
+            bar.set_postfix(kept=len(kept), resumed=len(resumed))
     return {"n": int(n), "participants": pids, "sequences": counts, "study_dir": study_dir,
             "data": data_files, "sidecars": sidecars, "dataset_description": description,
-            "allocation": alloc.path, "responder_model": RESPONDER_MODEL}
+            "allocation": alloc.path, "responder_model": RESPONDER_MODEL, "kept": kept,
+            "resumed": resumed}
 
 
 __all__ = ["RESPONDER_MODEL", "EMOTIONS", "EXPRESSION_EMOTION", "CONTENT_EMOTION",

@@ -44,7 +44,8 @@ from face_model.corpus import load_corpus
 from face_model.errors import ParameterError
 from face_model.movie import write_mp4
 from face_model.render import FaceRenderer, face_grid
-from study.design import AUDIO, EXPRESSIONS, FACES, SENTENCES, required_stimuli, stimulus_id
+from study.design import (AUDIO, EXPRESSIONS, FACES, SENTENCES, check_stimulus_id,
+                          required_stimuli, stimulus_id)
 
 MANIFEST = "manifest.csv"
 COLUMNS = ("stimulus_id", "kind", "face", "expression", "audio", "video", "wav", "markers",
@@ -193,7 +194,7 @@ def load_manifest(stim_dir, *, verify: bool = True) -> dict[str, Stimulus]:
     if not path.is_file():
         raise ParameterError(f"{path} not found: make the stimuli with `talkingface study "
                              "stimuli`")
-    with open(path, newline="") as f:
+    with open(path, newline="", encoding="utf-8-sig") as f:  # as saved by Excel, too
         reader = csv.DictReader(f)
         missing = [c for c in COLUMNS if c not in (reader.fieldnames or [])]
         if missing:
@@ -203,6 +204,10 @@ def load_manifest(stim_dir, *, verify: bool = True) -> dict[str, Stimulus]:
     for line, r in enumerate(rows, start=2):
         where = f"{path}, line {line}"
         sid = r["stimulus_id"]
+        try:
+            check_stimulus_id(sid)
+        except ParameterError as exc:
+            raise ParameterError(f"{where}: {exc}") from None
         if sid in out:
             raise ParameterError(f"{where}: stimulus {sid!r} listed twice")
         if r["kind"] not in ("video", "audio"):

@@ -1,5 +1,3 @@
-import sys
+from talkingface.cli import entry
 
-from talkingface.cli import main
-
-sys.exit(main())
+entry()

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from face_model.atomic import atomic_file, check_output_file
 from face_model.audio import read_wav
 from face_model.errors import ParameterError
 from face_model.keyframes import KeyframeModel, write_keyframe_tracks
@@ -80,6 +81,21 @@ def animate_file(wav, out_mp4, *, expression: str = "neutral", model: str | None
     """WAV → MP4 (and optionally markers .npy and keyframe tracks); returns a summary."""
     animator, tfmap = load_animator(model, runs_dir)
     animator.check_expression(expression)
+    # every output and input is checked before the render, so a mistake costs no work
+    check_output_file(out_mp4, "--out")
+    for path, what in ((markers_out, "--markers"), (keyframes_out, "--keyframes")):
+        if path:
+            check_output_file(path, what)
+    keyframes = None
+    if keyframes_out:
+        if Path(keyframes_out).suffix not in (".json", ".csv"):
+            raise ParameterError(f"--keyframes {keyframes_out}: keyframe tracks are written as "
+                                 f".json or .csv, not {Path(keyframes_out).suffix!r}")
+        kf_path = tfmap.parent.parent / "keyframes" / "keyframes.npz"
+        if not kf_path.is_file():
+            raise ParameterError(f"keyframes were not fitted for this run ({kf_path} missing); "
+                                 "run `talkingface replicate` for it")
+        keyframes = KeyframeModel.load(kf_path)
     y, sr, warn = read_speech(wav)
     t0 = time.perf_counter()
     mups, markers = animator.animate(y, sr, expression)
@@ -89,15 +105,11 @@ def animate_file(wav, out_mp4, *, expression: str = "neutral", model: str | None
               fps=fps, audio_path=wav, progress=progress)
     seconds = time.perf_counter() - t0
     if markers_out:
-        np.save(markers_out, markers.astype(np.float32))
-    if keyframes_out:
-        kf_path = tfmap.parent.parent / "keyframes" / "keyframes.npz"
-        if not kf_path.is_file():
-            raise ParameterError(f"keyframes were not fitted for this run ({kf_path} missing); "
-                                 "run `talkingface replicate` for it")
-        weights = KeyframeModel.load(kf_path).mups_to_keyframes(mups, expression)
-        write_keyframe_tracks(keyframes_out, weights, fps, expression=expression,
-                              source=str(wav))
+        with atomic_file(markers_out) as tmp, open(tmp, "wb") as f:
+            np.save(f, markers.astype(np.float32))
+    if keyframes is not None:
+        write_keyframe_tracks(keyframes_out, keyframes.mups_to_keyframes(mups, expression), fps,
+                              expression=expression, source=str(wav))
     duration = len(y) / sr
     return {"frames": len(markers), "audio_s": duration, "seconds": seconds,
             "x_realtime": duration / seconds if seconds > 0 else float("inf"),

@@ -7,10 +7,11 @@ line (``error: ...``) with exit status 2.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
+import signal
 import subprocess
 import sys
+import traceback
 from pathlib import Path
 
 from data_synth.generate import synthesize_corpus
@@ -19,7 +20,7 @@ from face_model.errors import TalkingFaceError
 from talkingface import runs, study_cli
 from talkingface.animate import animate_file, stream_file, stream_microphone
 from talkingface.cli_args import config_args, resolve_config, run_args, visual_source_arg
-from talkingface.config import dump_config, load_config
+from talkingface.config import apply_overrides, dump_config, load_config
 from talkingface.experiment_log import artifact_root, tracking_uri
 from talkingface.live import input_devices
 from talkingface.paths import RunPaths, check_run_name
@@ -38,7 +39,7 @@ def cmd_synth(args) -> int:
         changes["n_sentences"] = args.sentences
     if args.speakers is not None:
         changes["speakers"] = args.speakers
-    cfg = dataclasses.replace(cfg, synth=dataclasses.replace(cfg.synth, **changes))
+    cfg = apply_overrides(cfg, {"synth": changes})
     out = synthesize_corpus(args.out, cfg.synth, cfg.seed, overwrite=args.overwrite)
     dump_config(cfg, out / "config.yaml")
     c = load_corpus(out)
@@ -48,6 +49,10 @@ def cmd_synth(args) -> int:
 
 def cmd_units(args) -> int:
     cfg = resolve_config(args)
+    model = Path(args.out) / "motion_units.npz"
+    if model.exists() and not args.overwrite:
+        raise TalkingFaceError(f"{model} already exists; pass --overwrite to replace it (a "
+                               "mapping trained on those Motion Units needs them as they are)")
     res = fit_units_folder(Path(args.corpus), Path(args.out), cfg)
     s = res["summary"]
     print(f"Motion Units fitted in {res['fit_seconds']:.2f} s -> "
@@ -116,7 +121,8 @@ def cmd_ablate(args) -> int:
 def cmd_report(args) -> int:
     if args.study_data is not None:
         name = check_run_name(args.name or Path(args.study_data).resolve().name)
-        print(f"report: {study_cli.study_report(args.study_data, name, seed=args.seed or 0)}")
+        print("report: " + str(study_cli.study_report(args.study_data, name, seed=args.seed or 0,
+                                                      allow_incomplete=args.allow_incomplete)))
         return 0
     if not args.name:
         raise TalkingFaceError("give --name RUN (a replication's report) or --study-data DIR "
@@ -137,7 +143,28 @@ def cmd_ui(args) -> int:
     if uri.startswith("sqlite:"):
         cmd += ["--default-artifact-root", artifact_root()]
     print(f"MLflow UI on http://127.0.0.1:{args.port} (store: {uri}); Ctrl-C stops it")
-    return subprocess.call(cmd)
+    return serve(cmd)
+
+
+def serve(cmd: list) -> int:
+    """Run a server process until it exits; SIGTERM or SIGINT to this process is passed on to
+    it (its own workers stop with it) and waited for, so nothing is left running."""
+    proc = subprocess.Popen(cmd)
+
+    def forward(signum, frame):
+        if proc.poll() is None:
+            proc.send_signal(signum)
+
+    old = {sig: signal.signal(sig, forward) for sig in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        while True:
+            try:
+                return proc.wait()
+            except KeyboardInterrupt:  # pragma: no cover - SIGINT is handled by forward()
+                forward(signal.SIGINT, None)
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
 
 
 def cmd_animate(args) -> int:
@@ -198,6 +225,7 @@ def _corpus_commands(sub) -> None:
     s = sub.add_parser("units", help="fit the Motion Units on a corpus")
     s.add_argument("--corpus", required=True, type=Path)
     s.add_argument("--out", required=True, type=Path, help="folder for motion_units.npz")
+    s.add_argument("--overwrite", action="store_true", help="replace the Motion Units there")
     config_args(s)
     s.set_defaults(func=cmd_units)
 
@@ -237,7 +265,10 @@ def _run_commands(sub) -> None:
                        "report from study data alone (--study-data)")
     s.add_argument("--name", help="run name (with --study-data: the PDF's name; default: the "
                    "data folder's name)")
-    s.add_argument("--study-data", type=Path, help="a study data folder (real or simulated)")
+    s.add_argument("--study-data", type=Path, help="a study data folder (real or simulated): "
+                   "reports/study/<name>.pdf")
+    s.add_argument("--allow-incomplete", action="store_true", help="with --study-data: analyse "
+                   "the complete sessions of a folder that has incomplete ones (said in the PDF)")
     s.add_argument("--seed", type=int, help="seed of the Monte Carlo parts (default 0)")
     s.set_defaults(func=cmd_report)
 
@@ -287,13 +318,35 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    """Run one command. A user's mistake (a value, a file the user named) is one line on stderr
+    with exit status 2; anything else is a bug and keeps its traceback."""
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
     except TalkingFaceError as exc:
         print(f"error: {exc}", file=sys.stderr)
-        return 2
+    except OSError as exc:  # a path that is missing, a folder, unreadable or not writable
+        if exc.filename is None:
+            raise
+        print(f"error: {exc.filename}: {exc.strerror or exc}", file=sys.stderr)
+    except KeyboardInterrupt:
+        print("interrupted: finished stages and files are kept; unfinished ones were not "
+              "written under their names", file=sys.stderr)
+        return 130
+    return 2
+
+
+def entry() -> None:
+    """The console command: ``main`` with a line under an unexpected traceback."""
+    try:
+        code = main()
+    except Exception:
+        traceback.print_exc()
+        print("error: the traceback above is a bug in talkingface, not a mistake in your input; "
+              "please report it with the command you ran", file=sys.stderr)
+        code = 1
+    sys.exit(code)
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

@@ -8,12 +8,18 @@ that belong to the command line: ``mlflow`` (where runs are logged) and ``ablati
 
 ``configs/paper.yaml`` mirrors the defaults. A YAML file may set any subset of keys;
 ``--set section.key=value`` (or ``section.sub.key=value`` for a nested section) overrides single
-values, parsed as YAML scalars. An unknown section or key is an error naming the key and what is
-allowed; a setting declared with :func:`face_model.settings.choice` must take one of its values.
+values, parsed as YAML scalars (with YAML 1.2's numbers: ``1e-3``, ``1E5`` and ``.5`` are floats,
+not strings as in PyYAML's YAML 1.1). An unknown section or key is an error naming the key and
+what is allowed. Each section checks its own values when it is made (:mod:`face_model.settings`);
+this module prefixes the section, so a refused value reads
+``synth.rate_wpm is -100; allowed: an integer > 0``. A config file that cannot be read, is not
+UTF-8 YAML, repeats a key or is not a mapping is refused with its name (and line and column).
 """
 from __future__ import annotations
 
 import dataclasses
+import re
+import reprlib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
@@ -22,7 +28,7 @@ import yaml
 from data_synth.config import SynthConfig
 from face_model.config import TrackerConfig, UnitsConfig
 from face_model.errors import ParameterError
-from face_model.settings import choices_of
+from face_model.settings import SettingError, check_fields, choices_of, integer
 from mapping.config import MappingConfig
 from study.config import StudyConfig
 
@@ -42,12 +48,18 @@ class AblationConfig:
     takes its grid on the command line)."""
 
     grid: str = "default"  # default: configs/ablations.yaml of the project | none | a file
-    workers: int = 0  # processes (0: all cores)
+    workers: int = integer(0, ge=0)  # processes (0: all cores)
+
+    def __post_init__(self):
+        check_fields(self)
+
+
+MAX_SEED = 2**31 - 1  # derived seeds add offsets; scikit-learn takes seeds < 2**32
 
 
 @dataclass(frozen=True)
 class Config:
-    seed: int = 2002
+    seed: int = integer(2002, ge=0, le=MAX_SEED)
     synth: SynthConfig = field(default_factory=SynthConfig)
     units: UnitsConfig = field(default_factory=UnitsConfig)
     mapping: MappingConfig = field(default_factory=MappingConfig)
@@ -56,11 +68,101 @@ class Config:
     mlflow: MlflowConfig = field(default_factory=MlflowConfig)
     ablations: AblationConfig = field(default_factory=AblationConfig)
 
+    def __post_init__(self):
+        check_fields(self)
 
+
+# -- YAML ------------------------------------------------------------------------------------
+_FLOAT = "tag:yaml.org,2002:float"
+# YAML 1.1's floats, plus YAML 1.2's exponents without a dot (1e-3, 1E5) and signed .5
+_FLOAT_RE = re.compile(r"""^(?:[-+]?[0-9][0-9_]*\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+                             |[-+]?[0-9][0-9_]*[eE][-+]?[0-9]+
+                             |[-+]?\.[0-9][0-9_]*(?:[eE][-+]?[0-9]+)?
+                             |[-+]?[0-9][0-9_]*(?::[0-5]?[0-9])+\.[0-9_]*
+                             |[-+]?\.(?:inf|Inf|INF)
+                             |\.(?:nan|NaN|NAN))$""", re.X)
+
+
+class _Loader(yaml.SafeLoader):
+    """PyYAML's safe loader with YAML 1.2 floats, refusing a key given twice in one mapping."""
+
+    def construct_mapping(self, node, deep=False):
+        seen = set()
+        for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":
+                continue
+            key = self.construct_object(key_node, deep=deep)
+            try:
+                twice = key in seen
+            except TypeError:  # an unhashable key: PyYAML's own construct_mapping refuses it
+                continue
+            if twice:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"key {key!r} is given twice", key_node.start_mark)
+            seen.add(key)
+        return super().construct_mapping(node, deep=deep)
+
+
+_Loader.yaml_implicit_resolvers = {
+    ch: [(tag, rx) for tag, rx in resolvers if tag != _FLOAT]
+    for ch, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()}
+_Loader.add_implicit_resolver(_FLOAT, _FLOAT_RE, list("-+0123456789."))
+
+
+def _yaml_problem(exc: yaml.YAMLError) -> str:
+    """``line L, column C: problem`` of a PyYAML error (1-based, as editors count)."""
+    mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
+    problem = getattr(exc, "problem", None) or str(exc)
+    context = getattr(exc, "context", None)
+    where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
+    return f"{where}{problem}" + (f" ({context})" if context else "")
+
+
+def parse_yaml(text: str):
+    """YAML text as configs are read: YAML 1.2 floats, and no key given twice in a mapping."""
+    return yaml.load(text, Loader=_Loader)
+
+
+def read_yaml(path, what: str = "config file"):
+    """The YAML document of the file at ``path`` (None when empty).
+
+    Raises
+    ------
+    ParameterError
+        Naming ``what`` and the file: missing, a folder, unreadable, not UTF-8 text, or not
+        valid YAML (with line and column).
+    """
+    p = Path(path)
+    if not p.exists():
+        raise ParameterError(f"{what} {p} not found")
+    if p.is_dir():
+        raise ParameterError(f"{what} {p} is a folder, not a file")
+    try:
+        data = p.read_bytes()
+    except OSError as exc:
+        raise ParameterError(f"{what} {p} cannot be read: {exc.strerror or exc}") from None
+    if data.startswith((b"\xff\xfe", b"\xfe\xff")):
+        raise ParameterError(f"{what} {p} is UTF-16 text (it starts with a UTF-16 byte-order "
+                             "mark); save it as UTF-8")
+    if b"\x00" in data:
+        raise ParameterError(f"{what} {p} is not UTF-8 text (it holds NUL bytes: UTF-16 "
+                             "without a byte-order mark, or binary); save it as UTF-8")
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise ParameterError(f"{what} {p} is not UTF-8 text (byte {exc.start}: "
+                             f"{data[exc.start:exc.start + 1]!r}); save it as UTF-8") from None
+    try:
+        return parse_yaml(text)
+    except yaml.YAMLError as exc:
+        raise ParameterError(f"{what} {p} is not valid YAML: {_yaml_problem(exc)}") from None
+
+
+# -- composing ------------------------------------------------------------------------------
 def _coerce(where: str, f: dataclasses.Field, current, value):
     allowed = choices_of(f)
     if allowed is not None and value not in allowed:
-        raise ParameterError(f"{where} is {value!r}; allowed: {', '.join(allowed)}")
+        raise ParameterError(f"{where} is {value!r}; allowed: {', '.join(map(str, allowed))}")
     if isinstance(current, bool):
         if not isinstance(value, bool):
             raise ParameterError(f"{where} must be true or false, got {value!r}")
@@ -106,7 +208,10 @@ def _apply(node, tree, prefix: str):
             changes[name] = _apply(current, value, f"{where}.")
         else:
             changes[name] = _coerce(where, known[name], current, value)
-    return dataclasses.replace(node, **changes)
+    try:
+        return dataclasses.replace(node, **changes)
+    except SettingError as exc:  # the section checked its values; say which section it is
+        raise (exc.within(prefix[:-1]) if prefix else exc) from None
 
 
 def apply_overrides(cfg: Config, tree: dict) -> Config:
@@ -124,7 +229,11 @@ def parse_set(assignments: list[str]) -> dict:
         if "=" not in a:
             raise ParameterError(f"--set expects section.key=value, got {a!r}")
         key, raw = a.split("=", 1)
-        value = yaml.safe_load(raw) if raw.strip() else ""
+        try:
+            value = parse_yaml(raw) if raw.strip() else ""
+        except yaml.YAMLError as exc:
+            raise ParameterError(f"--set {a!r}: the value is not valid YAML "
+                                 f"({_yaml_problem(exc)})") from None
         parts = key.strip().split(".")
         if not all(parts):
             raise ParameterError(f"--set key {key!r} must be 'key', 'section.key' or "
@@ -143,11 +252,15 @@ def load_config(path=None, overrides: list[str] | None = None) -> Config:
     """Defaults ← YAML file (optional) ← ``--set`` overrides."""
     cfg = Config()
     if path:
-        p = Path(path)
-        if not p.is_file():
-            raise ParameterError(f"config file {p} not found")
-        tree = yaml.safe_load(p.read_text()) or {}
-        cfg = apply_overrides(cfg, tree)
+        tree = read_yaml(path)
+        if tree is not None and not isinstance(tree, dict):
+            raise ParameterError(f"config file {path} must be a mapping of sections "
+                                 f"({', '.join(f.name for f in fields(Config))}), got "
+                                 f"{type(tree).__name__} {reprlib.repr(tree)}")
+        try:
+            cfg = apply_overrides(cfg, tree or {})
+        except ParameterError as exc:
+            raise ParameterError(f"config file {path}: {exc}") from None
     return apply_overrides(cfg, parse_set(overrides or []))
 
 

@@ -18,6 +18,11 @@ from talkingface.provenance import git_commit
 from talkingface.stages.ablations import child_metrics
 
 
+# The UI opens an experiment on its GenAI pages (traces, tokens) unless it is tagged as model
+# training; this MLflow reads this tag.
+EXPERIMENT_TAGS = {"mlflow.experimentKind": "custom_model_development"}
+
+
 def tracking_uri(cfg) -> str:
     if cfg.mlflow.uri:
         return cfg.mlflow.uri
@@ -50,9 +55,13 @@ def mlflow_run(cfg, *, run_name: str, tags: dict | None = None, nested: bool = F
     exp = client.get_experiment_by_name(cfg.mlflow.experiment)
     if exp is None:
         loc = artifact_root() if tracking_uri(cfg).startswith("sqlite:") else None
-        exp_id = client.create_experiment(cfg.mlflow.experiment, artifact_location=loc)
+        exp_id = client.create_experiment(cfg.mlflow.experiment, artifact_location=loc,
+                                          tags=EXPERIMENT_TAGS)
     else:
         exp_id = exp.experiment_id
+        for k, v in EXPERIMENT_TAGS.items():
+            if exp.tags.get(k) != v:
+                client.set_experiment_tag(exp_id, k, v)
     mlflow.set_experiment(experiment_id=exp_id)  # nested (child) runs go to the same experiment
     with mlflow.start_run(experiment_id=exp_id, run_name=run_name, nested=nested) as run:
         mlflow.set_tags({"git_commit": git_commit(), **(tags or {})})

@@ -28,8 +28,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from face_model.errors import ParameterError
+from face_model.identifiers import check_identifier
 
-_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
+# 1-64 letters, digits, ._- starting with a letter or digit, and no ".." anywhere
+_NAME = re.compile(r"(?!.*\.\.)[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
 
 STAGE_FOLDERS = ("corpus", "units", "keyframes", "tracking", "tracked", "mapping", "render",
                  "stimuli", "study_data", "analysis", "ablations", "report")
@@ -37,10 +39,8 @@ STAGE_FOLDERS = ("corpus", "units", "keyframes", "tracking", "tracked", "mapping
 
 def check_run_name(name: str) -> str:
     """A run name is 1–64 letters, digits, ``._-``, starting with a letter or digit."""
-    if not isinstance(name, str) or not _NAME.match(name) or ".." in name:
-        raise ParameterError(f"run name {name!r} is not allowed: use 1-64 letters, digits, '.', "
-                             "'_' or '-', starting with a letter or digit")
-    return name
+    return check_identifier("run name", name, _NAME, "use 1-64 letters, digits, '.', '_' or "
+                            "'-', starting with a letter or digit")
 
 
 @dataclass(frozen=True)
@@ -48,6 +48,12 @@ class RunPaths:
     name: str
     root: Path  # runs/<name>
     reports_dir: Path
+    building: tuple = ()  # (stage, folder): a stage being built in a temporary folder
+
+    def building_in(self, name: str, folder: Path) -> "RunPaths":
+        """These paths with stage ``name`` written to ``folder`` (a stage is built beside its
+        final folder and renamed into place only when it completed)."""
+        return RunPaths(self.name, self.root, self.reports_dir, (name, Path(folder)))
 
     @classmethod
     def create(cls, name: str, *, runs_dir="runs", reports_dir="reports") -> "RunPaths":
@@ -58,6 +64,8 @@ class RunPaths:
         """The folder of stage ``name`` (one of :data:`STAGE_FOLDERS`)."""
         if name not in STAGE_FOLDERS:
             raise ParameterError(f"unknown stage {name!r}; allowed: {', '.join(STAGE_FOLDERS)}")
+        if self.building and self.building[0] == name:
+            return self.building[1]
         return self.root / name
 
     @property

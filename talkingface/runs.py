@@ -10,15 +10,17 @@ from __future__ import annotations
 from face_model.errors import ParameterError
 from talkingface.experiment_log import log_ablations, log_replication, log_train, mlflow_run
 from talkingface.paths import RunPaths
-from talkingface.stages import REPLICATION, prepare_run, run
+from talkingface.stages import REPLICATION, preflight, prepare_run, run
 from talkingface.stages.ablations import grid_path, load_grid
 
 
-def open_run(name: str, cfg, *, overwrite: bool = False, runs_dir="runs",
+def open_run(name: str, cfg, stages, *, overwrite: bool = False, runs_dir="runs",
              reports_dir="reports") -> RunPaths:
-    """``runs/<name>`` for ``cfg`` (refused if made with other settings, unless overwrite)."""
+    """``runs/<name>`` for ``cfg`` (refused if made with other settings, unless overwrite),
+    after checking that every input the named ``stages`` read is there: nothing is written
+    for a command that cannot run."""
     paths = RunPaths.create(name, runs_dir=runs_dir, reports_dir=reports_dir)
-    prepare_run(paths, cfg, overwrite=overwrite)
+    prepare_run(paths, cfg, overwrite=overwrite, check=lambda: preflight(stages, paths, cfg))
     return paths
 
 
@@ -26,7 +28,8 @@ def replicate(name: str, cfg, *, overwrite: bool = False, runs_dir="runs",
               reports_dir="reports"):
     """Every stage into ``runs/<name>``, ``reports/<name>.pdf``, one MLflow run (the mapping's
     metrics and pyfunc model, the ablations as child runs). Returns the PDF's path."""
-    paths = open_run(name, cfg, overwrite=overwrite, runs_dir=runs_dir, reports_dir=reports_dir)
+    paths = open_run(name, cfg, REPLICATION, overwrite=overwrite, runs_dir=runs_dir,
+                     reports_dir=reports_dir)
     with mlflow_run(cfg, run_name=name, tags={"stage": "replicate"}) as mlf:
         done = run(REPLICATION, paths, cfg)
         if mlf is not None:
@@ -41,9 +44,10 @@ def replicate(name: str, cfg, *, overwrite: bool = False, runs_dir="runs",
 def train(name: str, cfg, *, overwrite: bool = False) -> dict:
     """The mapping of ``runs/<name>`` (and its keyframes, which ``animate --keyframes`` uses),
     logged as an MLflow run with the pyfunc model. Returns the mapping's done.json."""
-    paths = open_run(name, cfg, overwrite=overwrite)
+    stages = ["mapping", "keyframes"]
+    paths = open_run(name, cfg, stages, overwrite=overwrite)
     with mlflow_run(cfg, run_name=f"train:{name}", tags={"stage": "train"}) as mlf:
-        done = run(["mapping", "keyframes"], paths, cfg)
+        done = run(stages, paths, cfg)
         if mlf is not None:
             log_train(mlf, done["mapping"], paths.mapping, cfg)
     return done["mapping"]
@@ -51,7 +55,7 @@ def train(name: str, cfg, *, overwrite: bool = False) -> dict:
 
 def track(name: str, cfg, *, overwrite: bool = False) -> dict:
     """The tracked corpus of ``runs/<name>`` (``cfg`` has ``mapping.visual_source: tracked``)."""
-    return run(["tracked"], open_run(name, cfg, overwrite=overwrite), cfg)["tracked"]
+    return run(["tracked"], open_run(name, cfg, ["tracked"], overwrite=overwrite), cfg)["tracked"]
 
 
 def ablate(name: str, cfg, *, overwrite: bool = False) -> dict:
@@ -60,7 +64,7 @@ def ablate(name: str, cfg, *, overwrite: bool = False) -> dict:
     grid = grid_path(cfg)
     if grid is None:
         raise ParameterError("talkingface ablate needs a grid file (--grid FILE), not 'none'")
-    paths = open_run(name, cfg, overwrite=overwrite)
+    paths = open_run(name, cfg, ["ablations"], overwrite=overwrite)
     with mlflow_run(cfg, run_name=f"ablate:{grid.stem}",
                     tags={"stage": "ablate", "grid": str(grid)}) as mlf:
         done = run(["ablations"], paths, cfg)["ablations"]
@@ -71,4 +75,4 @@ def ablate(name: str, cfg, *, overwrite: bool = False) -> dict:
 
 def stimuli(name: str, cfg, *, overwrite: bool = False) -> dict:
     """The study's stimuli of ``runs/<name>`` (its mapping trained first if needed)."""
-    return run(["stimuli"], open_run(name, cfg, overwrite=overwrite), cfg)["stimuli"]
+    return run(["stimuli"], open_run(name, cfg, ["stimuli"], overwrite=overwrite), cfg)["stimuli"]

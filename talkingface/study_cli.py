@@ -4,7 +4,9 @@
     talkingface study allocate --study-dir D         the pre-generated SR/RS list (seeded)
     talkingface study run --participant P01          one PsychoPy session (--resume, --fullscreen)
     talkingface study release --participant P01      give an aborted session's slot back
-    talkingface study simulate --n 20                simulated participants (FLMP observers)
+    talkingface study simulate --n 20                simulated participants (FLMP observers;
+                                                     again, with the same settings, to resume)
+    talkingface analyze DIR [--allow-incomplete]     Tables III-VII, statistics and model fits
 
 The study seed is the run seed (``--seed``/``--set seed=``); the study folder defaults to
 ``study_data`` and the stimuli to ``runs/<name>/stimuli`` of the latest run.
@@ -19,7 +21,7 @@ from analysis.report import Report
 from face_model.errors import ParameterError
 from study.classifier import observer_classifier, visual_evidence
 from study.data import Allocation, data_path, read_rows
-from study.design import participant_seed, session_trials
+from study.design import N_TRIALS, participant_seed, session_trials
 from study.runner import run_session, scripted_responder
 from study.simulate import RESPONDER_MODEL, make_observers, responder, simulate_study
 from study.stimuli import load_manifest
@@ -40,10 +42,14 @@ def _stimuli_dir(args) -> Path:
     return found[-1].parent
 
 
-def study_report(study_dir, name: str, *, seed: int = 0, reports_dir="reports") -> Path:
-    """``reports/<name>.pdf`` from a study's data alone: the analysis and how it was made."""
-    out = Path(reports_dir) / f"{name}_analysis"
-    summary = analyze_study(study_dir, out, seed=seed)
+def study_report(study_dir, name: str, *, seed: int = 0, reports_dir="reports",
+                 allow_incomplete: bool = False) -> Path:
+    """``reports/study/<name>.pdf`` from a study's data alone: the analysis and how it was made
+    (``allow_incomplete``: analyse the complete sessions of a folder that has incomplete ones;
+    the report says so). Study reports have a folder of their own, so one never replaces a
+    replication's ``reports/<name>.pdf``."""
+    out = Path(reports_dir) / "study" / f"{name}_analysis"
+    summary = analyze_study(study_dir, out, seed=seed, allow_incomplete=allow_incomplete)
     rep = Report(f"talkingface perception study: {name}",
                  "Emotion judgments of a synthetic and a real talking face (Hong, Wen &amp; "
                  "Huang 2002, §VII-C)")
@@ -52,15 +58,19 @@ def study_report(study_dir, name: str, *, seed: int = 0, reports_dir="reports") 
     rep.paragraph(f"Analysed by talkingface (source commit {git_commit()}) from {study_dir}; "
                   f"Monte Carlo and bootstrap seed {seed}. Participants: {summary['participants']}"
                   f" ({'simulated' if summary['simulated'] else 'real'}).")
-    return rep.build(Path(reports_dir) / f"{name}.pdf")
+    return rep.build(Path(reports_dir) / "study" / f"{name}.pdf")
 
 
 def cmd_analyze(args) -> int:
     out = args.out or Path(args.study_data) / "analysis"
-    summary = analyze_study(args.study_data, out, seed=args.seed or 0)
+    summary = analyze_study(args.study_data, out, seed=args.seed or 0,
+                            allow_incomplete=args.allow_incomplete)
     for k, t in summary["tallies"].items():
         print(f"Table {k}: {t['counts']}")
     print(f"{summary['participants']} participants; tables, statistics and fits in {out}")
+    for i in summary["incomplete"]:
+        print(f"incomplete: {i['participant_id']} ({i['judgments']} of {N_TRIALS} judgments; "
+              f"{i['reason']}): {'analysed' if i['analysed'] else 'left out'}")
     return 0
 
 
@@ -150,6 +160,9 @@ def add_parser(sub) -> None:
     a.add_argument("study_data", type=Path, help="a study data folder")
     a.add_argument("--out", type=Path, help="where to write (default: <study_data>/analysis)")
     a.add_argument("--seed", type=int, help="seed of the Monte Carlo parts (default 0)")
+    a.add_argument("--allow-incomplete", action="store_true",
+                   help="analyse the complete sessions of a folder that also holds incomplete "
+                   "ones (refused otherwise); the summary lists them")
     a.set_defaults(func=cmd_analyze)
 
     p = sub.add_parser("study", help="the perception study: stimuli, allocation, PsychoPy "
@@ -189,7 +202,8 @@ def add_parser(sub) -> None:
     study_dir(s)
     s.set_defaults(func=cmd_release)
 
-    s = ss.add_parser("simulate", help="simulated participants (FLMP observers)")
+    s = ss.add_parser("simulate", help="simulated participants (FLMP observers); run it again "
+                       "with the same settings to resume an interrupted simulation")
     s.add_argument("--n", type=int, default=20)
     study_dir(s)
     s.add_argument("--stimuli", type=Path, help="stimulus folder (default: the latest run's)")

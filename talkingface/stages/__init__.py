@@ -14,7 +14,8 @@ from talkingface.stages.foundation import fit_keyframes, fit_units, make_corpus,
 from talkingface.stages.motion import (evaluate_tracker, make_tracked_corpus, render_held_out,
                                        uses_tracked_corpus)
 from talkingface.stages.report import build_report
-from talkingface.stages.study import analyze, make_stimuli, simulate_participants
+from talkingface.stages.study import (analyze, keep_real_participants, make_stimuli,
+                                      simulate_participants)
 from talkingface.stages.ablations import ablate, grid_file, has_grid
 from talkingface.stages.training import train
 
@@ -34,7 +35,7 @@ STAGES = {s.name: s for s in (
     Stage("stimuli", make_stimuli, config=("seed", "synth"), speed_only=("synth.workers",),
           upstream=("units", "mapping")),
     Stage("study_data", simulate_participants, config=("seed", "study"),
-          upstream=("corpus", "stimuli")),
+          upstream=("corpus", "stimuli"), guard=keep_real_participants),
     Stage("analysis", analyze, config=("seed",), upstream=("study_data",)),
     Stage("ablations", ablate, config=("seed", "mapping", "ablations.grid"),
           upstream=_TRAINING_INPUTS, enabled=has_grid, files=grid_file),
@@ -56,4 +57,17 @@ def stale(names, paths: RunPaths, cfg) -> list[str]:
     return stale_stages(names, STAGES, paths, cfg)
 
 
-__all__ = ["REPLICATION", "STAGES", "Stage", "prepare_run", "read_done", "run", "stale"]
+def preflight(names, paths: RunPaths, cfg) -> list[str]:
+    """Refuse before any work what :func:`run` would refuse on the way: a missing input file,
+    or a stage that would have to replace a folder its guard keeps (real participants' data).
+    Returns the stages that would run."""
+    todo = stale(names, paths, cfg)
+    for name in todo:
+        stage, folder = STAGES[name], paths.stage(name)
+        if stage.guard is not None and folder.exists():
+            stage.guard(folder)
+    return todo
+
+
+__all__ = ["REPLICATION", "STAGES", "Stage", "preflight", "prepare_run", "read_done", "run",
+           "stale"]

@@ -27,11 +27,10 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
-import yaml
 from tqdm import tqdm
 
 from face_model.errors import ParameterError
-from talkingface.config import apply_overrides, parse_set
+from talkingface.config import apply_overrides, parse_set, read_yaml
 from talkingface.paths import RunPaths
 from talkingface.stages.motion import training_corpus
 from talkingface.stages.training import train_and_evaluate
@@ -45,7 +44,7 @@ def load_grid(path, cfg) -> dict:
     path = Path(path)
     if not path.is_file():
         raise ParameterError(f"ablation grid {path} not found")
-    tree = yaml.safe_load(path.read_text()) or {}
+    tree = read_yaml(path, "ablation grid") or {}
     if not isinstance(tree, dict) or not isinstance(tree.get("children"), dict) \
             or not tree["children"]:
         raise ParameterError(f"{path}: an ablation grid needs a non-empty 'children' mapping "

@@ -21,17 +21,15 @@ from __future__ import annotations
 import csv
 import hashlib
 import json
-import os
-import shutil
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-import yaml
 
+from face_model.atomic import atomic_file, fresh_partial_folder, swap_in
 from face_model.errors import ParameterError
-from talkingface.config import dump_config, select, to_dict
+from talkingface.config import dump_config, read_yaml, select, to_dict
 from talkingface.paths import RunPaths
 
 DONE = "done.json"
@@ -52,7 +50,8 @@ class Stage:
     ``config``: dotted config keys the results depend on (``"synth"``, ``"tracker.init"``);
     ``speed_only``: keys inside those that do not change the results; ``upstream``: stages whose
     results it reads; ``enabled``: whether the config asks for the stage at all; ``files``:
-    files outside the run it reads; ``always``: never reused (the report).
+    files outside the run it reads; ``always``: never reused (the report); ``guard``: called with
+    an existing folder before it would be replaced, raises to refuse.
     """
 
     name: str
@@ -63,6 +62,7 @@ class Stage:
     enabled: Callable = _always
     files: Callable = _no_files
     always: bool = False
+    guard: Callable | None = None
 
 
 def read_done(folder: Path) -> dict | None:
@@ -71,8 +71,8 @@ def read_done(folder: Path) -> dict | None:
 
 
 def write_csv(path: Path, rows: list[dict]) -> Path:
-    """``rows`` (dicts with the same keys) as a CSV file with a header."""
-    with open(path, "w", newline="") as f:
+    """``rows`` (dicts with the same keys) as a CSV file with a header (written atomically)."""
+    with atomic_file(path) as tmp, open(tmp, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
@@ -117,17 +117,16 @@ def run_stage(stage: Stage, stages: dict, paths: RunPaths, cfg) -> dict:
     done = read_done(out)
     if done is not None and done.get("fingerprint") == fp and not stage.always:
         return done
-    if out.exists():
-        shutil.rmtree(out)
-    out.mkdir(parents=True)
+    if stage.guard is not None and out.exists():
+        stage.guard(out)
+    partial = fresh_partial_folder(out)
     t0 = time.perf_counter()
-    results = stage.run(paths, cfg)
+    results = stage.run(paths.building_in(stage.name, partial), cfg)
     record = {"stage": stage.name, "fingerprint": fp, "key": key,
               "seconds": time.perf_counter() - t0, **results}
-    dump_config(cfg, out / "config.yaml")
-    tmp = out / (DONE + ".part")
-    tmp.write_text(json.dumps(record, indent=1, default=float))
-    os.replace(tmp, out / DONE)
+    dump_config(cfg, partial / "config.yaml")
+    (partial / DONE).write_text(json.dumps(record, indent=1, default=float))
+    swap_in(partial, out)
     return record
 
 
@@ -166,9 +165,10 @@ def stale_stages(names, stages: dict, paths: RunPaths, cfg) -> list[str]:
         stage = stages[name]
         if not stage.enabled(cfg):
             continue
+        fp = fingerprint(stage_key(stage, stages, paths, cfg))  # checks its input files too
         done = read_done(paths.stage(name))
         if (stage.always or done is None or any(u in stale for u in stage.upstream)
-                or done.get("fingerprint") != fingerprint(stage_key(stage, stages, paths, cfg))):
+                or done.get("fingerprint") != fp):
             stale.append(name)
     return stale
 
@@ -186,15 +186,19 @@ def _result_settings(tree: dict) -> dict:
     return tree
 
 
-def prepare_run(paths: RunPaths, cfg, *, overwrite: bool) -> None:
+def prepare_run(paths: RunPaths, cfg, *, overwrite: bool, check=None) -> None:
     """Create ``runs/<name>`` and record the config. A run made with other settings is refused
     unless ``overwrite``; with it, the stages whose keys changed are made again when they run
-    and the others are reused (nothing is deleted here)."""
+    and the others are reused (nothing is deleted here). ``check`` (optional) runs after the
+    refusal test and before anything is written, to refuse bad inputs first."""
     if paths.config.is_file():
-        old = yaml.safe_load(paths.config.read_text()) or {}
+        old = read_yaml(paths.config, "run config") or {}
         if _result_settings(old) != _result_settings(to_dict(cfg)) and not overwrite:
             raise ParameterError(
                 f"{paths.root} was made with a different config; choose another --name, or "
                 f"pass --overwrite to re-run the stages it changes (compare {paths.config})")
+    if check is not None:
+        check()
     paths.root.mkdir(parents=True, exist_ok=True)
-    dump_config(cfg, paths.config)
+    with atomic_file(paths.config) as tmp:
+        dump_config(cfg, tmp)

@@ -14,6 +14,7 @@ import numpy as np
 from analysis.corpus_report import summarize_units
 from data_synth.generate import synthesize_corpus
 from face_model.alignment import corpus_deformations, unflatten
+from face_model.atomic import atomic_file
 from face_model.corpus import corpus_hash, load_corpus
 from face_model.errors import ParameterError
 from face_model.keyframes import KEYFRAMES, KeyframeModel
@@ -49,9 +50,10 @@ def fit_units_folder(corpus_dir: Path, out_dir: Path, cfg) -> dict:
                                 alignment=cfg.units.alignment,
                                 metadata={"corpus_hash": corpus_hash(corpus_dir)})
     seconds = time.perf_counter() - t0
-    units.save(out_dir / "motion_units.npz")
+    with atomic_file(out_dir / "motion_units.npz") as tmp:
+        units.save(tmp)
     summary = summarize_units(units)
-    with open(out_dir / "variance.csv", "w") as f:
+    with atomic_file(out_dir / "variance.csv") as tmp, open(tmp, "w") as f:
         f.write("motion_units,number,explained,paper\n")
         for k, v in summary["explained"].items():
             n = units.n_utterance if k == "neutral" else units.n_expression

@@ -23,8 +23,12 @@ def test_a_study_report_from_data_alone(tmp_path, monkeypatch, capsys):
     for name, counts in PAPER_TALLIES.items():
         np.testing.assert_array_equal(summary["tallies"][name]["counts"], counts)
     assert summary["models"]["faces"]["real"]["comparison"]["preferred"] in ("flmp", "wtav")
+    replication = tmp_path / "reports" / "lab_study.pdf"  # a run may share the folder's name
+    replication.parent.mkdir()
+    replication.write_bytes(b"%PDF of a replication")
     assert main(["report", "--study-data", str(data)]) == 0
-    text = pdf_text(tmp_path / "reports" / "lab_study.pdf")
+    assert replication.read_bytes() == b"%PDF of a replication"  # never replaced by surprise
+    text = pdf_text(tmp_path / "reports" / "study" / "lab_study.pdf")
     for table in ("TABLE III", "TABLE IV", "TABLE V", "TABLE VI", "TABLE VII"):
         assert f"{table}:" in text
     assert "8 (8)" in text and "5 (5)" in text  # Table VI's confused subjects, ours = paper

@@ -103,3 +103,21 @@ def test_a_gee_that_is_not_estimable_says_why_in_words(tmp_path):
     assert "real face, smile expression, sequence RS" in sentence
     assert ", and none face-consistent in 2 (synthetic face, neutral expression, sequence SR; "\
         "synthetic face, neutral expression, sequence RS)." in sentence
+
+
+def test_a_table_wider_than_the_page_is_set_smaller_to_fit(tmp_path):
+    from analysis.report import _WIDTH, Report
+
+    head = ["setting", "method", "classes", "context", "MFCC", "hidden", "expressions",
+            "R (utterance)", "MSE (utterance)", "R (random_frames)", "MSE (random_frames)"]
+    rows = [["baseline-gmm-regression", "gmm_regression", "44", "3+1+3", "13 +delta", "15-25",
+             "cascade", "0.123", "0.0123", "0.456", "0.0456"]] * 3
+    rep = Report("t", "s")
+    rep.table("Ablations", head, rows)
+    table = rep.story[-1]._content[1]
+    assert table.wrap(_WIDTH, 1e4)[0] <= _WIDTH
+    rep.table("Narrow", ["a", "b"], [["1", "2"]])
+    assert rep.story[-1]._content[1]._cellStyles[0][0].fontsize == 8.5  # untouched
+    pdf = rep.build(tmp_path / "wide.pdf")
+    assert "baseline-gmm-regression" in PdfReader(pdf).pages[0].extract_text()
+    assert not list(tmp_path.glob(".*"))  # no temporary file left beside it

@@ -1,6 +1,7 @@
 """Study data in, the paper's tables out: known tallies come back exactly, and bad data are
 refused naming the file and the row."""
 import csv
+import json
 
 import numpy as np
 import pytest
@@ -8,6 +9,7 @@ import pytest
 from analysis.study_data import (
     PAPER_TALLIES,
     load_study_data,
+    read_study,
     tallies,
     trials_from_tallies,
     write_study_data,
@@ -92,4 +94,96 @@ def test_a_stimulus_judged_twice_is_refused(paper_dir):
     _edit(paper_dir, "T05", twice)
     with pytest.raises(ParameterError, match=r"row 3: the visual stimulus .* judged twice "
                                              r"\(first at row 2\)"):
+        load_study_data(paper_dir)
+
+
+# --- an incomplete data set is refused, unless allowed -------------------------------------
+def _allocation(study, statuses: dict):
+    """An allocation list holding the participants of ``study`` (all complete but ``statuses``)."""
+    from study.data import ALLOCATION_COLUMNS
+
+    pids = sorted(p.name[4:] for p in study.glob("sub-*")) + \
+        [p for p in statuses if not (study / f"sub-{p}").exists()]
+    with open(study / "allocation.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=ALLOCATION_COLUMNS, lineterminator="\n")
+        w.writeheader()
+        for i, pid in enumerate(pids, start=1):
+            w.writerow({"slot": i, "sequence": "SR" if i % 2 else "RS", "participant_id": pid,
+                        "status": statuses.get(pid, "complete"), "updated": ""})
+
+
+def test_a_participant_with_fewer_judgments_is_refused_unless_allowed(paper_dir):
+    path = _edit(paper_dir, "T03", lambda rows: rows[:10])  # stopped in the first bimodal part
+    with open(path, "ab") as f:
+        f.write(b"T03,SR,bimodal,1,10,sy")  # and the trial in progress, cut short
+    with pytest.raises(ParameterError) as err:
+        load_study_data(paper_dir)
+    msg = str(err.value)
+    assert f"{path}: participant T03 has 1 of 9 judgments in the bimodal block (period 1) " \
+           f"(10 of 27 judgments)" in msg
+    assert "--allow-incomplete" in msg
+    data = read_study(paper_dir, allow_incomplete=True)
+    assert data.trials["participant_id"].nunique() == 19 and "T03" not in \
+        set(data.trials["participant_id"])
+    (i,) = data.incomplete
+    assert (i.participant_id, i.judgments, i.file, i.slot_status, i.analysed) == \
+        ("T03", 10, str(path), "", False)
+
+
+def test_allocation_slots_not_marked_complete_are_refused_unless_allowed(paper_dir):
+    _allocation(paper_dir, {"T05": "assigned", "T99": "assigned"})  # T99 never judged
+    with pytest.raises(ParameterError) as err:
+        load_study_data(paper_dir)
+    msg = str(err.value)
+    assert "participant T05 holds slot 5 of allocation.csv, marked 'assigned', not " \
+           "'complete' (27 of 27 judgments)" in msg
+    assert "participant T99 holds slot 21 of allocation.csv, marked 'assigned', and has no " \
+           "data file (0 of 27 judgments)" in msg
+    data = read_study(paper_dir, allow_incomplete=True)
+    assert data.trials["participant_id"].nunique() == 20  # T05's 27 judgments are analysed
+    assert [(i.participant_id, i.judgments, i.analysed) for i in data.incomplete] == \
+        [("T05", 27, True), ("T99", 0, False)]
+    _allocation(paper_dir, {})
+    assert read_study(paper_dir).incomplete == ()
+    _allocation(paper_dir, {"T98": "complete"})  # a data file lost
+    with pytest.raises(ParameterError, match=r"participant T98 holds slot 21 of allocation\.csv, "
+                                             r"marked 'complete', and has no data file"):
+        load_study_data(paper_dir)
+
+
+def test_analyze_refuses_an_incomplete_study_and_reports_it_when_allowed(paper_dir, tmp_path,
+                                                                         capsys):
+    from analysis.perception_report import incomplete_sentence
+    from talkingface.cli import main
+
+    _edit(paper_dir, "T07", lambda rows: rows[:20])
+    out = tmp_path / "analysis"
+    assert main(["analyze", str(paper_dir), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "participant T07 has 2 of 9 judgments in the bimodal block (period 2) (20 of 27 " \
+           "judgments)" in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
+    assert main(["analyze", str(paper_dir), "--out", str(out), "--allow-incomplete"]) == 0
+    assert "incomplete: T07 (20 of 27 judgments" in capsys.readouterr().out
+    summary = json.loads((out / "analysis.json").read_text())
+    assert summary["participants"] == 19
+    assert [(i["participant_id"], i["judgments"], i["analysed"])
+            for i in summary["incomplete"]] == [("T07", 20, False)]
+    assert incomplete_sentence(summary) == (
+        " The data set is incomplete (analysed with --allow-incomplete): 1 incomplete session "
+        "is left out: T07 (20 of 27 judgments).")
+    assert incomplete_sentence({"incomplete": []}) == ""
+
+
+def test_a_study_csv_saved_by_excel_is_read(paper_dir):
+    path = paper_dir / "sub-T02" / "sub-T02_task-emotion_beh.csv"
+    path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes().replace(b"\n", b"\r\n"))
+    df = load_study_data(paper_dir)  # before: "missing columns ['participant_id']"
+    assert df["participant_id"].nunique() == 20
+    np.testing.assert_array_equal(tallies(df)["VI"].counts, PAPER_TALLIES["VI"])
+
+
+def test_a_participant_id_with_a_newline_is_refused(paper_dir):
+    _edit(paper_dir, "T04", lambda rows: [dict(r, participant_id="T04\n") for r in rows])
+    with pytest.raises(ParameterError, match=r"row 2: participant id 'T04\\n' is not allowed"):
         load_study_data(paper_dir)

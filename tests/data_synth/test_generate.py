@@ -105,12 +105,13 @@ def test_overwrite_refuses_a_folder_that_is_not_a_corpus(synth_config, tmp_path)
 
 
 @pytest.mark.parametrize("changes,message", [
-    ({"expressions": ("neutral", "angry")}, r"synth.expressions \['neutral', 'angry'\]: allowed "
-                                            r"values are neutral, smile, sad"),
-    ({"expressions": ()}, r"synth.expressions \[\]"),
-    ({"speakers": 0}, "synth.speakers must be >= 1, got 0"),
+    ({"expressions": ("neutral", "angry")}, r"expressions is \['neutral', 'angry'\]; allowed: a "
+                                            r"non-empty list of distinct values from neutral, "
+                                            r"smile, sad"),
+    ({"expressions": ()}, r"expressions is \[\]"),
+    ({"speakers": 0}, "speakers is 0; allowed: an integer >= 1"),
     ({"n_sentences": 1000}, "synth.n_sentences=1000, but the built-in set has only 360 sentences"),
-    ({"marker_noise_px": -0.1}, "synth nuisance magnitudes must be >= 0"),
+    ({"marker_noise_px": -0.1}, "marker_noise_px is -0.1; allowed: a finite number >= 0"),
 ])
 def test_bad_settings_are_refused_before_any_work(synth_config, tmp_path, changes, message):
     with pytest.raises(ParameterError, match=message):

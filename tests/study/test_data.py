@@ -109,3 +109,20 @@ def test_dataset_description_is_psych_ds(tmp_path):
     d = json.loads(p.read_text())
     assert d["@context"] == "https://schema.org/" and d["@type"] == "Dataset"
     assert d["variableMeasured"] == list(COLUMNS) and "Simulated" in d["description"]
+
+
+def test_checking_a_data_file_writes_nothing(tmp_path):
+    from study.data import check_session_file
+
+    trials, s = _write(tmp_path, 4)
+    with open(s.path, "ab") as f:
+        f.write(b"P01,synthetic_first,SR,vis")  # torn
+    before = s.path.read_bytes()
+    rows, torn = check_session_file(tmp_path, "P01", trials, resume=True)
+    assert (len(rows), torn) == (4, True) and s.path.read_bytes() == before
+    with pytest.raises(ParameterError, match="interrupted session"):
+        check_session_file(tmp_path, "P01", trials)
+    assert check_session_file(tmp_path, "P02", session_trials("P02", "SR", 1)) == ([], False)
+    assert not (tmp_path / "sub-P02").exists()
+    with pytest.raises(ParameterError, match=r"participant id 'P01\\n' is not allowed"):
+        Allocation(tmp_path).release("P01\n")

@@ -62,7 +62,8 @@ def test_any_list_is_balanced_within_two(n, seed):
     assert abs(c["SR"] - c["RS"]) <= 2 and sum(c.values()) == n
 
 
-@pytest.mark.parametrize("pid", ["../x", "", "P 01", "a/b", "P01.csv", "x" * 33, "Jöns", None])
+@pytest.mark.parametrize("pid", ["../x", "", "P 01", "a/b", "P01.csv", "x" * 33, "Jöns", None,
+                                 "P01\n"])
 def test_bad_participant_ids_are_refused(pid):
     with pytest.raises(ParameterError, match="use 1-32 letters or digits"):
         check_participant_id(pid)

@@ -369,6 +369,44 @@ def test_refusals_change_nothing(sessions, stimuli_dir, env, tmp_path):
     assert snapshot(study) == files
 
 
+# --- a refused session takes no slot and leaves no lock, folder or traceback -----------------
+@pytest.mark.parametrize("case", ["no display", "no audio device"])
+def test_a_refused_session_takes_no_slot_and_leaves_nothing_behind(stimuli_dir, env, tmp_path,
+                                                                   case):
+    """No display (DISPLAY unset) and no audio device (the PTB backend cannot play on ALSA's
+    null device, FIELD_NOTES.md) are found before the allocation slot is claimed: the list,
+    its log and the folder stay byte for byte as they were, and the error is one line."""
+    study = tmp_path / "study_data"
+    alloc = Allocation(study)
+    alloc.create(4, SEED)
+    alloc.assign("P01")
+    alloc.assign("P02")
+    files = snapshot(study)
+    if case == "no display":
+        headless = {k: v for k, v in env.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+        res = run_cli(command(study, stimuli_dir, "P03", *FAST), headless, tmp_path,
+                      xvfb=False)
+        expected = "error: no display: DISPLAY is not set, so no window can open"
+        assert res.stderr.strip().splitlines() == [res.stderr.strip()]  # nothing else
+    else:
+        res = run_cli(command(study, stimuli_dir, "P03", *FAST, "--set",
+                              "study.audio_backend=ptb"), env, tmp_path)
+        expected = "error: audio backend 'ptb' cannot play"
+    assert res.returncode == 2, res.stderr[-3000:]
+    assert "Traceback" not in res.stderr, res.stderr[-3000:]
+    (line,) = [x for x in res.stderr.splitlines() if x.startswith("error:")]
+    assert line.startswith(expected), res.stderr[-3000:]
+    assert snapshot(study) == files  # allocation.csv, allocation.json, the log: unchanged
+    assert not (study / "sub-P03").exists()
+    assert not list(study.rglob("*.lock")) or \
+        [q.name for q in study.rglob("*.lock")] == [".allocation.lock"]
+    if case == "no display":  # a study folder that is not there yet is not created either
+        res = run_cli(command(tmp_path / "fresh", stimuli_dir, "P03"), headless, tmp_path,
+                      xvfb=False)
+        assert res.returncode == 2 and "no display" in res.stderr
+        assert not (tmp_path / "fresh").exists()
+
+
 # --- Escape ends a session safely ---------------------------------------------------------
 ESCAPE = """
 import json, sys
@@ -440,6 +478,14 @@ def test_scripted_responder_refuses_bad_rows(tmp_path, change, message):
     with pytest.raises(ParameterError) as err:
         scripted_responder(path)
     assert str(path) in str(err.value) and message in str(err.value)
+
+
+def test_a_response_script_saved_by_excel_is_read(tmp_path):
+    rows = [[sid, "sad", "0.5"] for sid in required_stimuli()]
+    path = _write(tmp_path / "excel.csv", rows)
+    path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes().replace(b"\n", b"\r\n"))
+    f = scripted_responder(path)
+    assert f(Trial("audio", 0, 6, "none", "none", "good", "audio-good")) == ("sad", 0.5)
 
 
 def test_scripted_responder_refuses_bad_files(tmp_path):

@@ -14,7 +14,8 @@ import pytest
 from face_model.errors import ParameterError
 from study.data import Allocation, data_path, read_rows, sidecar_path, trial_row, write_atomic
 from study.design import N_TRIALS, RESPONSES, required_stimuli, session_trials
-from study.session import (PRACTICE, check_options, earlier_sessions, plan_session, plan_steps)
+from study.session import (PRACTICE, check_disk_space, check_options, check_session,
+                           earlier_sessions, open_session, plan_session, plan_steps)
 from study.stimuli import COLUMNS, MANIFEST, load_manifest
 from talkingface.config import Config
 
@@ -302,3 +303,115 @@ def test_planning_needs_no_psychopy(tmp_path, stimuli_dir):
     res = subprocess.run([sys.executable, "-c", code, str(tmp_path / "s"), str(stimuli_dir)],
                          capture_output=True, text=True, cwd=Path(__file__).parents[2])
     assert res.returncode == 0, res.stderr[-2000:]
+
+
+# --- nothing lost, nothing executed: refusals leave no slot, lock or folder -------------------
+def test_a_trailing_newline_is_not_part_of_a_participant_id(study, stimuli_dir):
+    files = snapshot(study)
+    with pytest.raises(ParameterError, match=r"participant id 'P01\\n' is not allowed"):
+        plan(study, stimuli_dir, "P01\n")  # re.match(r"^...$") would have let it through
+    assert snapshot(study) == files
+    assert sorted(q.name for q in study.iterdir() if q.is_dir()) == []
+
+
+def _manifest_rows(stimuli_dir):
+    with open(stimuli_dir / MANIFEST, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _copy_stimuli(stimuli_dir, dst, rows, *, encoding="utf-8"):
+    for q in stimuli_dir.rglob("*"):
+        if q.is_file() and q.name != MANIFEST:
+            (dst / q.relative_to(stimuli_dir)).parent.mkdir(parents=True, exist_ok=True)
+            (dst / q.relative_to(stimuli_dir)).write_bytes(q.read_bytes())
+    with open(dst / MANIFEST, "w", newline="", encoding=encoding) as f:
+        w = csv.DictWriter(f, fieldnames=COLUMNS, lineterminator="\r\n")
+        w.writeheader()
+        w.writerows(rows)
+    return dst
+
+
+def test_a_stimulus_id_with_a_trailing_newline_is_refused(stimuli_dir, tmp_path):
+    rows = _manifest_rows(stimuli_dir)
+    rows[3]["stimulus_id"] += "\n"
+    other = _copy_stimuli(stimuli_dir, tmp_path / "stimuli", rows)
+    with pytest.raises(ParameterError, match=r"manifest\.csv, line 5: stimulus id "
+                                             r"'[a-z-]+\\n' is not allowed"):
+        load_manifest(other)
+
+
+def test_a_manifest_saved_by_excel_is_read(stimuli_dir, tmp_path):
+    """Excel writes a byte-order mark (and CRLF line ends): the first column is still
+    ``stimulus_id``."""
+    other = _copy_stimuli(stimuli_dir, tmp_path / "stimuli", _manifest_rows(stimuli_dir),
+                          encoding="utf-8-sig")
+    assert (other / MANIFEST).read_bytes().startswith(b"\xef\xbb\xbf")
+    assert sorted(load_manifest(other)) == sorted(required_stimuli())
+
+
+def test_an_allocation_list_and_data_file_saved_by_excel_are_read(study, stimuli_dir):
+    pid = pid_of(study, "SR")
+    p = plan(study, stimuli_dir, pid)
+    crash(p)
+    judge(p, 3)
+    p.release()
+    for path in (study / "allocation.csv", data_path(study, pid)):
+        path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())
+    assert [r["participant_id"] for r in Allocation(study).rows()] == \
+        ["P01", "P02", "P03", "P04"]
+    p = plan(study, stimuli_dir, pid, resume=True)
+    p.release()
+    assert (p.start, p.sequence) == (3, "SR") and p.file.done[0]["participant_id"] == pid
+
+
+def test_checking_a_session_writes_nothing(tmp_path, stimuli_dir):
+    study = tmp_path / "new" / "study_data"  # not there yet
+    check = check_session(study, stimuli_dir, "P01", study_seed=SEED, n_slots=8)
+    assert (check.participant_id, check.resume, check.n_slots) == ("P01", False, 8)
+    assert check.probe_wav == load_manifest(stimuli_dir)["audio-normal"].wav
+    assert not (tmp_path / "new").exists()
+    p = open_session(check)  # now the folder, the list, the slot and the lock
+    p.release()
+    assert (study / "sub-P01" / ".session.lock").is_file()
+    assert Allocation(study).rows()[0]["participant_id"] == "P01"
+
+
+def test_too_little_disk_space_is_refused_before_anything_is_written(study, stimuli_dir,
+                                                                     monkeypatch):
+    files = snapshot(study)
+    with pytest.raises(ParameterError, match=r"MB free on the disk of .*study_data; a session "
+                                             r"needs at least 1000000 MB"):
+        plan(study, stimuli_dir, "P01", min_free_bytes=10**6 * 2**20)
+    free = type("Usage", (), {"free": 2**20})()
+    monkeypatch.setattr("study.session.shutil.disk_usage", lambda path: free)
+    with pytest.raises(ParameterError, match=r"only 1 MB free"):
+        plan(study, stimuli_dir, "P01")
+    assert snapshot(study) == files and not (study / "sub-P01").exists()
+    assert check_disk_space(study, need=2**20) == 2**20
+
+
+def test_a_session_refused_after_the_lock_removes_the_lock_and_its_folder(tmp_path, stimuli_dir):
+    """Between the check and the claim, another terminal took the last slot: the refusal
+    leaves no lock file, no participant folder and no slot behind."""
+    study = tmp_path / "study_data"
+    Allocation(study).create(2, SEED)
+    Allocation(study).assign("P01")
+    check = check_session(study, stimuli_dir, "P03", study_seed=SEED, n_slots=2)
+    Allocation(study).assign("P02")  # the other terminal
+    files = snapshot(study)
+    with pytest.raises(ParameterError, match="every slot of .* is taken"):
+        open_session(check)
+    assert snapshot(study) == files and not (study / "sub-P03").exists()
+
+
+def test_a_running_session_is_refused_by_the_check(study, stimuli_dir):
+    pid = pid_of(study, "RS")
+    p = plan(study, stimuli_dir, pid)
+    try:
+        files = snapshot(study)
+        with pytest.raises(ParameterError, match="is already running"):
+            check_session(study, stimuli_dir, pid, study_seed=SEED)
+        assert snapshot(study) == files
+    finally:
+        p.release()
+    check_session(study, stimuli_dir, pid, study_seed=SEED)  # free again

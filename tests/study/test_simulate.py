@@ -16,7 +16,7 @@ from face_model.alignment import align_markers
 from face_model.corpus import Corpus
 from face_model.errors import ParameterError
 from study.classifier import classifier_corpus, observer_classifier
-from study.data import N_TRIALS, data_path, sidecar_path
+from study.data import N_TRIALS, Allocation, data_path, sidecar_path
 from study.design import (
     AUDIO,
     EXPRESSIONS,
@@ -237,3 +237,97 @@ def test_observer_classifier_is_the_default_classifier_on_that_corpus(small_corp
     assert clf.describe() == ref.describe()
     m = small_corpus.utterances[0].markers
     np.testing.assert_array_equal(clf.predict_frames(m), ref.predict_frames(m))
+
+
+# --- an interrupted simulation is resumed: the folder ends up as an uninterrupted run's --------
+def _interrupt_after(monkeypatch, k: int, *, torn: bool):
+    """Interrupt the simulation at the ``k``-th judgment it writes (a kill in the middle of
+    writing that row when ``torn``: half of it reaches the file)."""
+    from study.data import SessionFile
+
+    append, calls = SessionFile.append, []
+
+    def interrupted(self, row):
+        calls.append(row)
+        if len(calls) == k:
+            if torn:
+                append(self, row)
+                data = self.path.read_bytes()
+                cut = data.rfind(b"\n", 0, len(data) - 1) + 1
+                self.path.write_bytes(data[:cut + (len(data) - cut) // 2])
+            raise KeyboardInterrupt
+        return append(self, row)
+
+    monkeypatch.setattr(SessionFile, "append", interrupted)
+
+
+def _slots(study):
+    return [(r["slot"], r["sequence"], r["participant_id"], r["status"])
+            for r in Allocation(study).rows()]
+
+
+def _files(study):
+    return {q.relative_to(study): q.read_bytes() for q in sorted(study.rglob("*"))
+            if q.is_file() and not q.name.startswith(".") and not q.name.startswith("allocation")}
+
+
+@pytest.mark.parametrize("where", ["mid-row", "between participants", "before the status"])
+def test_an_interrupted_simulation_resumes_to_the_uninterrupted_files(
+        make_stimuli, classifier, tmp_path, monkeypatch, where):
+    stimuli = make_stimuli(1.0)
+    kw = dict(n=4, seed=5, study_seed=99)
+    whole = simulate_study(tmp_path / "whole", stimuli, classifier, **kw)
+    study = tmp_path / "cut"
+    with monkeypatch.context() as m:
+        if where == "mid-row":  # SIM03's 11th judgment half written
+            _interrupt_after(m, 2 * N_TRIALS + 11, torn=True)
+        elif where == "between participants":  # SIM02 holds its slot, nothing written yet
+            _interrupt_after(m, N_TRIALS + 1, torn=False)
+        else:  # SIM02's files complete, its slot not yet marked complete
+            set_status = Allocation.set_status
+            m.setattr(Allocation, "set_status", lambda self, pid, status: (
+                (_ for _ in ()).throw(KeyboardInterrupt) if pid == "SIM02"
+                else set_status(self, pid, status)))
+        with pytest.raises(KeyboardInterrupt):
+            simulate_study(study, stimuli, classifier, **kw)
+    before = _files(study)
+    assert before != _files(tmp_path / "whole")
+    res = simulate_study(study, stimuli, classifier, progress=True, **kw)
+    assert _files(study) == _files(tmp_path / "whole")  # byte for byte
+    assert _slots(study) == _slots(tmp_path / "whole")
+    assert res["sequences"] == whole["sequences"] and res["participants"] == whole["participants"]
+    kept = {"mid-row": ["SIM01", "SIM02"], "between participants": ["SIM01"],
+            "before the status": ["SIM01"]}[where]
+    assert res["kept"] == kept
+    assert res["resumed"] == {"mid-row": ["SIM03"], "between participants": ["SIM02"],
+                              "before the status": ["SIM02"]}[where]
+    for q, data in before.items():  # nothing written before the interruption was rewritten
+        if q.name != f"{q.parent.name}_task-emotion_beh.csv" or q.parent.name[4:] in kept:
+            assert (study / q).read_bytes() == data
+
+
+def test_a_simulation_is_resumed_only_with_its_own_settings(make_stimuli, classifier,
+                                                            tmp_path, monkeypatch):
+    stimuli = make_stimuli(1.0)
+    study = tmp_path / "s"
+    with monkeypatch.context() as m:
+        _interrupt_after(m, N_TRIALS + 5, torn=False)
+        with pytest.raises(KeyboardInterrupt):
+            simulate_study(study, stimuli, classifier, n=3, seed=5, study_seed=99)
+    files = {q: q.read_bytes() for q in study.rglob("*") if q.is_file()}
+    with pytest.raises(ParameterError, match=r"sub-SIM01_task-emotion_beh\.csv is not what this "
+                                             r"simulation writes"):
+        simulate_study(study, stimuli, classifier, n=3, seed=6, study_seed=99)
+    with pytest.raises(ParameterError, match=r"allocation list \(n=3, seed=99\), not the one "
+                                             r"of this simulation \(n=4"):
+        simulate_study(study, stimuli, classifier, n=4, seed=5, study_seed=99)
+    assert {q: q.read_bytes() for q in study.rglob("*") if q.is_file()} == files
+    res = simulate_study(study, stimuli, classifier, n=3, seed=5, study_seed=99)
+    assert (res["kept"], res["resumed"]) == (["SIM01"], ["SIM02"])
+
+
+def test_the_progress_bar_counts_participants(make_stimuli, classifier, tmp_path, capsys):
+    simulate_study(tmp_path / "s", make_stimuli(1.0), classifier, n=3, seed=1, study_seed=2,
+                   progress=True)
+    err = capsys.readouterr().err
+    assert "simulated participants" in err and "3/3" in err

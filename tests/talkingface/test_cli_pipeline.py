@@ -135,7 +135,7 @@ def test_ui_serves_the_same_store_on_localhost(workdir, monkeypatch, capsys):
     import talkingface.cli as cli
 
     calls = []
-    monkeypatch.setattr(cli.subprocess, "call", lambda cmd: calls.append(cmd) or 0)
+    monkeypatch.setattr(cli, "serve", lambda cmd: calls.append(cmd) or 0)
     assert main(["ui", "--port", "5099"]) == 0
     cmd = calls[0]
     assert cmd[cmd.index("--host") + 1] == "127.0.0.1" and cmd[cmd.index("--port") + 1] == "5099"

@@ -143,3 +143,51 @@ def test_real_stages_declare_what_a_study_and_a_mapping_setting_rerun(tmp_path):
                                                   "analysis", "ablations", "report"]
     tracked = load_config(None, ["mapping.visual_source=tracked"])
     assert stale(REPLICATION, paths, tracked)[:2] == ["tracked", "mapping"]
+
+
+def test_a_failing_stage_leaves_the_previous_result_exactly_as_it_was(toy):
+    stages, paths, calls, _ = toy
+    run_stages(["units"], stages, paths, Config())
+    before = {p.name: p.read_bytes() for p in paths.stage("units").iterdir()}
+
+    def broken(p, cfg):
+        (p.stage("units") / "out.txt").write_text("half")
+        raise RuntimeError("killed mid-way")
+
+    stages["units"] = dataclasses.replace(stages["units"], run=broken)
+    with pytest.raises(RuntimeError, match="killed mid-way"):
+        run_stages(["units"], stages, paths, load_config(None, ["units.n_utterance=6"]))
+    assert {p.name: p.read_bytes() for p in paths.stage("units").iterdir()} == before
+    # the next run clears what the failed build left and builds afresh
+    stages["units"] = _toy_stages(calls, paths.root / "x")["units"]
+    run_stages(["units"], stages, paths, load_config(None, ["units.n_utterance=6"]))
+    assert not list(paths.root.glob(".*"))  # no .partial or .replaced folder left
+
+
+def test_a_guard_refuses_to_replace_a_folder(toy):
+    stages, paths, calls, _ = toy
+    run_stages(["units"], stages, paths, Config())
+
+    def refuse(folder):
+        raise ParameterError(f"{folder} holds real participants")
+
+    stages["units"] = dataclasses.replace(stages["units"], guard=refuse)
+    before = (paths.stage("units") / "done.json").read_bytes()
+    with pytest.raises(ParameterError, match="holds real participants"):
+        run_stages(["units"], stages, paths, load_config(None, ["units.n_utterance=6"]))
+    assert (paths.stage("units") / "done.json").read_bytes() == before
+
+
+def test_study_data_with_real_participants_is_never_replaced(tmp_path):
+    from talkingface.stages.study import keep_real_participants, real_participants
+
+    folder = tmp_path / "study_data"
+    for pid, simulated in (("SIM01", "true"), ("P01", "false")):
+        (folder / f"sub-{pid}").mkdir(parents=True)
+        (folder / f"sub-{pid}" / f"sub-{pid}_task-emotion_beh.csv").write_text(
+            f"\ufeffparticipant_id,simulated\n{pid},{simulated}\n")
+    assert real_participants(folder) == ["P01"]
+    with pytest.raises(ParameterError, match=r"holds the judgments of real participants \(P01\)"):
+        keep_real_participants(folder)
+    (folder / "sub-P01" / "sub-P01_task-emotion_beh.csv").unlink()
+    keep_real_participants(folder)  # simulated only: may be remade

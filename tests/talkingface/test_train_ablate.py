@@ -169,6 +169,21 @@ def test_ui_front_page_answers_http_200(workdir):
                 time.sleep(0.5)
         assert status == 200
         assert "mlflow" in body.lower()
+        # SIGTERM to `talkingface ui` alone (as a process manager stops it) stops the server
+        # and its workers too: nothing of its process group is left running
+        proc.terminate()
+        assert proc.wait(timeout=60) is not None
+        for _ in range(120):
+            try:
+                os.killpg(proc.pid, 0)
+            except ProcessLookupError:
+                break
+            time.sleep(0.5)
+        else:
+            raise AssertionError("the MLflow server outlived `talkingface ui`")
     finally:
-        os.killpg(proc.pid, 15)
+        try:
+            os.killpg(proc.pid, 9)
+        except ProcessLookupError:
+            pass
         proc.wait(timeout=30)

@@ -1,0 +1,77 @@
+"""Outputs that are never half-written under their final name.
+
+A file is written to a temporary name beside it and renamed into place (``os.replace`` is atomic
+on one file system); a folder is built beside its target and swapped in only when complete, the
+previous folder removed only after the new one is in place. A killed process leaves the previous
+output intact and at most a dot-named leftover, which the next build clears.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+from contextlib import contextmanager
+from pathlib import Path
+
+from face_model.errors import ParameterError
+
+
+def partial_path(path) -> Path:
+    """The temporary name of ``path`` while it is being written (same folder, same suffix, so
+    tools that choose the format by extension still do)."""
+    path = Path(path)
+    return path.with_name(f".{path.stem}.partial{path.suffix}")
+
+
+@contextmanager
+def atomic_file(path):
+    """Yield a temporary path to write; on success it becomes ``path``, on failure it is
+    removed and ``path`` is untouched."""
+    path = Path(path)
+    tmp = partial_path(path)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def fresh_partial_folder(folder) -> Path:
+    """An empty folder beside ``folder`` to build it in (what an interrupted build left there
+    is removed: it was never used)."""
+    folder = Path(folder)
+    partial = folder.parent / f".{folder.name}.partial"
+    if partial.exists():
+        shutil.rmtree(partial)
+    partial.mkdir(parents=True)
+    return partial
+
+
+def swap_in(partial, folder) -> Path:
+    """Rename the finished ``partial`` folder to ``folder``; the previous ``folder`` is removed
+    only after the new one is in place."""
+    partial, folder = Path(partial), Path(folder)
+    old = folder.parent / f".{folder.name}.replaced"
+    if old.exists():
+        shutil.rmtree(old)
+    if folder.exists():
+        os.replace(folder, old)
+    os.replace(partial, folder)
+    if old.exists():
+        shutil.rmtree(old)
+    return folder
+
+
+def check_output_file(path, what: str = "output file") -> Path:
+    """Refuse an output path that is a folder or whose folder cannot be written, before any
+    work is done (its folder is created when missing)."""
+    path = Path(path)
+    if path.is_dir():
+        raise ParameterError(f"{what} {path} is a folder; give a file name")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ParameterError(f"{what} {path}: cannot create its folder ({exc.strerror})") from None
+    if not os.access(path.parent, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        raise ParameterError(f"{what} {path}: not writable")
+    return path
