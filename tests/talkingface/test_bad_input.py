@@ -56,10 +56,13 @@ def world(tmp_path_factory):
     arr = np.load(m)
     arr[3, 5, 0] = np.nan
     np.save(m, arr)
-    tfmap = next((root / "runs" / "R" / "mapping").glob("*.tfmap"))
-    (root / "truncated.tfmap").write_bytes(tfmap.read_bytes()[:200])
+    # model files beside the run's own, so that --model reaches the loader (its Motion Units
+    # are found next to it)
+    models = root / "runs" / "R" / "mapping"
+    tfmap = next(models.glob("*.tfmap"))
+    (models / "truncated.tfmap").write_bytes(tfmap.read_bytes()[:200])
     marker = root / "pwned"
-    (root / "evil.tfmap").write_bytes(
+    (models / "evil.tfmap").write_bytes(
         b'{"format": "talkingface.mapping/2"}\n'
         + pickle.dumps(_Touch(str(marker))))
     return root
@@ -135,8 +138,10 @@ CASES = [
     (["stream", "--fast"], ["WAV file or --mic"]),
     (["stream", "missing.wav", "--fast", "--model", "R"], ["missing.wav"]),
     # model files
-    (["animate", "speech.wav", "-o", "o.mp4", "--model", "truncated.tfmap"], ["truncated.tfmap"]),
-    (["animate", "speech.wav", "-o", "o.mp4", "--model", "evil.tfmap"], ["evil.tfmap"]),
+    (["animate", "speech.wav", "-o", "o.mp4", "--model", "runs/R/mapping/truncated.tfmap"],
+     ["truncated.tfmap"]),
+    (["animate", "speech.wav", "-o", "o.mp4", "--model", "runs/R/mapping/evil.tfmap"],
+     ["evil.tfmap"]),
     # study ids and study data
     (["study", "run", "--participant", "P03\n", "--study-dir", "runs/R/study_data",
       "--stimuli", "runs/R/stimuli"], ["P03"]),
@@ -145,6 +150,13 @@ CASES = [
     (["study", "release", "--participant", "NOBODY", "--study-dir", "runs/R/study_data"],
      ["NOBODY"]),
     (["analyze", "missing_study"], ["missing_study"]),
+    (["study", "allocate", "--study-dir", "runs/R/study_data", "--n", "8"], ["allocation"]),
+    (["study", "simulate", "--n", "4", "--study-dir", "sd2", "--stimuli", "missing_stim"],
+     ["missing_stim"]),
+    (["study", "stimuli", "--name", "R\n", *TINY], ["'R\\n'"]),
+    (["track", "--name", "R", *QUICK[:-2], "--set", "tracker.corpus_noise_sd=-3"],
+     ["tracker.corpus_noise_sd"]),
+    (["ui", "--config", "bad.yaml"], ["bad.yaml"]),
 ]
 
 
@@ -156,7 +168,8 @@ def test_bad_input_gets_one_clear_line_and_changes_nothing(world, monkeypatch, c
 
 def test_a_pickled_model_is_refused_without_running_it(world, monkeypatch, capsys):
     refused(world, monkeypatch, capsys,
-            ["animate", "speech.wav", "-o", "o.mp4", "--model", "evil.tfmap"], "evil.tfmap")
+            ["animate", "speech.wav", "-o", "o.mp4", "--model", "runs/R/mapping/evil.tfmap"],
+            "evil.tfmap")
     assert not (world / "pwned").exists()
 
 

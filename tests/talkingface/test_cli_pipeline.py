@@ -51,6 +51,9 @@ def test_replicate_writes_runs_report_and_mlflow(workdir, capsys):
     runs = mlflow.search_runs(experiment_names=["talkingface"], output_format="list")
     assert len(runs) == 1
     r = runs[0]
+    # the UI opens the experiment on its training runs, not on its GenAI pages
+    tags = mlflow.get_experiment_by_name("talkingface").tags
+    assert tags["mlflow.experimentKind"] == "custom_model_development"
     assert r.data.params["synth.n_sentences"] == "3"
     assert r.data.metrics["corpus.n_utterances"] == 9
     assert abs(r.data.metrics["units.explained.neutral"]
