@@ -210,7 +210,15 @@ def load_corpus(root, *, resample_to: int | None = None) -> Corpus:
     if not manifest.is_file():
         raise CorpusError(f"{manifest}: manifest not found (is {root} a corpus folder?)")
     info_path = root / "corpus.json"
-    info = json.loads(info_path.read_text()) if info_path.is_file() else {}
+    info = {}
+    if info_path.is_file():
+        try:
+            info = json.loads(info_path.read_text(encoding="utf-8"))
+        except (ValueError, UnicodeDecodeError) as exc:
+            raise CorpusError(f"{info_path}: not valid JSON ({exc}); restore it or make the "
+                              "corpus again") from None
+        if not isinstance(info, dict):
+            raise CorpusError(f"{info_path}: expected a JSON object, got {type(info).__name__}")
     with open(manifest, newline="", encoding="utf-8-sig") as f:
         reader = csv.DictReader(f)
         missing = [c for c in MANIFEST_COLUMNS if c not in (reader.fieldnames or [])]

@@ -51,7 +51,11 @@ def find_model(model: str | None, runs_dir="runs") -> tuple[Path, Path]:
         if not (run / "mapping" / "done.json").is_file():
             raise ParameterError(f"--model {model}: no trained mapping in {run}/mapping (train "
                                  "it with `talkingface train --name NAME`)")
-    done = json.loads((run / "mapping" / "done.json").read_text())
+    try:
+        done = json.loads((run / "mapping" / "done.json").read_text(encoding="utf-8"))
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise ParameterError(f"{run / 'mapping' / 'done.json'}: not valid JSON ({exc}); train "
+                             "the run again") from None
     models = done.get("models", {})
     if not models:
         raise ParameterError(f"{run}/mapping holds no saved model")

@@ -66,8 +66,18 @@ class Stage:
 
 
 def read_done(folder: Path) -> dict | None:
+    """A stage folder's ``done.json`` (None when the stage has not finished there)."""
     p = Path(folder) / DONE
-    return json.loads(p.read_text()) if p.is_file() else None
+    if not p.is_file():
+        return None
+    try:
+        done = json.loads(p.read_text(encoding="utf-8"))
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise ParameterError(f"{p}: not valid JSON ({exc}); it is written last and only by the "
+                             f"pipeline: remove {p.parent} to make that stage again") from None
+    if not isinstance(done, dict) or "fingerprint" not in done:
+        return None  # a record of an older version: the stage is made again
+    return done
 
 
 def write_csv(path: Path, rows: list[dict]) -> Path:

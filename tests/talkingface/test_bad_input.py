@@ -50,6 +50,13 @@ def world(tmp_path_factory):
     (root / "utf16.yaml").write_bytes("synth:\n  speakers: 2\n".encode("utf-16"))
     (root / "list.yaml").write_text("- synth\n")
     (root / "a_folder").mkdir()
+    bad_info = root / "bad_info_corpus"
+    shutil.copytree(root / "c", bad_info)
+    (bad_info / "corpus.json").write_text("{ damaged")
+    damaged = root / "runs" / "D"  # a run whose records were damaged by hand
+    shutil.copytree(root / "runs" / "R", damaged)
+    for done in damaged.glob("*/done.json"):
+        done.write_text('{"fingerprint": ')
     nan = root / "nan_corpus"
     shutil.copytree(root / "c", nan)
     m = next((nan / "markers").glob("*.npy"))
@@ -157,6 +164,10 @@ CASES = [
     (["track", "--name", "R", *QUICK[:-2], "--set", "tracker.corpus_noise_sd=-3"],
      ["tracker.corpus_noise_sd"]),
     (["ui", "--config", "bad.yaml"], ["bad.yaml"]),
+    # damaged records
+    (["units", "--corpus", "bad_info_corpus", "--out", "u"], ["corpus.json"]),
+    (["report", "--name", "D"], ["done.json"]),
+    (["animate", "speech.wav", "-o", "o.mp4", "--model", "D"], ["done.json"]),
 ]
 
 
