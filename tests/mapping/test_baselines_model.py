@@ -11,15 +11,13 @@ import pytest
 from face_model.audio import resample
 from face_model.errors import NotFittedError, ParameterError
 from face_model.motion_units import fit_corpus_units
-from face_model.phones import PHONES
 from mapping import BASELINES, METHODS, Baseline, GatedMLP, build_dataset, make_mapper, mfcc
 from mapping.checkpoint import FORMAT, AudioMapping, rest_mups
 from mapping.config import MappingConfig, TrainSettings
-from mapping.dataset import UttData, split_masks
+from mapping.dataset import split_masks
 from mapping.features import audio_features, frame_rms_dbfs
+from tests.mapping.phone_runs import A0, N_FEAT, phone_run_data
 
-A0, AK, N_FEAT = 3, 2, 4
-SPOKEN = ("iy", "aa", "m", "sil")
 # Short training of every network: the synthetic mapping is easy.
 TRAIN = TrainSettings(max_epochs=150, patience=25)
 
@@ -31,24 +29,8 @@ def config(**changes) -> MappingConfig:
     return dataclasses.replace(MappingConfig(), **base)
 
 
-def synthetic_data(seed: int = 0, n_utt: int = 4, n_seg: int = 10, seg_len: int = 7) -> list:
-    """Runs of phones with one feature cluster each; MUPs a known nonlinear function of the
-    current frame's features, plus an offset for the expression part of smiling speech."""
-    rng = np.random.default_rng(seed)
-    centres = np.random.default_rng(99).normal(0, 3, (len(SPOKEN), N_FEAT))
-    W = np.random.default_rng(98).normal(0, 0.6, (N_FEAT, A0))
-    data = []
-    for e in ("neutral", "smile"):
-        for i in range(n_utt):
-            k = np.repeat(rng.integers(len(SPOKEN), size=n_seg), seg_len)
-            feats = centres[k] + rng.standard_normal((len(k), N_FEAT))
-            c0 = np.tanh(feats @ W)
-            ck = (np.zeros((len(k), AK)) if e == "neutral"
-                  else np.array([1.5, -1.0]) + 0.5 * c0[:, :AK])
-            data.append(UttData(f"s0_{e}_{i}", "s0", e, f"sentence {i}", feats.astype(np.float32),
-                                np.concatenate([c0, ck], 1).astype(np.float32),
-                                np.array([PHONES.index(SPOKEN[j]) for j in k])))
-    return data
+def synthetic_data(seed: int = 0) -> list:
+    return phone_run_data(seed, n_utt=4, n_seg=10, seg_len=7)
 
 
 @pytest.fixture(scope="module")

@@ -14,38 +14,20 @@ import numpy as np
 import pytest
 
 from face_model.errors import ParameterError
-from face_model.phones import PHONES
 from mapping import BASELINES, Baseline, GatedMLP
 from mapping.checkpoint import FORMAT, AudioMapping, checksum
 from mapping.config import TrainSettings
-from mapping.dataset import UttData, split_masks
+from mapping.dataset import split_masks
 from mapping.nets import NetRegressor
+from tests.mapping.phone_runs import A0, phone_run_data
 
-A0, AK, N_FEAT = 3, 2, 4
-SPOKEN = ("iy", "aa", "m", "sil")
 EXPRESSIONS = ("neutral", "smile", "sad")
 # Round trips need trained models, not good ones: a few epochs.
 TRAIN = TrainSettings(max_epochs=12, patience=4)
 
 
-def synthetic_data(seed: int = 0, n_utt: int = 3, n_seg: int = 10, seg_len: int = 6) -> list:
-    """Runs of phones with one feature cluster each; MUPs a nonlinear function of the features,
-    with an expression offset."""
-    rng = np.random.default_rng(seed)
-    centres = np.random.default_rng(99).normal(0, 3, (len(SPOKEN), N_FEAT))
-    W = np.random.default_rng(98).normal(0, 0.6, (N_FEAT, A0))
-    offset = {"smile": np.array([1.5, -1.0]), "sad": np.array([-1.2, 0.8])}
-    data = []
-    for e in EXPRESSIONS:
-        for i in range(n_utt):
-            k = np.repeat(rng.integers(len(SPOKEN), size=n_seg), seg_len)
-            feats = centres[k] + rng.standard_normal((len(k), N_FEAT))
-            c0 = np.tanh(feats @ W)
-            ck = np.zeros((len(k), AK)) if e == "neutral" else offset[e] + 0.5 * c0[:, :AK]
-            data.append(UttData(f"s0_{e}_{i}", "s0", e, f"sentence {i}", feats.astype(np.float32),
-                                np.concatenate([c0, ck], 1).astype(np.float32),
-                                np.array([PHONES.index(SPOKEN[j]) for j in k])))
-    return data
+def synthetic_data(seed: int = 0, n_utt: int = 3) -> list:
+    return phone_run_data(seed, n_utt=n_utt, n_seg=10, seg_len=6, expressions=EXPRESSIONS)
 
 
 @pytest.fixture(scope="module")
