@@ -62,12 +62,14 @@ def swap_in(partial, folder) -> Path:
     return folder
 
 
-def check_output_file(path, what: str = "output file") -> Path:
-    """Refuse an output path that is a folder or whose folder cannot be written, before any
-    work is done (its folder is created when missing)."""
+def check_output_file(path, what: str = "output file", *, overwrite: bool = False) -> Path:
+    """Refuse an output path that is a folder, that exists (unless ``overwrite``) or whose folder
+    cannot be written, before any work is done (its folder is created when missing)."""
     path = Path(path)
     if path.is_dir():
         raise ParameterError(f"{what} {path} is a folder; give a file name")
+    if path.exists() and not overwrite:
+        raise ParameterError(f"{what} {path} already exists; pass --overwrite to replace it")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

@@ -81,15 +81,16 @@ def read_speech(path) -> tuple[np.ndarray, int, str | None]:
 
 def animate_file(wav, out_mp4, *, expression: str = "neutral", model: str | None = None,
                  markers_out=None, keyframes_out=None, runs_dir="runs",
-                 progress: bool = True) -> dict:
-    """WAV → MP4 (and optionally markers .npy and keyframe tracks); returns a summary."""
+                 progress: bool = True, overwrite: bool = False) -> dict:
+    """WAV → MP4 (and optionally markers .npy and keyframe tracks); returns a summary. An
+    existing output file is replaced only with ``overwrite``."""
     animator, tfmap = load_animator(model, runs_dir)
     animator.check_expression(expression)
     # every output and input is checked before the render, so a mistake costs no work
-    check_output_file(out_mp4, "--out")
+    check_output_file(out_mp4, "--out", overwrite=overwrite)
     for path, what in ((markers_out, "--markers"), (keyframes_out, "--keyframes")):
         if path:
-            check_output_file(path, what)
+            check_output_file(path, what, overwrite=overwrite)
     keyframes = None
     if keyframes_out:
         if Path(keyframes_out).suffix not in (".json", ".csv"):

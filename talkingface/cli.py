@@ -169,7 +169,8 @@ def serve(cmd: list) -> int:
 
 def cmd_animate(args) -> int:
     res = animate_file(args.wav, args.out, expression=args.expression, model=args.model,
-                       markers_out=args.markers, keyframes_out=args.keyframes)
+                       markers_out=args.markers, keyframes_out=args.keyframes,
+                       overwrite=args.overwrite)
     if res["warning"]:
         print(f"warning: {res['warning']}", file=sys.stderr)
     print(f"{args.out}: {res['frames']} frames ({res['audio_s']:.2f} s of audio) in "
@@ -287,6 +288,7 @@ def _face_commands(sub) -> None:
     s.add_argument("--expression", default="neutral", help="neutral, smile or sad")
     s.add_argument("--model", help="run name, run folder or .tfmap (default: the latest run)")
     s.add_argument("--markers", type=Path, help="also write the markers (n_frames, 79, 2) .npy")
+    s.add_argument("--overwrite", action="store_true", help="replace output files that exist")
     s.add_argument("--keyframes", type=Path, help="also write keyframe tracks (.json or .csv: "
                    "weights of smile, sad, i, a, o, f, u, m per frame)")
     s.set_defaults(func=cmd_animate)

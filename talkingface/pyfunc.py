@@ -26,6 +26,7 @@ from face_model.errors import ParameterError
 from mapping.checkpoint import AudioMapping
 
 REPO = Path(__file__).resolve().parents[1]
+MODEL_CODE = Path(__file__).with_name("pyfunc_model.py")  # models from code: nothing pickled
 CODE_PATHS = [str(REPO / p) for p in ("face_model", "mapping", "talkingface")]
 
 
@@ -70,7 +71,8 @@ def _as_items(model_input) -> tuple[list, bool]:
 
 
 def log_mapping_model(mlf, model_path: Path, *, name: str = "mapping"):
-    """Log ``model_path`` (an ``AudioMapping`` file) as a pyfunc model of the active run."""
+    """Log ``model_path`` (an ``AudioMapping`` file) as a pyfunc model of the active run, from
+    code (:mod:`talkingface.pyfunc_model`): the logged model holds source and data, no pickle."""
     # No input schema: the input is a path, a dict or a list, which a column schema would turn
     # into a DataFrame; the params schema carries the expression.
     signature = ModelSignature(inputs=None,
@@ -80,7 +82,7 @@ def log_mapping_model(mlf, model_path: Path, *, name: str = "mapping"):
         # hints or an input example does not apply; every other warning still shows.
         warnings.filterwarnings("ignore", message=".*type hints.*", category=UserWarning)
         warnings.filterwarnings("ignore", message=".*input example.*", category=UserWarning)
-        return mlf.pyfunc.log_model(name=name, python_model=MappingModel(),
+        return mlf.pyfunc.log_model(name=name, python_model=str(MODEL_CODE),
                                     artifacts={"mapping": str(model_path)},
                                     code_paths=CODE_PATHS, signature=signature,
                                     pip_requirements=_requirements())

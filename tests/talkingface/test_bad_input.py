@@ -137,6 +137,7 @@ CASES = [
     (["animate", "empty.wav", "-o", "o.mp4", "--model", "R"], ["empty.wav"]),
     (["animate", "corrupt.wav", "-o", "o.mp4", "--model", "R"], ["corrupt.wav"]),
     (["animate", "speech.wav", "-o", "a_folder", "--model", "R"], ["a_folder"]),
+    (["animate", "speech.wav", "-o", "speech.wav", "--model", "R"], ["speech.wav", "--overwrite"]),
     (["animate", "speech.wav", "-o", "o.mp4", "--model", "R", "--expression", "angry"],
      ["angry"]),
     (["animate", "speech.wav", "-o", "o.mp4", "--model", "R", "--keyframes", "k.txt"],
@@ -261,7 +262,7 @@ def test_a_killed_animate_leaves_the_previous_mp4_as_it_was(world):
         mp.chdir(world)
         assert main(["animate", "speech.wav", "-o", "kept.mp4", "--model", "R"]) == 0
     before = _final_files(world)
-    _kill_when(["animate", "long.wav", "-o", "kept.mp4", "--model", "R"], world,
+    _kill_when(["animate", "long.wav", "-o", "kept.mp4", "--model", "R", "--overwrite"], world,
                lambda: (world / ".kept.partial.mp4").exists()
                and (world / ".kept.partial.mp4").stat().st_size > 50_000)
     assert _final_files(world) == before  # the old MP4 intact, no short one under its name

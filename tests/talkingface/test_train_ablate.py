@@ -67,6 +67,11 @@ def test_train_logs_a_pyfunc_model_that_predicts_from_a_wav(workdir, capsys):
     assert {"mapping/tables.csv", "mapping/trajectories.png",
             "mapping/gated_mlp_utterance.tfmap"} <= artifacts
 
+    # models are data: the logged model is source code plus the .tfmap, no pickled object
+    local = Path(mlflow.artifacts.download_artifacts(model.model_uri, dst_path=str(workdir / "m")))
+    assert not [p for p in local.rglob("*") if p.suffix in (".pkl", ".pickle", ".cloudpickle")]
+    assert "pyfunc_model.py" in (local / "MLmodel").read_text()
+
     wav = sorted((workdir / "runs" / "t" / "corpus" / "audio").glob("*.wav"))[0]
     loaded = mlflow.pyfunc.load_model(model.model_uri)
     mups = loaded.predict(str(wav))
