@@ -4,6 +4,11 @@ of offline animation (markers, rendering and H.264 encoding) as a multiple of re
 Targets: streaming per-frame compute (MFCC of the new hop + gate + MLP + cascade + Eq. 2
 reconstruction) p99 <= 1 ms on one core; algorithmic latency = 3-frame look-ahead + half an
 analysis window. Runs on one core (BLAS and torch threads set to 1).
+
+``--cmvn MODE`` streams a model trained with that causal cepstral normalisation (issue 12);
+``--cmvn compare`` trains one model without CMVN and one with "meanvar" on the same data, streams
+the same utterances through both (interleaved, so machine load hits both alike) and reports the
+per-frame cost of each and their ratio (target: <= 1.25). ``--sentences N`` shrinks the corpus.
 """
 from __future__ import annotations
 
@@ -12,12 +17,14 @@ import os
 for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[var] = "1"
 
+import argparse  # noqa: E402
+import dataclasses  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
-from _common import parse_args, report  # noqa: E402
+from _common import report  # noqa: E402
 
 from data_synth.generate import synthesize_corpus  # noqa: E402
 from face_model.corpus import load_corpus  # noqa: E402
@@ -29,33 +36,61 @@ from mapping.checkpoint import AudioMapping, rest_mups  # noqa: E402
 from talkingface.config import Config  # noqa: E402
 
 
+def parse_args() -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+    p.add_argument("--repeat", type=int, default=3, help="timed passes over the test utterances")
+    p.add_argument("--cmvn", choices=("none", "mean", "meanvar", "compare"), default="none",
+                   help="the model's cepstral normalisation, or 'compare' (none vs meanvar)")
+    p.add_argument("--sentences", type=int, default=0,
+                   help="corpus sentences (default: the paper's config)")
+    return p.parse_args()
+
+
+def stream_costs(anims: dict, test, repeat: int) -> dict:
+    """Per-frame seconds of StreamingAnimator.push for each animator, one hop per push."""
+    per_frame = {k: [] for k in anims}
+    for _ in range(repeat):
+        for u in test:
+            for name, anim in anims.items():
+                s = StreamingAnimator(anim, u.expression)
+                for i in range(0, len(u.audio), s.hop):  # one hop per push: one frame each
+                    t0 = time.perf_counter()
+                    out = s.push(u.audio[i:i + s.hop])
+                    if out:
+                        per_frame[name].append((time.perf_counter() - t0) / len(out))
+    return {k: np.array(v) * 1000 for k, v in per_frame.items()}
+
+
 def main() -> None:
     import torch
 
     torch.set_num_threads(1)
-    args = parse_args(__doc__.splitlines()[0])
+    args = parse_args()
     cfg = Config()
+    if args.sentences:
+        cfg = dataclasses.replace(cfg, synth=dataclasses.replace(cfg.synth,
+                                                                 n_sentences=args.sentences))
+    modes = ["none", "meanvar"] if args.cmvn == "compare" else [args.cmvn]
     with tempfile.TemporaryDirectory() as tmp:
         synthesize_corpus(Path(tmp) / "corpus", cfg.synth, cfg.seed, progress=False)
         corpus = load_corpus(Path(tmp) / "corpus")
         units, _ = fit_corpus_units(corpus)
         data = build_dataset(corpus, units)
         masks = split_masks(data, "utterance", seed=cfg.seed)
-        mapper = make_mapper("gated_mlp", cfg.mapping, n_utterance=units.n_utterance,
-                             random_state=cfg.seed).fit(data, masks)
         sr = corpus.utterances[0].sample_rate
-        anim = FaceAnimator(AudioMapping(mapper, sample_rate=sr, n_utterance=units.n_utterance,
-                                         rest_mups=rest_mups(units)), units)
+        anims = {}
+        for mode in modes:
+            mcfg = dataclasses.replace(cfg.mapping, cmvn=mode)
+            mapper = make_mapper("gated_mlp", mcfg, n_utterance=units.n_utterance,
+                                 random_state=cfg.seed).fit(data, masks)
+            anims[mode] = FaceAnimator(AudioMapping(mapper, sample_rate=sr,
+                                                    n_utterance=units.n_utterance,
+                                                    rest_mups=rest_mups(units)), units)
         test = [u for u, m in zip(corpus.utterances, masks) if not m.any()][:20]
-        per_frame = []
-        for _ in range(args.repeat):
-            for u in test:
-                s = StreamingAnimator(anim, u.expression)
-                for i in range(0, len(u.audio), s.hop):  # one hop per push: one frame each
-                    t0 = time.perf_counter()
-                    out = s.push(u.audio[i:i + s.hop])
-                    if out:
-                        per_frame.append((time.perf_counter() - t0) / len(out))
+        costs = stream_costs(anims, test, args.repeat)
+        anim = anims[modes[0]]
+        s = StreamingAnimator(anim)
         u = test[0]
         renderer = FaceRenderer()
         t0 = time.perf_counter()
@@ -69,10 +104,20 @@ def main() -> None:
                   audio_path=wav, progress=False)
         encode_s = time.perf_counter() - t0
     audio_s = len(u.audio) / sr
-    pf = np.array(per_frame) * 1000
-    report({"stream_frame_p50_ms": float(np.percentile(pf, 50)),
-            "stream_frame_p99_ms": float(np.percentile(pf, 99)), "target_p99_ms": 1.0,
-            "frames_measured": len(pf), "algorithmic_latency_ms": 1000 * s.latency_s,
+    figures = {}
+    for mode, pf in costs.items():
+        tag = "" if len(costs) == 1 else f"_{mode}"
+        figures.update({f"stream_frame_p50_ms{tag}": float(np.percentile(pf, 50)),
+                        f"stream_frame_mean_ms{tag}": float(np.mean(pf)),
+                        f"stream_frame_p99_ms{tag}": float(np.percentile(pf, 99))})
+    if len(costs) == 2:
+        a, b = costs["none"], costs["meanvar"]
+        figures.update({"cmvn_cost_ratio_p50": float(np.percentile(b, 50) / np.percentile(a, 50)),
+                        "cmvn_cost_ratio_mean": float(np.mean(b) / np.mean(a)),
+                        "target_cmvn_cost_ratio": 1.25})
+    report({"cmvn": args.cmvn, **figures, "target_p99_ms": 1.0,
+            "frames_measured": sum(len(v) for v in costs.values()),
+            "algorithmic_latency_ms": 1000 * s.latency_s,
             "animate_markers_render_x_realtime": audio_s / render_s,
             "animate_with_encoding_x_realtime": audio_s / (render_s + encode_s)}, args.json)
 

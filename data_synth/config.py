@@ -5,11 +5,41 @@ Every value is checked when the config is made (:mod:`face_model.settings`).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
+from numbers import Real
 
+from data_synth.backends import voice_problem
 from face_model.corpus import EXPRESSIONS
-from face_model.settings import (check_fields, choice, integer, number, require, span,
-                                 subset)
+from face_model.settings import (SettingError, check_fields, choice, integer, number, require,
+                                 span, subset)
+
+
+@dataclass(frozen=True)
+class _Voices:
+    """A list of distinct strings (each an ``"engine:voice"``, checked by ``__post_init__``)."""
+
+    def accepts(self, v) -> bool:
+        return (isinstance(v, (tuple, list)) and all(isinstance(x, str) for x in v)
+                and len(set(v)) == len(v))
+
+    @property
+    def allowed(self) -> str:
+        return "a list of distinct 'engine:voice' strings, e.g. [espeak:en-us+f3, flite:awb]"
+
+
+@dataclass(frozen=True)
+class _Weights:
+    """A list (possibly empty) of finite numbers >= 0."""
+
+    def accepts(self, v) -> bool:
+        return isinstance(v, (tuple, list)) and all(
+            isinstance(x, Real) and not isinstance(x, bool) and math.isfinite(x) and x >= 0
+            for x in v)
+
+    @property
+    def allowed(self) -> str:
+        return "a list of finite numbers >= 0"
 
 
 @dataclass(frozen=True)
@@ -22,6 +52,11 @@ class SynthConfig:
     text_file: str = ""  # empty: the built-in sentences
     backend: str = choice("espeak", "flite", "espeak-ng")  # espeak-ng: another name of espeak
     workers: int = integer(0, ge=0)  # 0: all cores
+    # Voices drawn per utterance, "engine:voice" (data_synth.backends). Empty: `backend`,
+    # `voice` and the per-speaker espeak variants (the paper's single-speaker design); else
+    # those three are not used, and rate and pitch reach each engine through its own controls.
+    voices: tuple = field(default=(), metadata={"rule": _Voices()})
+    voice_weights: tuple = field(default=(), metadata={"rule": _Weights()})  # empty: equal
     # speech (pitch and its range on espeak's 0–100 scale)
     voice: str = "en-us+m3"
     rate_wpm: int = integer(165, gt=0)
@@ -68,6 +103,15 @@ class SynthConfig:
 
     def __post_init__(self):
         check_fields(self)
+        for spec in self.voices:
+            problem = voice_problem(spec)
+            if problem is not None:
+                raise SettingError("voices", spec, problem)
+        w = self.voice_weights
+        require(self, "voice_weights", not w or (len(w) == len(self.voices) and sum(w) > 0),
+                f"empty (equal weights), or one number >= 0 per voice of voices "
+                f"({len(self.voices)}) with a sum > 0", ("voices",))
+        object.__setattr__(self, "voice_weights", tuple(float(x) for x in w))
         for delta in ("smile_rate_delta", "sad_rate_delta"):  # the expression's rate stays > 0
             require(self, delta, self.rate_wpm + getattr(self, delta) > 0,
                     f"an integer > -rate_wpm ({-self.rate_wpm})", ("rate_wpm",))

@@ -3,10 +3,19 @@
 The wheel ships ``libespeak-ng.so`` and its data folder, so no system package is needed. The
 library is initialised once in the parent process; every utterance is synthesised in a forked
 child (``maxtasksperchild=1``), because inside one process only the first synthesis is
-reproducible. This also spreads the work over all cores.
+reproducible. This also spreads the work over all cores. espeak's own noise generator (breath
+noise of variants such as ``f2``–``f5``) is seeded from the clock by the library: it is re-seeded
+with :data:`RAND_SEED` before every utterance, so those variants are reproducible across runs.
 
 Phone events carry the sample position of each phoneme; their mnemonics are mapped to the 44
 classes by :data:`ESPEAK_TO_CLASS`.
+
+Voices are ``<accent>[+<variant>]`` (e.g. ``en-us+m3``): the English accents of
+:data:`ESPEAK_ACCENTS` (espeak-ng's own names; ``en-gb`` is not one of them, ``en`` is British
+English) and the variants of the wheel's ``voices/!v`` folder (:func:`espeak_variants`:
+``f1``–``f5``, ``m1``–``m8``, ``klatt``, ``whisper``, …). Variants change the voice quality,
+never the phones. All are formant synthesis at 22050 Hz, built from no real speaker (source id
+``espeak``).
 """
 from __future__ import annotations
 
@@ -29,6 +38,7 @@ _POS_CHARACTER = 1
 _CHARS_UTF8 = 1
 _EV_LIST_TERMINATED, _EV_WORD, _EV_PHONEME = 0, 1, 7
 _P_RATE, _P_PITCH, _P_RANGE, _P_WORDGAP = 1, 3, 4, 7
+RAND_SEED = 2002  # espeak's noise generator, re-seeded before every utterance
 
 # en-us mnemonics (stress marks stripped) → the 44 classes.
 ESPEAK_TO_CLASS = {
@@ -43,7 +53,41 @@ ESPEAK_TO_CLASS = {
     "A@": "aa", "e@": "eh", "i@": "ih", "i@3": "ih", "U@": "uh", "O@": "ao", "o@": "ao", "O2": "ao", "t2": "t", ";": "y",
     "aI@": "ay", "aI3": "ay", "aU@": "aw", "IR": "ih", "VR": "ah", "ER": "eh",
     "_": "sil", "_:": "sil", "_!": "sil", "_^_": "sil", "?": "sil", "_;_": "sil", "||": "sil",
+    # other English accents: en-gb-scotland's "by" (aI2) and voiceless "wh" (w#); en-029's
+    # dental stops, which stand for "th"/"dh" (th-stopping: "three" = [t[ri:]). The classes have
+    # no dental stop; th/dh share its place of articulation (tongue tip at the upper teeth),
+    # which is what the face shows, while t/d are alveolar.
+    "aI2": "ay", "w#": "w", "t[": "th", "d[": "dh",
 }
+# The English accents espeak-ng 1.52 accepts by name (espeak_SetVoiceByName).
+ESPEAK_ACCENTS = ("en-us", "en-us-nyc", "en", "en-gb-x-rp", "en-gb-scotland", "en-gb-x-gbclan",
+                  "en-gb-x-gbcwmd", "en-029")
+
+
+def espeak_variants() -> tuple[str, ...]:
+    """The voice variants of the wheel's data folder (``voices/!v``), sorted: ``f1``…``m8``,
+    ``klatt``, ``whisper``, ... (104 in espeakng-loader 0.2.4)."""
+    folder = os.path.join(espeakng_loader.get_data_path(), "voices", "!v")
+    return tuple(sorted(os.listdir(folder))) if os.path.isdir(folder) else ()
+
+
+def check_voice(voice: str) -> str:
+    """``voice`` if it is ``<accent>[+<variant>]`` with a known accent and variant.
+
+    Raises
+    ------
+    ParameterError
+        Naming the voice and listing the accents (and, for a bad variant, the variants).
+    """
+    accent, plus, variant = voice.partition("+")
+    if accent not in ESPEAK_ACCENTS:
+        raise ParameterError(f"espeak voice {voice!r}: unknown accent {accent!r}; allowed: "
+                             f"{', '.join(ESPEAK_ACCENTS)}, each optionally with +variant "
+                             "(e.g. en-us+f3)")
+    if plus and variant not in espeak_variants():
+        raise ParameterError(f"espeak voice {voice!r}: unknown variant {variant!r}; allowed: "
+                             f"{', '.join(espeak_variants())}")
+    return voice
 
 
 class _Event(ctypes.Structure):
@@ -94,6 +138,8 @@ def _initialise() -> int:
     if sr <= 0:
         raise RuntimeError(f"espeak_Initialize failed (returned {sr})")
     lib.espeak_SetSynthCallback(_on_synth)
+    lib.espeak_ng_SetRandSeed.argtypes = [ctypes.c_long]
+    lib.espeak_ng_SetRandSeed.restype = None
     lib.espeak_SetVoiceByName.argtypes = [ctypes.c_char_p]
     lib.espeak_SetParameter.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_int]
     lib.espeak_Synth.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_uint, ctypes.c_int,
@@ -111,8 +157,14 @@ def _synth_in_child(req: SynthRequest) -> SynthResult:
     lib = _LIB
     _CHUNKS.clear()
     _EVENTS.clear()
+    # Variants with breath noise (f2, f3, ...) draw from espeak's own generator, which
+    # espeak_Initialize seeds from the clock: fix it so they are reproducible across runs.
+    # (Voices without noise, like en-us+m3, never draw from it: their audio is unchanged.)
+    lib.espeak_ng_SetRandSeed(RAND_SEED)
     if lib.espeak_SetVoiceByName(req.voice.encode()) != 0:
-        raise ParameterError(f"espeak-ng has no voice {req.voice!r} (e.g. 'en-us+m3')")
+        raise ParameterError(f"espeak-ng has no voice {req.voice!r}; allowed: an accent "
+                             f"({', '.join(ESPEAK_ACCENTS)}) with an optional +variant "
+                             "(e.g. 'en-us+m3')")
     lib.espeak_SetParameter(_P_RATE, int(req.rate_wpm), 0)
     lib.espeak_SetParameter(_P_PITCH, int(req.pitch), 0)
     lib.espeak_SetParameter(_P_RANGE, int(req.pitch_range), 0)

@@ -6,6 +6,11 @@ drive the parametric face with them (and with the expression's envelope), add he
 marker noise, and write the corpus contract of DESIGN.md. Every random draw comes from a generator
 seeded by ``(seed, speaker, expression, sentence)``, so the corpus does not depend on the order or
 the number of worker processes, and the same seed gives byte-identical files.
+
+With ``synth.voices`` set, each utterance also draws its voice (:func:`draw_voice`, its own
+stream: no other draw changes), independently of the face: the manifest then has a ``voice``
+column (``engine:voice``) and ``corpus.json`` a ``voices`` list with each voice's real source
+speaker. With ``synth.voices`` empty the corpus is exactly that of the single-voice design.
 """
 from __future__ import annotations
 
@@ -20,7 +25,8 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from data_synth.articulation import coarticulate
-from data_synth.backends import get_backend
+from data_synth.backends import (check_voices_installed, get_backend, parse_voice,
+                                 voice_backend, voice_sample_rate, voice_speaker)
 from data_synth.face import Speaker, articulate, expression_envelope, make_speaker
 from data_synth.nuisance import add_marker_noise, apply_head_motion, brow_track, head_motion
 from data_synth.speech import SynthRequest, phone_segments
@@ -39,6 +45,23 @@ class UtterancePlan:
     sentence_index: int
     text: str
     request: SynthRequest
+    voice: str = ""  # "engine:voice" when synth.voices is set
+
+
+VOICE_STREAM = 48611  # tags the voice draw's generator, apart from every other draw
+
+
+def draw_voice(cfg, seed: int, speaker: int, expression: str, sentence: int) -> str:
+    """The voice (one of ``cfg.voices``, by ``cfg.voice_weights``) of one utterance.
+
+    Drawn from its own generator, seeded by ``(seed, VOICE_STREAM, speaker, expression,
+    sentence)``: the same utterance gets the same voice whatever else the corpus holds, and no
+    other draw of the corpus changes. A voice of weight 0 is never drawn.
+    """
+    w = np.asarray(cfg.voice_weights or [1.0] * len(cfg.voices), dtype=np.float64)
+    rng = np.random.default_rng([seed, VOICE_STREAM, speaker, EXPRESSIONS.index(expression),
+                                 sentence])
+    return cfg.voices[int(rng.choice(len(w), p=w / w.sum()))]
 
 
 def _check(cfg) -> None:
@@ -64,11 +87,14 @@ def plan_corpus(cfg, seed: int) -> tuple[list[Speaker], list[UtterancePlan]]:
         for expr in cfg.expressions:
             dp, dr = prosody[expr]
             for i, text in enumerate(sentences):
-                req = SynthRequest(text=text, voice=spk.voice, rate_wpm=spk.rate_wpm + dr,
+                spec = draw_voice(cfg, seed, spk.index, expr, i) if cfg.voices else ""
+                req = SynthRequest(text=text,
+                                   voice=parse_voice(spec)[1] if spec else spk.voice,
+                                   rate_wpm=spk.rate_wpm + dr,
                                    pitch=int(np.clip(spk.pitch + dp, 0, 100)),
                                    pitch_range=cfg.pitch_range)
                 plans.append(UtterancePlan(f"s{spk.index:02d}_{expr}_{i:03d}", spk.index, expr,
-                                           i, text, req))
+                                           i, text, req, spec))
     return speakers, plans
 
 
@@ -111,6 +137,9 @@ def _check_out(out: Path, overwrite: bool) -> None:
     """Refuse a target that holds anything but a corpus, or a corpus without ``overwrite``."""
     if out.exists() and not out.is_dir():
         raise ParameterError(f"corpus folder {out} is a file; give a folder to create")
+    above = next((p for p in out.parents if p.exists()), None)
+    if above is not None and not above.is_dir():
+        raise ParameterError(f"corpus folder {out}: {above} is a file, not a folder")
     if out.exists() and any(out.iterdir()):
         if not overwrite:
             raise ParameterError(f"corpus folder {out} already exists and is not empty; "
@@ -147,40 +176,59 @@ def synthesize_corpus(out, cfg, seed: int, *, overwrite: bool = False,
     final = Path(out)
     speakers, plans = plan_corpus(cfg, seed)
     _check_out(final, overwrite)
-    backend = get_backend(cfg.backend)
+    if cfg.voices:  # a missing program or voice package is refused before any work
+        used = list(dict.fromkeys(p.voice for p in plans))
+        check_voices_installed(used)
+        backends = {spec: voice_backend(spec) for spec in used}
+    else:
+        backends = {"": get_backend(cfg.backend)}
     # built beside the target and swapped in when complete: a failure keeps the old corpus
     out = fresh_partial_folder(final)
     workers = cfg.workers if cfg.workers > 0 else (os.cpu_count() or 1)
+    results: list = [None] * len(plans)
     with tqdm(total=len(plans), desc="speech", unit="utt", disable=not progress) as bar:
-        results = backend.synthesize_many([p.request for p in plans], workers=workers,
-                                          progress=bar.update)
+        for spec, backend in backends.items():
+            idx = [i for i, p in enumerate(plans) if p.voice == spec]
+            done = backend.synthesize_many([plans[i].request for i in idx], workers=workers,
+                                           progress=bar.update)
+            for i, res in zip(idx, done):
+                results[i] = res
     rows = []
     for plan, res in tqdm(list(zip(plans, results)), desc="faces", unit="utt",
                           disable=not progress):
-        audio, segs, markers = build_utterance(plan, speakers[plan.speaker], res, backend, cfg,
-                                               seed)
+        audio, segs, markers = build_utterance(plan, speakers[plan.speaker], res,
+                                               backends[plan.voice], cfg, seed)
         rel = write_utterance(out, utt_id=plan.utt_id, audio=audio, sr=res.sample_rate,
                               markers=markers, phones=segs)
         rows.append({"utt_id": plan.utt_id, "speaker": f"s{plan.speaker:02d}",
                      "expression": plan.expression, "text": plan.text,
                      "n_frames": markers.shape[0], "fps": FPS, "sample_rate": res.sample_rate,
-                     **rel})
+                     **rel, **({"voice": plan.voice} if cfg.voices else {})})
     write_manifest(out, rows)
+    # Generator settings; `workers` is left out: it changes how fast, never what is made; and
+    # `voices` / `voice_weights` when empty, so the single-voice corpus is described as before.
+    skip = {"workers"} | (set() if cfg.voices else {"voices", "voice_weights"})
     info = {
         "generator": "talkingface.data_synth",
         "seed": seed,
         "layout_version": LAYOUT_VERSION,
-        "backend": backend.version(),
-        # Generator settings; `workers` is left out: it changes how fast, never what is made.
+        "backend": "; ".join(dict.fromkeys(b.version() for b in backends.values())),
         "settings": {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(cfg).items()
-                     if k != "workers"},
+                     if k not in skip},
         "sentences": list(dict.fromkeys(p.text for p in plans)),
-        "speakers": [{"id": f"s{s.index:02d}", "voice": s.voice, "rate_wpm": s.rate_wpm,
+        "speakers": [{"id": f"s{s.index:02d}",
+                      **({} if cfg.voices else {"voice": s.voice}), "rate_wpm": s.rate_wpm,
                       "pitch": s.pitch, "neutral": np.round(s.neutral, 4).tolist()}
                      for s in speakers],
         "n_utterances": len(rows),
         "n_frames": int(sum(r["n_frames"] for r in rows)),
         "versions": package_versions(),
     }
+    if cfg.voices:
+        info["voices"] = [{"voice": spec, "source_speaker": voice_speaker(spec),
+                           "native_sample_rate": voice_sample_rate(spec),
+                           "backend": backends[spec].version(),
+                           "n_utterances": sum(p.voice == spec for p in plans)}
+                          for spec in backends]
     (out / "corpus.json").write_text(json.dumps(info, indent=1))
     return swap_in(out, final)

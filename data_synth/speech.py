@@ -4,7 +4,8 @@ A backend synthesises a batch of :class:`SynthRequest` and reports each phone wi
 at which it starts. :func:`phone_segments` turns those events into contiguous
 ``(start_s, end_s, phone)`` segments in the 44-class set, with the silence padding the corpus adds
 around every utterance. The backends (espeak-ng from a wheel, always available; Debian's flite
-when installed) live in their own modules and are looked up by name in :mod:`data_synth.backends`.
+and festival when installed) live in their own modules and are looked up by name, or by
+``"engine:voice"``, in :mod:`data_synth.backends`.
 """
 from __future__ import annotations
 
@@ -20,7 +21,11 @@ from face_model.phones import PHONE_INDEX
 
 @dataclass(frozen=True)
 class SynthRequest:
-    """One utterance to synthesise. Units: words per minute; pitch and range 0–100."""
+    """One utterance to synthesise. Units: words per minute; pitch and range 0–100.
+
+    ``voice`` is an espeak voice (``en-us+m3``); the flite and festival backends speak with the
+    voice they were made with and map rate and pitch onto their own controls.
+    """
 
     text: str
     voice: str = "en-us+m3"

@@ -1,6 +1,7 @@
 """Sentences to read: the built-in set (written for this project) or a user's text file."""
 from __future__ import annotations
 
+import unicodedata
 from importlib import resources
 from pathlib import Path
 
@@ -35,3 +36,36 @@ def select_sentences(n: int, text_file: str = "") -> list[str]:
         src = text_file or "the built-in set"
         raise ParameterError(f"synth.n_sentences={n}, but {src} has only {len(pool)} sentences")
     return pool if n <= 0 else pool[:n]
+
+
+# Typographic characters that NFKD leaves alone, spelled as the ASCII a speech engine reads.
+_ASCII_SPELLING = {"\u2018": "'", "\u2019": "'", "\u201a": "'", "\u201b": "'", "\u201c": '"',
+                   "\u201d": '"', "\u201e": '"', "\u2013": ", ", "\u2014": ", ", "\u2026": "...",
+                   "\u00a0": " ", "\u00df": "ss", "\u00e6": "ae", "\u00c6": "Ae", "\u0153": "oe",
+                   "\u0152": "Oe", "\u00f8": "o", "\u00d8": "O", "\u0142": "l", "\u0141": "L",
+                   "\u00f0": "d", "\u00d0": "D", "\u00fe": "th", "\u00de": "Th"}
+
+
+def to_ascii(text: str) -> str:
+    """``text`` as plain ASCII for engines that mis-read anything else (flite, festival).
+
+    Accents are dropped (``café`` → ``cafe``, ``naïve`` → ``naive``), typographic quotes and
+    dashes become their ASCII forms, control characters become spaces, and any other
+    non-ASCII character is removed. ASCII text is returned unchanged.
+    """
+    if text.isascii() and text.isprintable():
+        return text
+    spelled = "".join(_ASCII_SPELLING.get(c, c) for c in text)
+    out = []
+    for c in unicodedata.normalize("NFKD", spelled):
+        if unicodedata.combining(c):
+            continue
+        if c.isascii():
+            out.append(c if c.isprintable() else " ")
+    return "".join(out)
+
+
+def is_speakable(text: str) -> bool:
+    """Whether ``text`` holds a letter or a digit (festival's diphone voices crash on text
+    without either, e.g. ``""`` or ``"..."``)."""
+    return any(c.isalnum() for c in text)

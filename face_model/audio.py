@@ -81,6 +81,8 @@ def read_wav(path, *, mix_to_mono: bool = False) -> tuple[np.ndarray, int]:
         (without ``mix_to_mono``) is not mono.
     """
     path = Path(path)
+    if path.is_dir():
+        raise AudioFileError(f"{path} is a folder, not an audio file")
     if not path.is_file():
         raise AudioFileError(f"{path}: audio file not found")
     if path.stat().st_size == 0:

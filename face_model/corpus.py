@@ -6,6 +6,8 @@
       corpus.json            generator settings, seed, layout version, package versions
       manifest.csv           utt_id, speaker, expression, text, n_frames, fps, sample_rate,
                              audio, markers, phones   (paths relative to corpus/)
+                             [+ voice: "engine:voice" of the audio, when the corpus draws
+                              voices per utterance]
       audio/<utt_id>.wav     mono PCM16
       markers/<utt_id>.npy   float32 (n_frames, 79, 2), pixels, head motion included
       phones/<utt_id>.csv    start_s, end_s, phone   (44-class set)
@@ -31,6 +33,7 @@ from face_model.phones import PHONE_INDEX, PHONES
 EXPRESSIONS = ("neutral", "smile", "sad")
 MANIFEST_COLUMNS = ("utt_id", "speaker", "expression", "text", "n_frames", "fps",
                     "sample_rate", "audio", "markers", "phones")
+OPTIONAL_COLUMNS = ("voice",)  # written only when some row has it
 FPS = 30
 # Rates with an integer hop at 30 fps; anything else is refused or resampled to DEFAULT_SR.
 SUPPORTED_SR = (22050, 44100, 48000, 24000, 32000, 96000)
@@ -57,6 +60,7 @@ class Utterance:
     audio: np.ndarray = field(repr=False)  # (n_samples,) float32
     markers: np.ndarray = field(repr=False)  # (n_frames, 79, 2) float32
     phones: list = field(repr=False)  # list[PhoneSegment]
+    voice: str = ""  # the manifest's optional voice column ("engine:voice"; "" if absent)
 
     @property
     def n_frames(self) -> int:
@@ -186,7 +190,7 @@ def _load_utterance(root: Path, row: dict, line: int, resample_to: int | None) -
                           "frames (more than one frame apart)")
     phones = _read_phones(paths["phones"], len(y) / sr, fps)
     return Utterance(row["utt_id"], row["speaker"], row["expression"], row["text"], fps, sr,
-                     y, markers, phones)
+                     y, markers, phones, voice=row.get("voice") or "")
 
 
 def load_corpus(root, *, resample_to: int | None = None) -> Corpus:
@@ -260,12 +264,15 @@ def write_utterance(root, *, utt_id: str, audio: np.ndarray, sr: int, markers: n
 
 
 def write_manifest(root, rows: list[dict]) -> None:
-    """Write ``manifest.csv`` (rows hold the :data:`MANIFEST_COLUMNS`)."""
+    """Write ``manifest.csv`` (rows hold the :data:`MANIFEST_COLUMNS`, and the
+    :data:`OPTIONAL_COLUMNS` that any row has, after them)."""
+    optional = tuple(c for c in OPTIONAL_COLUMNS if any(c in r for r in rows))
     with open(Path(root) / "manifest.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=MANIFEST_COLUMNS, lineterminator="\n")
+        w = csv.DictWriter(f, fieldnames=MANIFEST_COLUMNS + optional, lineterminator="\n")
         w.writeheader()
         for r in rows:
-            w.writerow({k: r[k] for k in MANIFEST_COLUMNS})
+            w.writerow({**{k: r[k] for k in MANIFEST_COLUMNS},
+                        **{k: r.get(k, "") for k in optional}})
 
 
 def corpus_hash(root) -> str:

@@ -8,14 +8,16 @@ Methods take explicit hyper-parameters; :func:`~mapping.experiment.make_mapper` 
 the ``mapping`` config section (:class:`~mapping.config.MappingConfig`).
 """
 from mapping.baselines import BASELINES, Baseline
-from mapping.config import MappingConfig, TrainSettings
-from mapping.dataset import SPLITS, UttData, build_dataset, split_masks
+from mapping.config import AugmentSettings, MappingConfig, TrainSettings
+from mapping.dataset import SPLITS, UttData, build_dataset, split_masks, training_copies
 from mapping.experiment import METHODS, TrainedMethod, make_mapper, run_experiment
 from mapping.features import (MFCC_SETTINGS, ContextFeatures, FeatureNormalizer, audio_features,
                               mfcc, stack_context)
 from mapping.gated import GatedMLP
+from mapping.normalize import CMVN_MODES, CepstralNormalizer
 
-__all__ = ["BASELINES", "METHODS", "MFCC_SETTINGS", "SPLITS", "Baseline", "ContextFeatures",
-           "FeatureNormalizer", "GatedMLP", "MappingConfig", "TrainSettings", "TrainedMethod",
-           "UttData", "audio_features", "build_dataset", "make_mapper", "mfcc",
-           "run_experiment", "split_masks", "stack_context"]
+__all__ = ["BASELINES", "CMVN_MODES", "METHODS", "MFCC_SETTINGS", "SPLITS", "AugmentSettings",
+           "Baseline", "CepstralNormalizer", "ContextFeatures", "FeatureNormalizer", "GatedMLP",
+           "MappingConfig", "TrainSettings", "TrainedMethod", "UttData", "audio_features",
+           "build_dataset", "make_mapper", "mfcc", "run_experiment", "split_masks",
+           "stack_context", "training_copies"]

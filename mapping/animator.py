@@ -10,6 +10,8 @@ than its ``silence_dbfs`` with a closed, neutral mouth, offline and streaming al
 as the samples its 3-frame look-ahead needs have arrived: those of frame k + forward's analysis
 window, i.e. up to (k + forward)·hop + window/2 samples. Its frames equal the offline frames for
 the same audio (the same MFCC columns, the same normalisation and networks, row by row).
+Causal cepstral normalisation (``cmvn``, :mod:`mapping.normalize`) keeps its running sums per
+stream: each frame's features are pushed through it once, in order, as offline.
 """
 from __future__ import annotations
 
@@ -77,12 +79,15 @@ class FaceAnimator:
 
 @dataclass(frozen=True)
 class StreamFrame:
-    """One emitted frame: its index, its time k / fps (s), MUPs and markers (79, 2)."""
+    """One emitted frame: its index, its time k / fps (s), MUPs and markers (79, 2), and the
+    frame's normalised audio features before context stacking (the row of
+    :meth:`~mapping.checkpoint.AudioMapping.normalized_features` for the same audio)."""
 
     index: int
     time_s: float
     mups: np.ndarray
     markers: np.ndarray
+    features: np.ndarray | None = None
 
 
 class StreamingAnimator:
@@ -107,7 +112,7 @@ class StreamingAnimator:
         self.half = int(round(MFCC_SETTINGS["window_s"] * self.sr)) // 2
         ctx = m.mapper.context_
         self.back, self.forward = ctx.back, ctx.forward
-        self.normalizer = ctx.normalizer_
+        self.context = ctx
         self.reset()
 
     def reset(self) -> None:
@@ -118,6 +123,7 @@ class StreamingAnimator:
         self._n_feats = 0
         self._next_out = 0
         self._done = False
+        self._cmvn = self.context.start_stream()  # running CMVN sums (None: no CMVN)
 
     @property
     def latency_s(self) -> float:
@@ -138,7 +144,7 @@ class StreamingAnimator:
             warnings.filterwarnings("ignore", message="n_fft=.*too large", category=UserWarning)
             f = mfcc(self._samples(start, end), sr=self.sr, fps=self.fps,
                      n_mfcc=self.animator.mapping.n_mfcc, n_frames=col + 1)[col]
-        return self.normalizer.transform(f[None])[0]
+        return self.context.normalize(f[None], self._cmvn)[0]
 
     def _emit(self, k: int, n_total: int | None) -> StreamFrame:
         last = self._n_feats - 1 if n_total is None else n_total - 1
@@ -150,7 +156,7 @@ class StreamingAnimator:
         level = window_dbfs(self._audio, k * self.hop - self._a0, self.half)
         mups = self.animator.mapping.silence_fix(mups, np.array([level]))
         markers = self.animator.markers(mups, self.expression)[0]
-        return StreamFrame(k, k / self.fps, mups[0], markers)
+        return StreamFrame(k, k / self.fps, mups[0], markers, self._feats[k])
 
     def push(self, chunk: np.ndarray) -> list[StreamFrame]:
         """Add mono samples (any length); return the frames that became complete."""

@@ -30,6 +30,7 @@ from sklearn.utils._openmp_helpers import _openmp_effective_n_threads
 from face_model.errors import NotFittedError, ParameterError
 from face_model.numerics import single_threaded
 from mapping.features import ContextFeatures, check_context, check_seed
+from mapping.normalize import check_cmvn
 from mapping.config import TrainSettings
 from mapping.nets import GRUNet, MLP, TDNN, NetRegressor
 from mapping.state import (ArrayGroup, nest, part_name, settings_from_params,
@@ -171,16 +172,21 @@ class Baseline:
         One of :data:`BASELINES`.
     context_back, context_forward : int
         Audio context of the frame models (``mlp_large`` uses ±5 and ``tdnn`` its own delays).
+    cmvn, cmvn_warmup_frames :
+        Causal cepstral normalisation of the features (:class:`~mapping.features.ContextFeatures`).
     train : TrainSettings
         Optimisation of the networks.
     random_state : int
     """
 
     def __init__(self, kind: str, *, context_back: int = 3, context_forward: int = 3,
+                 cmvn: str = "none", cmvn_warmup_frames: int = 30,
                  train: TrainSettings = TrainSettings(), random_state: int = 0):
         self.kind = kind
         self.context_back = context_back
         self.context_forward = context_forward
+        self.cmvn = cmvn
+        self.cmvn_warmup_frames = cmvn_warmup_frames
         self.train = train
         self.random_state = random_state
 
@@ -220,8 +226,11 @@ class Baseline:
         if self.kind not in BASELINES:
             raise ParameterError(f"unknown baseline {self.kind!r}; allowed: {', '.join(BASELINES)}")
         check_context(self.context_back, self.context_forward)
+        check_cmvn(self.cmvn, self.cmvn_warmup_frames)
         check_seed(self.random_state)
-        self.context_ = ContextFeatures(*self._context()).fit([d.features for d in data], masks)
+        self.context_ = ContextFeatures(*self._context(), self.cmvn,
+                                        self.cmvn_warmup_frames).fit([d.features for d in data],
+                                                                     masks)
         self.models_ = {}
         for j, e in enumerate(sorted({d.expression for d in data})):
             idx = [i for i, d in enumerate(data) if d.expression == e and masks[i].any()]
@@ -277,7 +286,8 @@ class Baseline:
             arrays.update(nest(f"models/{part_name(e)}", a))
             models.append(p)
         params = {"kind": self.kind, "context_back": self.context_back,
-                  "context_forward": self.context_forward,
+                  "context_forward": self.context_forward, "cmvn": self.cmvn,
+                  "cmvn_warmup_frames": int(self.cmvn_warmup_frames),
                   "train": settings_to_params(self.train), "random_state": self.random_state,
                   "context": context, "expressions": list(self.models_), "models": models}
         return arrays, params
@@ -290,7 +300,8 @@ class Baseline:
         if kind not in BASELINES:
             raise ParameterError(f"unknown baseline {kind!r}; allowed: {', '.join(BASELINES)}")
         b = cls(kind, context_back=params["context_back"],
-                context_forward=params["context_forward"],
+                context_forward=params["context_forward"], cmvn=params.get("cmvn", "none"),
+                cmvn_warmup_frames=params.get("cmvn_warmup_frames", 30),
                 train=settings_from_params(params["train"]), random_state=params["random_state"])
         check_context(b.context_back, b.context_forward)
         check_seed(b.random_state)
@@ -298,6 +309,10 @@ class Baseline:
         if (b.context_.back, b.context_.forward) != b._context():
             raise ParameterError(f"baseline {kind}: context window ({b.context_.back}, "
                                  f"{b.context_.forward}), expected {b._context()}")
+        if (b.context_.cmvn, b.context_.cmvn_warmup_frames) != (b.cmvn, b.cmvn_warmup_frames):
+            raise ParameterError(f"baseline {kind}: the features' CMVN ({b.context_.cmvn}, "
+                                 f"{b.context_.cmvn_warmup_frames}) differs from the "
+                                 f"hyper-parameters ({b.cmvn}, {b.cmvn_warmup_frames})")
         expressions, models = params["expressions"], params["models"]
         if len(expressions) != len(models):
             raise ParameterError(f"{len(expressions)} expressions but {len(models)} models")

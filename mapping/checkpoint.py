@@ -105,6 +105,18 @@ class AudioMapping:
         return audio_features(self.at_model_rate(y, sr), sr=self.sample_rate, fps=self.fps,
                               n_mfcc=self.n_mfcc, deltas=self.deltas)
 
+    @property
+    def cmvn(self) -> str:
+        """The features' causal cepstral normalisation: "none", "mean" or "meanvar"."""
+        ctx = getattr(self.mapper, "context_", None)
+        return getattr(ctx, "cmvn", "none")
+
+    def normalized_features(self, y: np.ndarray, sr: int) -> np.ndarray:
+        """The features the method's networks see, before context stacking: raw features →
+        causal CMVN (if the model has it) → standardisation. (n_frames, n_features) float32;
+        the streaming animator's frames carry the same rows."""
+        return self.mapper.context_.normalize(self.features(y, sr))
+
     def check_expression(self, expression: str) -> str:
         if expression not in self.expressions:
             raise ParameterError(f"expression {expression!r} is not known to this model; "

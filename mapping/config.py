@@ -1,7 +1,23 @@
 """The mapping's settings (paper §VI) and its evaluation's (§VII-A), owned by ``mapping``.
 
 ``MappingConfig`` is the ``mapping`` section of the run config; the optimisation settings every
-network shares are nested in it as ``mapping.train`` (:class:`TrainSettings`).
+network shares are nested in it as ``mapping.train`` (:class:`TrainSettings`), and the
+training-time audio augmentation as ``mapping.augment`` (:class:`AugmentSettings`).
+
+Speaker and channel robustness (issue 12), every part off by default so the paper's Tables I–II
+are unchanged:
+
+* ``cmvn`` — causal per-utterance cepstral mean ("mean") or mean and variance ("meanvar")
+  normalisation, offline and streaming alike, with a prior (the training frames' statistics,
+  saved in the model) weighing ``cmvn_warmup_frames`` frames (:mod:`mapping.normalize`);
+* ``vtlp_range`` — the VTLP speaker warp (Jaitly & Hinton 2013) of the training copies: each
+  copy's mel filterbank is warped by α ~ U(lo, hi); [1, 1] is off, inference is never warped;
+* ``augment.copies`` — augmented copies of every training utterance (:mod:`mapping.augment`).
+
+The training set gains ``augment.copies`` copies of each training utterance (its training
+frames only; test utterances never), or one warped copy each when only the warp is on
+(``augment.copies`` 0 and ``vtlp_range`` not [1, 1]). Every copy is drawn from the seed, the
+utterance and the copy number.
 :func:`mapping.experiment.make_mapper` turns a section into the estimators' explicit
 hyper-parameters, so no estimator reads a config object. Every value is checked when the config
 is made (:mod:`face_model.settings`).
@@ -15,11 +31,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from face_model.settings import (check_fields, check_order, choice, fraction, integer, number,
-                                 subset)
+                                 numbers, span, subset)
 
 METHOD_NAMES = ("gated_mlp", "vq", "linear", "gmm_regression", "mlp_large", "tdnn", "gru")
 SPLIT_NAMES = ("random_frames", "utterance")
 MAX_MFCC = 25  # MFCCs of 26 mel bands
+CMVN_NAMES = ("none", "mean", "meanvar")  # mapping.normalize.CMVN_MODES
+NOISE_COLOURS = ("white", "pink", "brown")  # mapping.augment.NOISE_BETA
 
 
 @dataclass(frozen=True)
@@ -32,6 +50,51 @@ class TrainSettings:
     learning_rate: float = number(0.01, gt=0)
     weight_decay: float = number(1e-4, ge=0)
     batch_size: int = integer(0, ge=0)  # 0: full batch
+
+    def __post_init__(self):
+        check_fields(self)
+
+
+def probability(default: float):
+    """A probability in [0, 1]."""
+    return number(default, ge=0, le=1)
+
+
+@dataclass(frozen=True)
+class AugmentSettings:
+    """Training-time audio augmentation of the mapping's training utterances (issue 12).
+
+    ``copies`` augmented copies per training utterance (0: none, the default). In each copy every
+    stage fires with its own probability, in this order: tempo, pitch, reverberation, noise,
+    babble, telephone band, gain, clipping (:func:`mapping.augment.augment`).
+    """
+
+    copies: int = integer(0, ge=0)
+    # tempo (librosa time_stretch, pitch kept): rate ~ U(range); targets and labels re-timed
+    tempo_prob: float = probability(0.3)
+    tempo_range: tuple = span((0.9, 1.1), ge=0.5, le=2.0)
+    # pitch (librosa pitch_shift: F0 and formants) by U(range) semitones; length kept
+    pitch_prob: float = probability(0.2)
+    pitch_semitones: tuple = span((-2.0, 2.0), ge=-12, le=12)
+    # reverberation: a synthetic shoebox room (image method), RT60 ~ U(range) seconds
+    reverb_prob: float = probability(0.3)
+    rt60_range: tuple = span((0.2, 0.6), gt=0, le=1.5)
+    # generated noise of one of the colours at one of the SNRs (dB, whole-utterance power)
+    noise_prob: float = probability(0.5)
+    noise_colours: tuple = subset(("white", "pink"), NOISE_COLOURS)
+    snr_db: tuple = numbers((0.0, 5.0, 10.0, 20.0), ge=-20, le=60)
+    # babble: the sum of babble_talkers other training utterances, at one of babble_snr_db
+    babble_prob: float = probability(0.2)
+    babble_talkers: int = integer(4, ge=1)
+    babble_snr_db: tuple = numbers((5.0, 10.0, 15.0), ge=-20, le=60)
+    # telephone band: 300–3400 Hz Butterworth band-pass, zero phase (sosfiltfilt)
+    telephone_prob: float = probability(0.1)
+    # gain in dB ~ U(range), then hard clipping at full scale (±1)
+    gain_prob: float = probability(0.5)
+    gain_db: tuple = span((-12.0, 12.0), ge=-60, le=40)
+    # clipping so that clip_fraction of the samples saturate
+    clip_prob: float = probability(0.1)
+    clip_fraction: float = number(0.01, gt=0, lt=0.5)
 
     def __post_init__(self):
         check_fields(self)
@@ -51,6 +114,10 @@ class MappingConfig:
     deltas: bool = False
     context_back: int = integer(3, ge=0)
     context_forward: int = integer(3, ge=0)
+    # speaker and channel normalisation (issue 12; see the module docstring)
+    cmvn: str = choice(*CMVN_NAMES)
+    cmvn_warmup_frames: int = integer(30, ge=1)
+    vtlp_range: tuple = span((1.0, 1.0), ge=0.8, le=1.2)
     # gate: one Gaussian mixture per phone class
     n_classes: int = choice(44, 8, 1)  # 44 phone classes | 8 viseme groups | 1 (a single MLP)
     gate_components: int = integer(4, ge=1)
@@ -68,6 +135,8 @@ class MappingConfig:
     visual_source: str = choice("markers", "tracked")
     # optimisation of every network
     train: TrainSettings = field(default_factory=TrainSettings)
+    # training-time audio augmentation (off: copies = 0)
+    augment: AugmentSettings = field(default_factory=AugmentSettings)
 
     def __post_init__(self):
         check_fields(self)

@@ -12,13 +12,16 @@ labels). Splits give, per utterance, a boolean mask of its training frames:
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import zlib
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from face_model.alignment import corpus_deformations
 from face_model.errors import ParameterError
-from mapping.features import audio_features
+from mapping.augment import augment, retime_labels, retime_targets, rir_bank
+from mapping.config import AugmentSettings
+from mapping.features import audio_features, hop_samples
 
 SPLITS = ("random_frames", "utterance")
 
@@ -34,6 +37,10 @@ class UttData:
     features: np.ndarray = field(repr=False)  # (n_frames, n_features) raw MFCC (+ deltas)
     mups: np.ndarray = field(repr=False)  # (n_frames, A0 + Ak) true MUPs
     phones: np.ndarray = field(repr=False)  # (n_frames,) phone-class indices
+    # the utterance's audio (for augmented training copies; None: features only)
+    audio: np.ndarray | None = field(default=None, repr=False)  # (n_samples,) float
+    sample_rate: int = 0  # Hz, of ``audio``
+    fps: int = 30
 
     def __post_init__(self):
         n = len(self.features)
@@ -66,8 +73,74 @@ def build_dataset(corpus, units, *, n_mfcc: int = 10, deltas: bool = False,
                                deltas=deltas, n_frames=u.n_frames)
         out.append(UttData(u.utt_id, u.speaker, u.expression, u.text, feats,
                            units.transform(defs[u.utt_id], u.expression).astype(np.float32),
-                           u.phone_per_frame()))
+                           u.phone_per_frame(), audio=u.audio, sample_rate=u.sample_rate,
+                           fps=u.fps))
     return out
+
+
+def copies_per_utterance(settings: AugmentSettings, vtlp_range) -> int:
+    """``settings.copies``, or 1 when only the VTLP warp is on, else 0."""
+    if settings.copies:
+        return settings.copies
+    return int(vtlp_range[0] != 1.0 or vtlp_range[1] != 1.0)
+
+
+def utterance_key(utt_id: str) -> int:
+    """A stable integer of an utterance id (the same in every process, unlike ``hash``)."""
+    return zlib.crc32(utt_id.encode("utf-8"))
+
+
+def training_copies(data: list[UttData], masks: list, *, settings: AugmentSettings,
+                    vtlp_range=(1.0, 1.0), n_mfcc: int = 10, deltas: bool = False,
+                    seed: int = 0) -> tuple[list[UttData], list[np.ndarray]]:
+    """Augmented copies of the training utterances and their training-frame masks.
+
+    Copy c of an utterance with training frames (:func:`copies_per_utterance` of them) is drawn
+    from ``default_rng([seed, utterance_key(utt_id), c])``: first its VTLP warp α ~ U(vtlp_range)
+    (the mel filterbank of its features), then, when ``settings.copies`` > 0, its audio
+    (:func:`mapping.augment.augment`; babble from other training utterances, preferably of
+    other speakers). A tempo change re-times the copy's MUPs (linear interpolation), phone
+    labels and mask (nearest frame), so features and targets stay aligned. Utterances without
+    training frames (test utterances) are never copied.
+    """
+    n_copies = copies_per_utterance(settings, vtlp_range)
+    train = [i for i, m in enumerate(masks) if np.any(m)]
+    if n_copies == 0 or not train:
+        return [], []
+    for i in train:
+        if data[i].audio is None or data[i].sample_rate <= 0:
+            raise ParameterError(f"utterance {data[i].utt_id} has no audio to augment; build "
+                                 "the data with mapping.dataset.build_dataset")
+    out, out_masks = [], []
+    for i in train:
+        d = data[i]
+        others = [data[j].audio for j in train if j != i
+                  and data[j].sample_rate == d.sample_rate and data[j].speaker != d.speaker]
+        others = others or [data[j].audio for j in train
+                            if j != i and data[j].sample_rate == d.sample_rate]
+        rirs = (rir_bank(d.sample_rate, seed, tuple(settings.rt60_range))
+                if settings.copies and settings.reverb_prob > 0 else None)
+        for c in range(n_copies):
+            rng = np.random.default_rng([seed, utterance_key(d.utt_id), c])
+            alpha = float(rng.uniform(*vtlp_range))
+            y, scale = d.audio, 1.0
+            if settings.copies:
+                y, scale, _ = augment(d.audio, sr=d.sample_rate, settings=settings, rng=rng,
+                                      others=others, rirs=rirs)
+            n = (d.n_frames if scale == 1.0
+                 else int(np.ceil(len(y) / hop_samples(d.sample_rate, d.fps))))
+            feats = audio_features(y, sr=d.sample_rate, fps=d.fps, n_mfcc=n_mfcc, deltas=deltas,
+                                   n_frames=n, vtlp_alpha=alpha)
+            if scale == 1.0:
+                mups, phones, mask = d.mups, d.phones, np.asarray(masks[i])
+            else:
+                mups = retime_targets(d.mups, scale, n)
+                phones = retime_labels(d.phones, scale, n)
+                mask = retime_labels(np.asarray(masks[i]), scale, n)
+            out.append(replace(d, utt_id=f"{d.utt_id}+copy{c}", features=feats, mups=mups,
+                               phones=phones, audio=None))  # features suffice: no copy kept
+            out_masks.append(mask)
+    return out, out_masks
 
 
 def split_masks(data: list[UttData], split: str, *, train_fraction: float = 0.8,

@@ -4,6 +4,12 @@
 explicit hyper-parameters. :func:`run_experiment` trains every method on every split and returns
 the fitted mappers with their predictions of every utterance; the paper's metrics and tables are
 computed from these by :mod:`analysis.evaluation`.
+
+The estimators get ``mapping.cmvn`` and ``mapping.cmvn_warmup_frames`` (their features'
+normalisation, saved with them); ``mapping.vtlp_range`` and ``mapping.augment`` add augmented
+copies of each split's training utterances to what the methods are fitted on
+(:func:`~mapping.dataset.training_copies`, drawn once per split and shared by every method).
+Predictions and the gate's accuracy are always of the original utterances.
 """
 from __future__ import annotations
 
@@ -15,12 +21,13 @@ from tqdm import tqdm
 from face_model.errors import ParameterError
 from mapping.baselines import BASELINES, Baseline
 from mapping.config import MappingConfig
-from mapping.dataset import split_masks
+from mapping.dataset import split_masks, training_copies
 from mapping.gate import gate_accuracy
 from mapping.gated import GatedMLP
 
 METHODS = ("gated_mlp", *BASELINES)
 SPLIT_SEED_OFFSET = 17  # the split of a run seed is drawn with seed + 17, the same for every method
+AUGMENT_SEED_OFFSET = 31  # the training copies of a run seed are drawn with seed + 31
 
 
 def make_mapper(method: str, mcfg: MappingConfig, *, n_utterance: int = 7,
@@ -33,11 +40,13 @@ def make_mapper(method: str, mcfg: MappingConfig, *, n_utterance: int = 7,
                         gate_covariance=mcfg.gate_covariance,
                         min_class_frames=mcfg.min_class_frames, hidden_min=mcfg.hidden_min,
                         hidden_max=mcfg.hidden_max, expression_model=mcfg.expression_model,
-                        cascade_hidden=mcfg.cascade_hidden, train=mcfg.train,
+                        cascade_hidden=mcfg.cascade_hidden, cmvn=mcfg.cmvn,
+                        cmvn_warmup_frames=mcfg.cmvn_warmup_frames, train=mcfg.train,
                         random_state=random_state)
     if method in BASELINES:
         return Baseline(method, context_back=mcfg.context_back,
-                        context_forward=mcfg.context_forward, train=mcfg.train,
+                        context_forward=mcfg.context_forward, cmvn=mcfg.cmvn,
+                        cmvn_warmup_frames=mcfg.cmvn_warmup_frames, train=mcfg.train,
                         random_state=random_state)
     raise ParameterError(f"unknown mapping method {method!r}; allowed: {', '.join(METHODS)}")
 
@@ -56,12 +65,24 @@ class TrainedMethod:
     gate: dict | None = None  # gate accuracy and confusion (gated methods)
 
 
+def augmented_copies(data: list, masks: list, mcfg: MappingConfig, *, seed: int
+                     ) -> tuple[list, list]:
+    """The training copies of a split (none unless ``mcfg`` asks for the warp or augmentation)."""
+    return training_copies(data, masks, settings=mcfg.augment, vtlp_range=mcfg.vtlp_range,
+                           n_mfcc=mcfg.n_mfcc, deltas=mcfg.deltas,
+                           seed=seed + AUGMENT_SEED_OFFSET)
+
+
 def train_method(method: str, data: list, masks: list, mcfg: MappingConfig, *,
-                 n_utterance: int, split: str, seed: int) -> TrainedMethod:
-    """Train one method on a split's training frames and estimate every utterance."""
+                 n_utterance: int, split: str, seed: int, copies=None) -> TrainedMethod:
+    """Train one method on a split's training frames (and the augmented ``copies``:
+    ``(data, masks)`` of :func:`augmented_copies`, drawn here when not given) and estimate
+    every original utterance."""
     mapper = make_mapper(method, mcfg, n_utterance=n_utterance, random_state=seed)
+    extra, extra_masks = copies if copies is not None else augmented_copies(data, masks, mcfg,
+                                                                            seed=seed)
     t0 = time.perf_counter()
-    mapper.fit(data, masks)
+    mapper.fit([*data, *extra], [*masks, *extra_masks])
     seconds = time.perf_counter() - t0
     preds = [mapper.predict(d.features, d.expression) for d in data]
     gate = gate_accuracy(mapper, data, masks) if hasattr(mapper, "gate_") else None
@@ -80,10 +101,12 @@ def run_experiment(data: list, mcfg: MappingConfig, *, n_utterance: int, seed: i
     methods = list(methods or experiment_methods(mcfg))
     splits = list(splits or mcfg.splits)
     jobs = [(s, m) for s in splits for m in methods]
-    out = []
+    out, copies = [], {}
     for split, method in tqdm(jobs, desc="training", unit="model", disable=not progress):
         masks = split_masks(data, split, train_fraction=mcfg.train_fraction,
                             seed=seed + SPLIT_SEED_OFFSET)
+        if split not in copies:
+            copies[split] = augmented_copies(data, masks, mcfg, seed=seed)
         out.append(train_method(method, data, masks, mcfg, n_utterance=n_utterance, split=split,
-                                seed=seed))
+                                seed=seed, copies=copies[split]))
     return out

@@ -8,6 +8,11 @@ written down here and in :data:`MFCC_SETTINGS`:
 * power spectrum → 26 triangular mel filters (HTK mel scale) from 0 Hz to sr/2;
 * natural log with a floor of 1e-10 (digital silence stays finite);
 * DCT-II (orthonormal); c0 dropped, c1…c_n kept; sinusoidal lifter L = 22.
+
+Speaker warp for training (issue 12): ``vtlp_alpha`` ≠ 1 warps the mel filterbank by vocal-tract
+length perturbation (Jaitly & Hinton 2013, :func:`vtlp_warp`); α = 1 is exactly the filterbank
+above. Causal cepstral normalisation (:mod:`mapping.normalize`) is part of
+:class:`ContextFeatures`, before its standardisation.
 """
 from __future__ import annotations
 
@@ -17,6 +22,7 @@ import librosa
 import numpy as np
 
 from face_model.errors import NotFittedError, ParameterError
+from mapping.normalize import CepstralNormalizer, check_cmvn
 from mapping.state import ArrayGroup, nest
 
 MFCC_SETTINGS = {"window_s": 0.025, "window": "hamming", "n_mels": 26, "fmin": 0.0,
@@ -33,7 +39,7 @@ def hop_samples(sr: int, fps: int = 30) -> int:
 
 
 def mfcc(y: np.ndarray, *, sr: int, fps: int = 30, n_mfcc: int = 10,
-         n_frames: int | None = None) -> np.ndarray:
+         n_frames: int | None = None, vtlp_alpha: float = 1.0) -> np.ndarray:
     """MFCC per video frame.
 
     Parameters
@@ -49,6 +55,9 @@ def mfcc(y: np.ndarray, *, sr: int, fps: int = 30, n_mfcc: int = 10,
     n_frames : int, optional
         Number of frames to return. The default is the frames whose centre lies inside the
         audio, ``ceil(n_samples / hop)``.
+    vtlp_alpha : float
+        VTLP warp factor of the mel filterbank (training-time speaker warp, :func:`vtlp_warp`);
+        1.0 (the default, and always at inference) is the unwarped filterbank.
 
     Returns
     -------
@@ -68,7 +77,7 @@ def mfcc(y: np.ndarray, *, sr: int, fps: int = 30, n_mfcc: int = 10,
     power = np.abs(librosa.stft(y, n_fft=n_fft, hop_length=hop, win_length=win,
                                 window=MFCC_SETTINGS["window"], center=True,
                                 pad_mode="reflect")) ** 2
-    mel = _mel_filters(sr, n_fft)
+    mel = _mel_filters(sr, n_fft, float(vtlp_alpha))
     logmel = np.log(np.maximum(mel @ power, MFCC_SETTINGS["log_floor"]))
     cep = librosa.feature.mfcc(S=logmel, n_mfcc=n_mfcc + 1, dct_type=2, norm="ortho",
                                lifter=MFCC_SETTINGS["lifter"])[1:]
@@ -78,13 +87,57 @@ def mfcc(y: np.ndarray, *, sr: int, fps: int = 30, n_mfcc: int = 10,
     return feats[:n_out].astype(np.float32)
 
 
-@functools.lru_cache(maxsize=8)
-def _mel_filters(sr: int, n_fft: int) -> np.ndarray:
-    """The 26 HTK-scale triangular filters (unnormalised), cached per rate and FFT size."""
-    mel = librosa.filters.mel(sr=sr, n_fft=n_fft, n_mels=MFCC_SETTINGS["n_mels"], fmin=0.0,
-                              fmax=sr / 2, htk=True, norm=None)
+VTLP_F_HI = 4800.0  # Hz: the warp's upper boundary frequency (Jaitly & Hinton 2013)
+VTLP_LIMITS = (0.8, 1.2)  # warp factors accepted (the warp stays monotone)
+
+
+@functools.lru_cache(maxsize=64)
+def _mel_filters(sr: int, n_fft: int, alpha: float = 1.0) -> np.ndarray:
+    """The 26 HTK-scale triangular filters (unnormalised), cached per rate, FFT size and VTLP
+    warp factor; ``alpha == 1`` is librosa's filterbank itself."""
+    if alpha == 1.0:
+        mel = librosa.filters.mel(sr=sr, n_fft=n_fft, n_mels=MFCC_SETTINGS["n_mels"],
+                                  fmin=0.0, fmax=sr / 2, htk=True, norm=None)
+    else:
+        mel = warped_mel_filters(sr, n_fft, alpha)
     mel.setflags(write=False)
     return mel
+
+
+def vtlp_warp(freqs: np.ndarray, alpha: float, sr: float, f_hi: float = VTLP_F_HI
+              ) -> np.ndarray:
+    """Piecewise-linear VTLP warp of frequencies (Hz), Jaitly & Hinton (2013), Eq. in §2.
+
+    f' = α·f up to f_b = f_hi·min(α, 1)/α, then the straight line from (f_b, α·f_b) to
+    (sr/2, sr/2): 0 ↦ 0 and sr/2 ↦ sr/2, monotone for α in :data:`VTLP_LIMITS`.
+    """
+    if not VTLP_LIMITS[0] <= alpha <= VTLP_LIMITS[1]:
+        raise ParameterError(f"vtlp alpha must be in [{VTLP_LIMITS[0]}, {VTLP_LIMITS[1]}], "
+                             f"got {alpha!r}")
+    f = np.asarray(freqs, dtype=np.float64)
+    nyq = sr / 2.0
+    scale = f_hi * min(alpha, 1.0)
+    boundary = scale / alpha
+    upper = nyq - (nyq - scale) / (nyq - boundary) * (nyq - f)
+    return np.where(f <= boundary, alpha * f, upper)
+
+
+def warped_mel_filters(sr: int, n_fft: int, alpha: float) -> np.ndarray:
+    """The filterbank of :func:`_mel_filters` with every FFT bin at its VTLP-warped frequency:
+    filter i weights bin k by its triangle at W_α(f_k), i.e. the spectrum is warped before the
+    standard filters. librosa's own arithmetic (``librosa.filters.mel``, HTK scale, no norm),
+    so α = 1 gives its filters exactly. Shape (n_mels, 1 + n_fft // 2), float32."""
+    n_mels = MFCC_SETTINGS["n_mels"]
+    fftfreqs = vtlp_warp(librosa.fft_frequencies(sr=sr, n_fft=n_fft), alpha, sr)
+    mel_f = librosa.mel_frequencies(n_mels + 2, fmin=0.0, fmax=sr / 2, htk=True)
+    fdiff = np.diff(mel_f)
+    ramps = np.subtract.outer(mel_f, fftfreqs)
+    weights = np.zeros((n_mels, len(fftfreqs)), dtype=np.float32)
+    for i in range(n_mels):
+        lower = -ramps[i] / fdiff[i]
+        upper = ramps[i + 2] / fdiff[i + 1]
+        weights[i] = np.maximum(0, np.minimum(lower, upper))
+    return weights
 
 
 def stack_context(features: np.ndarray, *, back: int = 3, forward: int = 3) -> np.ndarray:
@@ -143,10 +196,12 @@ class FeatureNormalizer:
 
 
 def audio_features(y: np.ndarray, *, sr: int, fps: int = 30, n_mfcc: int = 10,
-                   deltas: bool = False, n_frames: int | None = None) -> np.ndarray:
+                   deltas: bool = False, n_frames: int | None = None,
+                   vtlp_alpha: float = 1.0) -> np.ndarray:
     """MFCC per frame, optionally followed by their first differences (librosa ``delta``,
-    9-frame regression window, edges interpolated). Shape (n_frames, n_mfcc · (1 + deltas))."""
-    feats = mfcc(y, sr=sr, fps=fps, n_mfcc=n_mfcc, n_frames=n_frames)
+    9-frame regression window, edges interpolated). Shape (n_frames, n_mfcc · (1 + deltas)).
+    ``vtlp_alpha``: the training-time speaker warp of :func:`mfcc` (1.0: none)."""
+    feats = mfcc(y, sr=sr, fps=fps, n_mfcc=n_mfcc, n_frames=n_frames, vtlp_alpha=vtlp_alpha)
     if not deltas:
         return feats
     width = min(9, len(feats) if len(feats) % 2 else len(feats) - 1)
@@ -160,38 +215,68 @@ def audio_features(y: np.ndarray, *, sr: int, fps: int = 30, n_mfcc: int = 10,
 class ContextFeatures:
     """Normalise raw per-frame features (fitted on training frames only), then stack context.
 
+    Per frame: causal cepstral normalisation (``cmvn``, :mod:`mapping.normalize`; "none" skips
+    it), then the standardisation fitted on the training frames, then the context window.
+
     Parameters
     ----------
     back, forward : int
         Context frames before and after the current one (paper: 3 and 3).
+    cmvn : {"none", "mean", "meanvar"}
+        Per-utterance causal cepstral mean (and variance) normalisation.
+    cmvn_warmup_frames : int
+        The weight of the CMVN prior (the training frames' mean and variance), in frames.
     """
 
-    def __init__(self, back: int = 3, forward: int = 3):
+    def __init__(self, back: int = 3, forward: int = 3, cmvn: str = "none",
+                 cmvn_warmup_frames: int = 30):
         self.back = back
         self.forward = forward
+        self.cmvn = cmvn
+        self.cmvn_warmup_frames = cmvn_warmup_frames
 
     def fit(self, features: list, masks: list | None = None) -> "ContextFeatures":
         """``features``: per-utterance (n_frames, n_features) arrays; ``masks``: the training
         frames of each (all frames when omitted)."""
-        rows = [f if m is None else f[m]
-                for f, m in zip(features, masks if masks is not None else [None] * len(features))]
-        self.normalizer_ = FeatureNormalizer().fit(np.concatenate(rows))
+        check_cmvn(self.cmvn, self.cmvn_warmup_frames)
+        masks = masks if masks is not None else [None] * len(features)
+
+        def rows(fs):
+            return np.concatenate([f if m is None else f[m] for f, m in zip(fs, masks)])
+
+        self.cmvn_ = None
+        if self.cmvn != "none":
+            self.cmvn_ = CepstralNormalizer(self.cmvn, self.cmvn_warmup_frames).fit(
+                rows(features))
+            features = [self.cmvn_.transform(f) for f in features]
+        self.normalizer_ = FeatureNormalizer().fit(rows(features))
         return self
 
     def to_arrays(self) -> tuple[dict, dict]:
-        """The normaliser's arrays under ``normalizer/``; parameters ``back``, ``forward``."""
+        """The normaliser's arrays under ``normalizer/`` (and the CMVN prior under ``cmvn/``);
+        parameters ``back``, ``forward``, ``cmvn``, ``cmvn_warmup_frames``."""
         if not hasattr(self, "normalizer_"):
             raise NotFittedError("ContextFeatures is not fitted yet: call fit() first")
         arrays, _ = self.normalizer_.to_arrays()
-        return nest("normalizer", arrays), {"back": self.back, "forward": self.forward}
+        arrays = nest("normalizer", arrays)
+        if self.cmvn_ is not None:
+            arrays.update(nest("cmvn", self.cmvn_.to_arrays()[0]))
+        return arrays, {"back": self.back, "forward": self.forward, "cmvn": self.cmvn,
+                        "cmvn_warmup_frames": int(self.cmvn_warmup_frames)}
 
     @classmethod
     def from_arrays(cls, arrays, params: dict) -> "ContextFeatures":
-        """The fitted context window of :meth:`to_arrays`."""
+        """The fitted context window of :meth:`to_arrays` (a model saved before CMVN existed
+        has no ``cmvn`` and loads as ``"none"``)."""
         check_context(params["back"], params["forward"])
-        ctx = cls(params["back"], params["forward"])
-        ctx.normalizer_ = FeatureNormalizer.from_arrays(ArrayGroup.of(arrays).group("normalizer"),
-                                                        {})
+        cmvn = params.get("cmvn", "none")
+        warmup = params.get("cmvn_warmup_frames", 30)
+        check_cmvn(cmvn, warmup)
+        g = ArrayGroup.of(arrays)
+        ctx = cls(params["back"], params["forward"], cmvn, warmup)
+        ctx.normalizer_ = FeatureNormalizer.from_arrays(g.group("normalizer"), {})
+        ctx.cmvn_ = None if cmvn == "none" else CepstralNormalizer.from_arrays(
+            g.group("cmvn"), {"mode": cmvn, "warmup_frames": warmup})
         return ctx
 
     @property
@@ -200,6 +285,25 @@ class ContextFeatures:
             raise NotFittedError("ContextFeatures is not fitted yet: call fit() first")
         return len(self.normalizer_.mean_) * (self.back + 1 + self.forward)
 
+    def start_stream(self):
+        """The per-utterance CMVN state for :meth:`normalize` in a stream (None: no CMVN)."""
+        if not hasattr(self, "normalizer_"):
+            raise NotFittedError("ContextFeatures is not fitted yet: call fit() first")
+        return None if self.cmvn_ is None else self.cmvn_.start()
+
+    def normalize(self, features: np.ndarray, stream=None) -> np.ndarray:
+        """Raw frames (n_frames, n_features) → normalised, not stacked (float32).
+
+        ``stream``: the state of :meth:`start_stream` when the frames continue a stream (pushed
+        in order); by default the frames are one whole utterance from its frame 0.
+        """
+        if not hasattr(self, "normalizer_"):
+            raise NotFittedError("ContextFeatures is not fitted yet: call fit() first")
+        x = np.asarray(features)
+        if self.cmvn_ is not None:
+            x = (stream if stream is not None else self.cmvn_.start()).push(x)
+        return self.normalizer_.transform(x)
+
     def transform(self, features: np.ndarray) -> np.ndarray:
         """(n_frames, n_features) raw → (n_frames, n_inputs) normalised and stacked."""
         if not hasattr(self, "normalizer_"):
@@ -207,7 +311,7 @@ class ContextFeatures:
         x = np.asarray(features)
         if x.ndim == 2 and not np.all(np.isfinite(x)):
             raise ParameterError("features hold NaN or inf values")
-        return stack_context(self.normalizer_.transform(x), back=self.back, forward=self.forward)
+        return stack_context(self.normalize(x), back=self.back, forward=self.forward)
 
 
 def window_dbfs(y: np.ndarray, centre: int, half: int) -> float:

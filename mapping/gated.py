@@ -28,6 +28,7 @@ from mapping.features import ContextFeatures, check_context, check_seed
 from mapping.gate import COVARIANCE_TYPES, PhoneGate, class_groups, merge_small_classes
 from mapping.config import TrainSettings
 from mapping.nets import MLP, NetRegressor
+from mapping.normalize import check_cmvn
 from mapping.state import (ArrayGroup, nest, part_name, settings_from_params,
                            settings_to_params)
 
@@ -37,6 +38,8 @@ GATE_COVARIANCES = COVARIANCE_TYPES
 _HYPER_PARAMETERS = ("n_utterance", "context_back", "context_forward", "n_classes",
                      "gate_components", "gate_covariance", "min_class_frames", "hidden_min",
                      "hidden_max", "expression_model", "cascade_hidden", "random_state")
+# added later: a model saved without them has these values
+_LATER_HYPER_PARAMETERS = {"cmvn": "none", "cmvn_warmup_frames": 30}
 
 
 def hidden_units(n_frames: int, smallest: int, largest: int, lo: int = 15, hi: int = 25) -> int:
@@ -135,6 +138,9 @@ class GatedMLP:
         A0: the first ``n_utterance`` MUPs are the utterance part the bank estimates.
     context_back, context_forward : int
         Frames of audio context before and after the frame (paper: 3 + 1 + 3).
+    cmvn, cmvn_warmup_frames :
+        Causal cepstral normalisation of the features (:class:`~mapping.features.ContextFeatures`,
+        :mod:`mapping.normalize`): "none" (the paper), "mean" or "meanvar".
     n_classes : int
         Gate classes: 44 phone classes, 8 viseme groups or 1 (a single MLP).
     gate_components : int
@@ -160,6 +166,7 @@ class GatedMLP:
                  n_classes: int = 44, gate_components: int = 4, gate_covariance: str = "diag",
                  min_class_frames: int = 40, hidden_min: int = 15, hidden_max: int = 25,
                  expression_model: str = "cascade", cascade_hidden: int = 30,
+                 cmvn: str = "none", cmvn_warmup_frames: int = 30,
                  train: TrainSettings = TrainSettings(), random_state: int = 0):
         self.n_utterance = n_utterance
         self.context_back = context_back
@@ -172,6 +179,8 @@ class GatedMLP:
         self.hidden_max = hidden_max
         self.expression_model = expression_model
         self.cascade_hidden = cascade_hidden
+        self.cmvn = cmvn
+        self.cmvn_warmup_frames = cmvn_warmup_frames
         self.train = train
         self.random_state = random_state
 
@@ -191,14 +200,16 @@ class GatedMLP:
             raise ParameterError(f"gate_covariance must be one of {GATE_COVARIANCES}, got "
                                  f"{self.gate_covariance!r}")
         check_context(self.context_back, self.context_forward)
+        check_cmvn(self.cmvn, self.cmvn_warmup_frames)
         check_seed(self.random_state)
 
     # -- training --------------------------------------------------------------------------
     def fit(self, data: list, masks: list) -> "GatedMLP":
         self._validate()
         seed = self.random_state
-        self.context_ = ContextFeatures(self.context_back, self.context_forward).fit(
-            [d.features for d in data], masks)
+        self.context_ = ContextFeatures(self.context_back, self.context_forward, self.cmvn,
+                                        self.cmvn_warmup_frames).fit([d.features for d in data],
+                                                                     masks)
         group_of_phone, names, visemes = class_groups(self.n_classes)
         X, Y, labels, expr = self._stack(data, masks, group_of_phone)
         neutral = expr == "neutral"
@@ -295,7 +306,8 @@ class GatedMLP:
         ``expressions``, ``n_mups`` and the parameters of each part under the same keys.
         """
         self._check_fitted()
-        params = {name: getattr(self, name) for name in _HYPER_PARAMETERS}
+        params = {name: getattr(self, name) for name in (*_HYPER_PARAMETERS,
+                                                          *_LATER_HYPER_PARAMETERS)}
         params["train"] = settings_to_params(self.train)
         params.update(merges=dict(self.merges_), class_names=list(self.class_names_),
                       expressions=list(self.expressions_), n_mups=int(self.n_mups_))
@@ -316,6 +328,8 @@ class GatedMLP:
         """The trained mapping of :meth:`to_arrays` (hyper-parameters checked as in ``fit``)."""
         g = ArrayGroup.of(arrays)
         m = cls(**{name: params[name] for name in _HYPER_PARAMETERS},
+                **{name: params.get(name, default)
+                   for name, default in _LATER_HYPER_PARAMETERS.items()},
                 train=settings_from_params(params["train"]))
         m._validate()
         m.context_ = ContextFeatures.from_arrays(g.group("context"), params["context"])

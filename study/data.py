@@ -34,6 +34,7 @@ from face_model.errors import ParameterError
 from study.design import (
     N_TRIALS,
     RESPONSES,
+    SEQUENCES,
     Trial,
     allocation_sequences,
     check_participant_id,
@@ -46,6 +47,7 @@ COLUMNS = ("participant_id", "group", "sequence", "block", "period", "trial_inde
            "simulated", "responder_model", "session", "n_frames", "frames_late",
            "frame_interval_ms_mean", "frame_interval_ms_max", "audio_onset_s", "timestamp")
 ALLOCATION_COLUMNS = ("slot", "sequence", "participant_id", "status", "updated")
+ALLOCATION_STATUSES = ("free", "assigned", "complete")
 LOG_COLUMNS = ("time", "event", "slot", "sequence", "participant_id", "note")
 
 
@@ -277,7 +279,20 @@ class Allocation:
             raise ParameterError(f"no allocation list in {self.dir} ({self.path.name} missing): "
                                  "create one with `talkingface study allocate`")
         with open(self.path, newline="", encoding="utf-8-sig") as f:  # as saved by Excel, too
-            return list(csv.DictReader(f))
+            reader = csv.DictReader(f)
+            rows = list(reader)
+        missing = [c for c in ALLOCATION_COLUMNS if c not in (reader.fieldnames or [])]
+        if missing:
+            raise ParameterError(f"{self.path}: missing columns {missing}; the list is damaged "
+                                 f"(its history is in {self.log_path.name})")
+        for line, r in enumerate(rows, start=2):
+            if r["sequence"] not in SEQUENCES or r["status"] not in ALLOCATION_STATUSES:
+                raise ParameterError(
+                    f"{self.path}, line {line}: sequence {r['sequence']!r}, status "
+                    f"{r['status']!r}; allowed: sequence {' or '.join(SEQUENCES)}, status "
+                    f"{', '.join(ALLOCATION_STATUSES)}; the list is damaged (its history is in "
+                    f"{self.log_path.name})")
+        return rows
 
     def _write(self, rows: list[dict]) -> None:
         buf = io.StringIO()

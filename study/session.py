@@ -356,6 +356,10 @@ def check_session(study_dir, stimuli_dir, participant_id: str, *, study_seed: in
     pid = check_participant_id(participant_id)
     keys = check_options(keys, audio_backend, fixation_s, iti_s, window_size)
     study_dir = Path(study_dir)
+    if study_dir.exists() and not study_dir.is_dir():
+        raise ParameterError(f"--study-dir {study_dir} is a file; give a study folder")
+    if screenshot is not None and Path(screenshot).is_dir():
+        raise ParameterError(f"--screenshot {screenshot} is a folder; give a .png file name")
     stimuli = load_manifest(stimuli_dir)  # checksums verified
     held, resume = check_slot(study_dir, pid, study_seed=study_seed, n_slots=n_slots,
                               resume=resume)

@@ -285,19 +285,30 @@ class FLMPObserver:
 def make_observers(n: int, seed: int, population: PopulationParams = PopulationParams()
                    ) -> list[FLMPObserver]:
     """``n`` participants: participant ``i`` from child ``i`` of ``SeedSequence(seed)`` (its
-    parameters from one grandchild, its answers from the other)."""
+    parameters from one grandchild, its answers from the other); see :func:`make_observer`."""
+    check_n(n)
+    return [make_observer(i, seed, population) for i in range(int(n))]
+
+
+def check_n(n) -> int:
+    """``n`` as the number of simulated participants, or a ParameterError."""
     if not isinstance(n, (int, np.integer)) or isinstance(n, bool) or n < 1:
         raise ParameterError(f"the number of simulated participants must be a positive integer, "
                              f"got {n!r}")
+    return int(n)
+
+
+def make_observer(i: int, seed: int, population: PopulationParams = PopulationParams()
+                  ) -> FLMPObserver:
+    """Participant ``i`` alone: child ``i`` of ``SeedSequence(seed)`` is
+    ``SeedSequence(seed, spawn_key=(i,))``, so a study of a million participants draws each one
+    when it is simulated rather than all of them first."""
     if not isinstance(population, PopulationParams):
         raise ParameterError(f"population must be PopulationParams, got "
                              f"{type(population).__name__}")
-    out = []
-    for child in np.random.SeedSequence(int(seed)).spawn(int(n)):
-        ss_params, ss_answers = child.spawn(2)
-        params = population.draw(np.random.default_rng(ss_params))
-        out.append(FLMPObserver(params, int(ss_answers.generate_state(2, np.uint64)[0] >> 1)))
-    return out
+    ss_params, ss_answers = np.random.SeedSequence(int(seed), spawn_key=(int(i),)).spawn(2)
+    params = population.draw(np.random.default_rng(ss_params))
+    return FLMPObserver(params, int(ss_answers.generate_state(2, np.uint64)[0] >> 1))
 
 
 def responder(observer: FLMPObserver, visual: dict):
@@ -369,7 +380,8 @@ def simulate_study(study_dir, stimuli: dict, classifier: ExpressionClassifier, *
     if len(keys) != len(RESPONSES) or len(set(keys)) != len(keys):
         raise ParameterError(f"keys must be {len(RESPONSES)} distinct keys for "
                              f"{', '.join(RESPONSES)}, got {keys!r}")
-    observers = make_observers(n, seed, population)  # checks n
+    check_n(n)
+    make_observer(0, seed, population)  # checks the population before anything is written
     if not isinstance(classifier, ExpressionClassifier):
         raise ParameterError(f"classifier must be an ExpressionClassifier, got "
                              f"{type(classifier).__name__}")
@@ -383,10 +395,13 @@ def simulate_study(study_dir, stimuli: dict, classifier: ExpressionClassifier, *
               "visual_evidence": {sid: [round(float(x), 6) for x in p]
                                   for sid, p in visual.items()},
               "sentences": SENTENCES, "keys": key_of, "versions": _versions()}
-    make = lambda i, slot: SimulatedParticipant(  # noqa: E731
-        pids[i], slot, responder(observers[i], visual), study_seed=int(study_seed),
-        key_of=key_of, sidecar={"participant_index": i, "observer_seed": observers[i].seed,
-                                "observer": asdict(observers[i].params)}, common=common)
+
+    def make(i, slot):
+        observer = make_observer(i, seed, population)
+        return SimulatedParticipant(
+            pids[i], slot, responder(observer, visual), study_seed=int(study_seed),
+            key_of=key_of, sidecar={"participant_index": i, "observer_seed": observer.seed,
+                                    "observer": asdict(observer.params)}, common=common)
 
     # every check before anything is written
     alloc = Allocation(study_dir)
@@ -431,5 +446,5 @@ def simulate_study(study_dir, stimuli: dict, classifier: ExpressionClassifier, *
 
 __all__ = ["RESPONDER_MODEL", "EMOTIONS", "EXPRESSION_EMOTION", "CONTENT_EMOTION",
            "ExpressionClassifier", "ObserverParams", "PopulationParams", "FLMPObserver",
-           "make_observers", "visual_evidence", "responder", "participant_ids",
+           "make_observers", "make_observer", "check_n", "visual_evidence", "responder", "participant_ids",
            "simulate_study"]

@@ -1,7 +1,10 @@
 """``talkingface animate`` and ``talkingface stream``: a face from any WAV file.
 
 The trained mapping comes from ``--model`` (a run name, a run folder or a ``.tfmap`` file) or, by
-default, from the most recent run under ``runs/`` that has a trained mapping.
+default, from the most recent run under ``runs/`` that has a trained mapping. A run's model is
+its voice-robust model (stage ``voices``, trained on many voices for real speech) when it has
+one, else the paper's single-voice mapping (``mapping/<method>_utterance.tfmap``, which
+``--model`` can name as a file).
 """
 from __future__ import annotations
 
@@ -23,6 +26,7 @@ from mapping.animator import FaceAnimator, StreamingAnimator
 from mapping.checkpoint import AudioMapping
 from talkingface.live import MicrophoneStats, microphone_chunks, run_stream, wav_chunks
 
+
 CLIP_LEVEL = 0.999
 CLIP_WARN_FRACTION = 0.001
 
@@ -40,13 +44,14 @@ def find_model(model: str | None, runs_dir="runs") -> tuple[Path, Path]:
     else:
         p = Path(model)
         if p.suffix == ".tfmap":
+            if p.is_dir():
+                raise ParameterError(f"--model {p} is a folder, not a .tfmap model file")
             if not p.is_file():
                 raise ParameterError(f"--model {p}: file not found")
-            units = p.parent.parent / "units" / "motion_units.npz"
-            if not units.is_file():
-                raise ParameterError(f"--model {p}: the Motion Units of its run ({units}) are "
-                                     "missing")
-            return p, units
+            return p, model_units(p)
+        if p.is_file():
+            raise ParameterError(f"--model {p} is not a .tfmap model file; give a run name, a "
+                                 "run folder or a .tfmap file")
         run = p if p.is_dir() else runs / model
         if not (run / "mapping" / "done.json").is_file():
             raise ParameterError(f"--model {model}: no trained mapping in {run}/mapping (train "
@@ -59,8 +64,37 @@ def find_model(model: str | None, runs_dir="runs") -> tuple[Path, Path]:
     models = done.get("models", {})
     if not models:
         raise ParameterError(f"{run}/mapping holds no saved model")
+    robust = voices_default(run)
+    if robust is not None:  # the run's voice-robust model (stage voices) is the default
+        return robust, run / "units" / "motion_units.npz"
     split = "utterance" if "utterance" in models else next(iter(models))
     return run / "mapping" / models[split], run / "units" / "motion_units.npz"
+
+
+
+def voices_default(run: Path) -> Path | None:
+    """The voice-robust model of a run (``voices/done.json``: its ``model`` child), if any."""
+    done_file = run / "voices" / "done.json"
+    if not done_file.is_file():
+        return None
+    try:
+        done = json.loads(done_file.read_text(encoding="utf-8"))
+        return run / "voices" / done["models"][done["model"]]["tfmap"]
+    except (ValueError, UnicodeDecodeError, KeyError, TypeError) as exc:
+        raise ParameterError(f"{done_file}: not a finished voices stage ({exc!r}); make the "
+                             "run's voices stage again (talkingface replicate --name NAME)") \
+            from None
+
+
+def model_units(tfmap: Path) -> Path:
+    """The Motion Units of the run a ``.tfmap`` belongs to: ``<run>/mapping/x.tfmap`` or a
+    voice-robust model ``<run>/voices/<child>/x.tfmap``."""
+    for run in (tfmap.parent.parent, tfmap.parent.parent.parent):
+        units = run / "units" / "motion_units.npz"
+        if units.is_file():
+            return units
+    raise ParameterError(f"--model {tfmap}: the Motion Units of its run "
+                         f"({tfmap.parent.parent / 'units' / 'motion_units.npz'}) are missing")
 
 
 def load_animator(model: str | None, runs_dir="runs"):

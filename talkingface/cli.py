@@ -7,6 +7,7 @@ line (``error: ...``) with exit status 2.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import signal
 import subprocess
@@ -14,18 +15,22 @@ import sys
 import traceback
 from pathlib import Path
 
+from analysis.speech_set import SET_DIR
 from data_synth.generate import synthesize_corpus
+from face_model.atomic import check_output_file
 from face_model.corpus import load_corpus
 from face_model.errors import TalkingFaceError
 from talkingface import runs, study_cli
 from talkingface.animate import animate_file, stream_file, stream_microphone
 from talkingface.cli_args import config_args, resolve_config, run_args, visual_source_arg
 from talkingface.config import apply_overrides, dump_config, load_config
-from talkingface.experiment_log import artifact_root, tracking_uri
+from talkingface.experiment_log import (artifact_root, log_speech_eval_model, mlflow_run,
+                                        tracking_uri)
 from talkingface.live import input_devices
 from talkingface.paths import RunPaths, check_run_name
 from talkingface.stages import run
 from talkingface.stages.foundation import fit_units_folder
+from talkingface.stages.speech_eval import evaluate_models, find_models, output_files
 
 
 def cmd_synth(args) -> int:
@@ -75,6 +80,8 @@ def _ablation_overrides(args) -> list[str]:
         out.append(f"ablations.grid={args.grid}")
     if getattr(args, "workers", None) is not None:
         out.append(f"ablations.workers={args.workers}")
+    if getattr(args, "voices", None) is not None:
+        out.append(f"voices.grid={args.voices}")
     return out
 
 
@@ -121,7 +128,8 @@ def cmd_ablate(args) -> int:
 def cmd_report(args) -> int:
     if args.study_data is not None:
         name = check_run_name(args.name or Path(args.study_data).resolve().name)
-        print("report: " + str(study_cli.study_report(args.study_data, name, seed=args.seed or 0,
+        seed = study_cli.monte_carlo_seed(args.seed)
+        print("report: " + str(study_cli.study_report(args.study_data, name, seed=seed,
                                                       allow_incomplete=args.allow_incomplete)))
         return 0
     if not args.name:
@@ -137,6 +145,8 @@ def cmd_report(args) -> int:
 
 
 def cmd_ui(args) -> int:
+    if not 1 <= args.port <= 65535:
+        raise TalkingFaceError(f"--port {args.port}: allowed: a TCP port from 1 to 65535")
     uri = tracking_uri(load_config(args.config, args.overrides))
     cmd = [sys.executable, "-m", "mlflow", "server", "--backend-store-uri", uri,
            "--host", "127.0.0.1", "--port", str(args.port)]
@@ -188,6 +198,8 @@ def cmd_stream(args) -> int:
         return 0
     if (args.wav is None) == (not args.mic):
         raise TalkingFaceError("give a WAV file or --mic (one of them)")
+    if args.seconds is not None and not (math.isfinite(args.seconds) and args.seconds > 0):
+        raise TalkingFaceError(f"--seconds {args.seconds:g}: allowed: a finite number > 0")
     show = args.show and bool(os.environ.get("DISPLAY"))
     if args.mic:
         device = int(args.device) if args.device and args.device.isdigit() else args.device
@@ -210,6 +222,35 @@ def cmd_stream(args) -> int:
     else:
         line += "; the audio arrived faster than real time, so no latency is measured"
     print(line)
+    return 0
+
+
+def cmd_evaluate_speech(args) -> int:
+    cfg = resolve_config(args)
+    models = find_models(args.model)
+    files = output_files(args.out)
+    for path in (files["results"], files["per_file"], files["json"]):
+        check_output_file(path, "--out", overwrite=args.overwrite)
+    res = evaluate_models(models, args.out, set_dir=args.set_dir,
+                          progress=lambda msg: print(msg, file=sys.stderr))
+    cols = (("phone_acc", "phone"), ("viseme_acc", "viseme"),
+            ("viseme_acc_stream_100ms", "stream"), ("bilabial_closed_frac", "p b m"),
+            ("bilabial_centre_rel_vowel", "centre/vowel"),
+            ("labiodental_contact_frac", "f v"), ("r_reference", "r ref"))
+    print(f"{'model':<30}{'split':<8}{'files':>6}" + "".join(f"{c:>13}" for _, c in cols))
+    for r in res["summary"]:
+        if not r.get("files"):
+            continue
+        figures = "".join(f"{r[k]:13.3f}" if isinstance(r.get(k), float) else f"{'-':>13}"
+                          for k, _ in cols)
+        print(f"{r['model']:<30}{r['split']:<8}{r['files']:>6}{figures}")
+    seen = {m: ", ".join(s) or "none" for m, s in res["seen_speakers"].items()}
+    print("seen speakers: " + "; ".join(f"{m}: {s}" for m, s in seen.items()))
+    for model in res["models"]:
+        with mlflow_run(cfg, run_name=f"speech_eval:{model}") as mlf:
+            if mlf is not None:
+                log_speech_eval_model(mlf, res, files["results"].parent, model)
+    print(f"results: {files['results']} (per file: {files['per_file']}; {files['json']})")
     return 0
 
 
@@ -239,6 +280,10 @@ def _run_commands(sub) -> None:
                    help="ablation grid trained as child runs and tabulated ('none' to skip; "
                         "default: the project's configs/ablations.yaml; same as --set "
                         "ablations.grid=GRID)")
+    s.add_argument("--voices", metavar="GRID",
+                   help="voice-robust models trained and scored on real speech ('none' to "
+                        "skip; default: the project's configs/voices.yaml; same as --set "
+                        "voices.grid=GRID)")
     s.add_argument("--workers", type=int, help="processes for ablations (0: all cores)")
     s.set_defaults(func=cmd_replicate)
 
@@ -272,6 +317,19 @@ def _run_commands(sub) -> None:
                    "the complete sessions of a folder that has incomplete ones (said in the PDF)")
     s.add_argument("--seed", type=int, help="seed of the Monte Carlo parts (default 0)")
     s.set_defaults(func=cmd_report)
+
+    s = sub.add_parser("evaluate-speech", help="score trained mappings on the real-speech "
+                       "evaluation set (gate accuracy, lip closure, labiodental contact, "
+                       "reference correlation) beside pocketsphinx's bar; one MLflow run each")
+    s.add_argument("--model", required=True, help="run name, run folder (all its models) or "
+                   ".tfmap file")
+    s.add_argument("--set-dir", type=Path, default=SET_DIR, help="evaluation set folder with "
+                   "manifest.csv (default: the shipped analysis/real_speech)")
+    s.add_argument("--out", type=Path, default=Path("speech_eval") / "results.csv",
+                   help="results CSV; the per-file CSV, JSON and figures are written beside it")
+    s.add_argument("--overwrite", action="store_true", help="replace output files that exist")
+    config_args(s)
+    s.set_defaults(func=cmd_evaluate_speech)
 
     s = sub.add_parser("ui", help="start the MLflow UI on 127.0.0.1 against the same store")
     s.add_argument("--port", type=int, default=5000)
@@ -309,8 +367,17 @@ def _face_commands(sub) -> None:
     s.set_defaults(func=cmd_stream)
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with a usage mistake (a missing argument, a value of the wrong type) as one
+    line ``error: ...`` and exit status 2, like every other user error (its sub-command
+    parsers are of this class too)."""
+
+    def error(self, message):
+        self.exit(2, f"error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="talkingface", description=__doc__.splitlines()[0])
+    p = _Parser(prog="talkingface", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="command", required=True)
     _corpus_commands(sub)
     _run_commands(sub)
@@ -322,7 +389,10 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     """Run one command. A user's mistake (a value, a file the user named) is one line on stderr
     with exit status 2; anything else is a bug and keeps its traceback."""
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:  # --help, or a usage mistake (its line is printed)
+        return exc.code
     try:
         return args.func(args)
     except TalkingFaceError as exc:
@@ -330,12 +400,22 @@ def main(argv=None) -> int:
     except OSError as exc:  # a path that is missing, a folder, unreadable or not writable
         if exc.filename is None:
             raise
-        print(f"error: {exc.filename}: {exc.strerror or exc}", file=sys.stderr)
+        print(f"error: {exc.filename}: {_os_problem(exc)}", file=sys.stderr)
     except KeyboardInterrupt:
         print("interrupted: finished stages and files are kept; unfinished ones were not "
               "written under their names", file=sys.stderr)
         return 130
     return 2
+
+
+def _os_problem(exc: OSError) -> str:
+    """What went wrong with the path of ``exc``, in words (a file where a folder is needed is
+    "File exists" or "Not a directory" to the operating system)."""
+    if isinstance(exc, FileExistsError) and Path(exc.filename).is_file():
+        return "is a file; a folder is needed here"
+    if isinstance(exc, NotADirectoryError):
+        return "a part of this path is a file; a folder is needed there"
+    return exc.strerror or str(exc)
 
 
 def entry() -> None:

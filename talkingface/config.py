@@ -3,8 +3,8 @@
 Each package owns the dataclass of its settings — ``synth`` (:mod:`data_synth.config`),
 ``units`` and ``tracker`` (:mod:`face_model.config`), ``mapping`` with its nested ``train``
 settings (:mod:`mapping.config`), ``study`` (:mod:`study.config`) — and this module adds the two
-that belong to the command line: ``mlflow`` (where runs are logged) and ``ablations`` (the grid
-``replicate`` trains as child runs). It composes, loads, validates and dumps them.
+that belong to the command line: ``mlflow`` (where runs are logged), ``ablations`` (the grid
+``replicate`` trains as child runs) and ``voices`` (the grid of voice-robust models). It composes, loads, validates and dumps them.
 
 ``configs/paper.yaml`` mirrors the defaults. A YAML file may set any subset of keys;
 ``--set section.key=value`` (or ``section.sub.key=value`` for a nested section) overrides single
@@ -28,7 +28,7 @@ import yaml
 from data_synth.config import SynthConfig
 from face_model.config import TrackerConfig, UnitsConfig
 from face_model.errors import ParameterError
-from face_model.settings import SettingError, check_fields, choices_of, integer
+from face_model.settings import SettingError, check_fields, choices_of, integer, require
 from mapping.config import MappingConfig
 from study.config import StudyConfig
 
@@ -41,6 +41,13 @@ class MlflowConfig:
     experiment: str = "talkingface"
     enabled: bool = True
 
+    def __post_init__(self):
+        require(self, "uri", not self.uri or self.uri == "databricks"
+                or re.match(r"[A-Za-z][A-Za-z0-9+.-]*:", self.uri) is not None,
+                "empty ($MLFLOW_TRACKING_URI, else ./mlflow.db) or a tracking URI with its "
+                "scheme, e.g. sqlite:///mlflow.db, postgresql://host/db, http://host:5000")
+        require(self, "experiment", bool(self.experiment.strip()), "a non-empty name")
+
 
 @dataclass(frozen=True)
 class AblationConfig:
@@ -48,6 +55,18 @@ class AblationConfig:
     takes its grid on the command line)."""
 
     grid: str = "default"  # default: configs/ablations.yaml of the project | none | a file
+    workers: int = integer(0, ge=0)  # processes (0: all cores)
+
+    def __post_init__(self):
+        check_fields(self)
+
+
+@dataclass(frozen=True)
+class VoicesConfig:
+    """The voice-robust models ``replicate`` trains and scores on real speech (the grid's
+    children; its ``model`` is what ``animate``, ``stream`` and the study's synthetic face use)."""
+
+    grid: str = "default"  # default: configs/voices.yaml of the project | none | a file
     workers: int = integer(0, ge=0)  # processes (0: all cores)
 
     def __post_init__(self):
@@ -67,6 +86,7 @@ class Config:
     study: StudyConfig = field(default_factory=StudyConfig)
     mlflow: MlflowConfig = field(default_factory=MlflowConfig)
     ablations: AblationConfig = field(default_factory=AblationConfig)
+    voices: VoicesConfig = field(default_factory=VoicesConfig)
 
     def __post_init__(self):
         check_fields(self)

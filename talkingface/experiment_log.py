@@ -141,3 +141,44 @@ def log_replication(mlf, paths: RunPaths, done: dict) -> None:
     mlf.log_artifact(str(paths.units_model), "units")
     mlf.log_artifacts(str(paths.report_dir), "report")
     mlf.log_artifact(str(paths.pdf))
+    if "speech_eval" in done:
+        log_speech_eval(mlf, done["speech_eval"], paths.speech_eval)
+
+
+def speech_eval_metrics(summary: list, model: str) -> dict:
+    """MLflow metrics of one model on the real-speech set: ``<split>.<figure>`` for every
+    pooled figure (NaN and empty splits left out), and the recogniser's bar as ``bar.``."""
+    out = {}
+    for row in summary:
+        prefix = ("" if row["model"] == model else
+                  "bar." if row["model"].startswith("pocketsphinx") else None)
+        if prefix is None:
+            continue
+        for k, v in row.items():
+            if k not in ("model", "split") and isinstance(v, (int, float)) and v == v:
+                out[f"{prefix}{row['split']}.{k}"] = float(v)
+    return out
+
+
+def speech_eval_tags(results: dict, model: str) -> dict:
+    return {"stage": "speech_eval", "speech_eval.model": model,
+            "speech_eval.model_file": results["models"][model],
+            "speech_eval.seen_speakers": ",".join(results["seen_speakers"].get(model, []))
+            or "none"}
+
+
+def log_speech_eval_model(mlf, results: dict, out_dir: Path, model: str) -> None:
+    """One evaluated model into the active MLflow run: its tags, metrics and the files."""
+    mlf.set_tags(speech_eval_tags(results, model))
+    mlf.log_metrics(speech_eval_metrics(results["summary"], model))
+    for name in ("results.csv", "per_file.csv", "results.json", f"opening_{model}.png"):
+        if (Path(out_dir) / name).is_file():
+            mlf.log_artifact(str(Path(out_dir) / name), "speech_eval")
+
+
+def log_speech_eval(mlf, results: dict, out_dir: Path) -> None:
+    """The ``speech_eval`` stage inside a replication: one child run per evaluated model,
+    tagged ``stage=speech_eval`` and ``speech_eval.model`` so the models compare in the UI."""
+    for model in results["models"]:
+        with mlf.start_run(run_name=f"speech_eval:{model}", nested=True):
+            log_speech_eval_model(mlf, results, out_dir, model)

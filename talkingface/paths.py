@@ -10,6 +10,7 @@
       tracking/      the MU-constrained tracker on rendered video: error_curve.csv/.png
       tracked/       the corpus as the tracker sees it (mapping.visual_source tracked)
       mapping/       trained mappings, Tables I-II (CSV), ranking, gate accuracy, plots
+      speech_eval/   the mappings scored on real speech (analysis/real_speech/), the recogniser bar
       render/        Fig. 6 / Fig. 7-style pictures and keyframe tracks of a held-out sentence
       stimuli/       the perception study's stimuli and manifest
       study_data/    the simulated participants (psych-DS)
@@ -33,8 +34,9 @@ from face_model.identifiers import check_identifier
 # 1-64 letters, digits, ._- starting with a letter or digit, and no ".." anywhere
 _NAME = re.compile(r"(?!.*\.\.)[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
 
-STAGE_FOLDERS = ("corpus", "units", "keyframes", "tracking", "tracked", "mapping", "render",
-                 "stimuli", "study_data", "analysis", "ablations", "report")
+STAGE_FOLDERS = ("corpus", "units", "keyframes", "tracking", "tracked", "mapping", "voices",
+                 "speech_eval", "render", "stimuli", "study_data", "analysis", "ablations",
+                 "report")
 
 
 def check_run_name(name: str) -> str:
@@ -103,6 +105,10 @@ class RunPaths:
     @property
     def mapping(self) -> Path:
         return self.stage("mapping")
+
+    @property
+    def speech_eval(self) -> Path:
+        return self.stage("speech_eval")
 
     @property
     def render(self) -> Path:

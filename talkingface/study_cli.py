@@ -27,6 +27,7 @@ from study.simulate import RESPONDER_MODEL, make_observers, responder, simulate_
 from study.stimuli import load_manifest
 from talkingface import runs
 from talkingface.cli_args import config_args, resolve_config, run_args
+from talkingface.config import MAX_SEED
 from talkingface.provenance import git_commit
 
 DEFAULT_STUDY_DIR = Path("study_data")
@@ -40,6 +41,16 @@ def _stimuli_dir(args) -> Path:
         raise ParameterError("no stimuli found under runs/: make them with `talkingface study "
                              "stimuli --name RUN` (or `make replicate`), or pass --stimuli DIR")
     return found[-1].parent
+
+
+def monte_carlo_seed(seed) -> int:
+    """``--seed`` of ``analyze`` and ``report --study-data`` (default 0), checked as the run
+    seed is."""
+    if seed is None:
+        return 0
+    if not 0 <= seed <= MAX_SEED:
+        raise ParameterError(f"--seed is {seed}; allowed: an integer in [0, {MAX_SEED}]")
+    return seed
 
 
 def study_report(study_dir, name: str, *, seed: int = 0, reports_dir="reports",
@@ -63,7 +74,7 @@ def study_report(study_dir, name: str, *, seed: int = 0, reports_dir="reports",
 
 def cmd_analyze(args) -> int:
     out = args.out or Path(args.study_data) / "analysis"
-    summary = analyze_study(args.study_data, out, seed=args.seed or 0,
+    summary = analyze_study(args.study_data, out, seed=monte_carlo_seed(args.seed),
                             allow_incomplete=args.allow_incomplete)
     for k, t in summary["tallies"].items():
         print(f"Table {k}: {t['counts']}")
@@ -83,7 +94,7 @@ def cmd_stimuli(args) -> int:
 
 def cmd_allocate(args) -> int:
     cfg = resolve_config(args)
-    n = args.n or cfg.study.n_participants
+    n = cfg.study.n_participants if args.n is None else args.n
     rows = Allocation(args.study_dir).create(n, cfg.seed)
     counts = {s: sum(r["sequence"] == s for r in rows) for s in ("SR", "RS")}
     print(f"{args.study_dir / 'allocation.csv'}: {len(rows)} slots (SR {counts['SR']}, RS "
@@ -147,8 +158,9 @@ def cmd_release(args) -> int:
 def cmd_simulate(args) -> int:
     cfg = resolve_config(args)
     stim = _stimuli_dir(args)
+    stimuli = load_manifest(stim)  # a missing or damaged stimulus set is named first
     clf = observer_classifier(stim, cfg.seed)
-    res = simulate_study(args.study_dir, load_manifest(stim), clf, n=args.n, seed=cfg.seed,
+    res = simulate_study(args.study_dir, stimuli, clf, n=args.n, seed=cfg.seed,
                          study_seed=cfg.seed, progress=True)
     print(json.dumps(res, indent=1, default=str))
     return 0

@@ -8,11 +8,16 @@ cd "$(dirname "$0")/.."
 
 VENV=${VENV:-.venv}
 PY=${PYTHON:-python3}
-# Debian packages: Python with venv and pip; flite (the optional second speech backend, tested);
+# Debian packages: Python with venv and pip; flite (the optional second speech backend and its
+# voices kal, kal16, awb, rms, slt, tested); festival with its three English voices
+# festvox-kallpc16k, festvox-kdlpc16k, festvox-us-slt-hts and the lexicons they need,
+# festlex-cmu, festlex-poslex (the `synth.voices` festival:* voices, tested);
 # libgl1 (OpenCV, the tracker); ffmpeg (ffprobe checks the MP4s that animate writes, in tests);
 # libportaudio2 (sounddevice: `talkingface stream --mic`, PsychoPy sound; tested on ALSA's null
 # device; it brings ALSA); libjack-jackd2-0 (PsychoPy audio); xvfb, xauth (headless sessions).
-DEB_PKGS="python3 python3-venv python3-pip flite libgl1 ffmpeg libportaudio2 libjack-jackd2-0 xvfb xauth"
+DEB_PKGS="python3 python3-venv python3-pip flite festival festlex-cmu festlex-poslex
+  festvox-kallpc16k festvox-kdlpc16k festvox-us-slt-hts libgl1 ffmpeg libportaudio2
+  libjack-jackd2-0 xvfb xauth"
 
 missing=()
 for p in $DEB_PKGS; do

@@ -14,10 +14,13 @@ from talkingface.stages.foundation import fit_keyframes, fit_units, make_corpus,
 from talkingface.stages.motion import (evaluate_tracker, make_tracked_corpus, render_held_out,
                                        uses_tracked_corpus)
 from talkingface.stages.report import build_report
+from talkingface.stages.speech_eval import evaluate_speech, set_files
 from talkingface.stages.study import (analyze, keep_real_participants, make_stimuli,
                                       simulate_participants)
 from talkingface.stages.ablations import ablate, grid_file, has_grid
 from talkingface.stages.training import train
+from talkingface.stages.voices import grid_file as voices_grid, has_grid as has_voices
+from talkingface.stages.voices import train_voices
 
 _TRAINING_INPUTS = ("corpus", "units", "tracked")
 
@@ -31,9 +34,14 @@ STAGES = {s.name: s for s in (
     Stage("tracked", make_tracked_corpus, config=("seed", "tracker.init",
           "tracker.corpus_noise_sd"), upstream=("corpus", "units"), enabled=uses_tracked_corpus),
     Stage("mapping", train, config=("seed", "mapping"), upstream=_TRAINING_INPUTS),
+    Stage("voices", train_voices, config=("seed", "synth", "units", "mapping", "voices.grid"),
+          speed_only=("synth.workers",), upstream=_TRAINING_INPUTS, enabled=has_voices,
+          files=voices_grid),
+    Stage("speech_eval", evaluate_speech, upstream=("corpus", "units", "mapping", "voices"),
+          files=set_files),
     Stage("render", render_held_out, upstream=("corpus", "keyframes", "mapping")),
     Stage("stimuli", make_stimuli, config=("seed", "synth"), speed_only=("synth.workers",),
-          upstream=("units", "mapping")),
+          upstream=("units", "mapping", "voices")),
     Stage("study_data", simulate_participants, config=("seed", "study"),
           upstream=("corpus", "stimuli"), guard=keep_real_participants),
     Stage("analysis", analyze, config=("seed",), upstream=("study_data",)),
@@ -42,8 +50,9 @@ STAGES = {s.name: s for s in (
     Stage("report", build_report, always=True),
 )}
 
-REPLICATION = ("corpus", "units", "keyframes", "tracking", "tracked", "mapping", "render",
-               "stimuli", "study_data", "analysis", "ablations", "report")
+REPLICATION = ("corpus", "units", "keyframes", "tracking", "tracked", "mapping", "voices",
+               "speech_eval", "render", "stimuli", "study_data", "analysis", "ablations",
+               "report")
 
 
 def run(names, paths: RunPaths, cfg) -> dict:

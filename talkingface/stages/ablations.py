@@ -39,20 +39,21 @@ DEFAULT_GRID = Path(__file__).resolve().parents[2] / "configs" / "ablations.yaml
 _CHILD_NAME = "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_.-"
 
 
-def load_grid(path, cfg) -> dict:
-    """``{child name: resolved Config}`` from a grid file, in file order."""
+def load_grid(path, cfg, *, what: str = "ablation grid", extra_keys: tuple = ()) -> dict:
+    """``{child name: resolved Config}`` from a grid file, in file order. ``extra_keys``: other
+    top-level keys the caller reads itself (the voices grid's ``model``)."""
     path = Path(path)
     if not path.is_file():
-        raise ParameterError(f"ablation grid {path} not found")
-    tree = read_yaml(path, "ablation grid") or {}
+        raise ParameterError(f"{what} {path} not found")
+    tree = read_yaml(path, what) or {}
     if not isinstance(tree, dict) or not isinstance(tree.get("children"), dict) \
             or not tree["children"]:
-        raise ParameterError(f"{path}: an ablation grid needs a non-empty 'children' mapping "
+        raise ParameterError(f"{path}: {what} needs a non-empty 'children' mapping "
                              "(name → settings)")
-    unknown = set(tree) - {"base", "children"}
+    unknown = set(tree) - {"base", "children", *extra_keys}
     if unknown:
-        raise ParameterError(f"{path}: unknown top-level keys {sorted(unknown)}; allowed: base, "
-                             "children")
+        raise ParameterError(f"{path}: unknown top-level keys {sorted(unknown)}; allowed: "
+                             f"{', '.join(['base', 'children', *extra_keys])}")
 
     def settings(where, d) -> dict:
         if d is None:
@@ -79,13 +80,13 @@ def load_grid(path, cfg) -> dict:
     return out
 
 
-def _init_worker() -> None:
+def init_worker() -> None:
     import torch
 
     torch.set_num_threads(1)  # one core per child: the pool gives the parallelism
 
 
-def _run_child(name: str, corpus_dir: str, units_path: str, out_dir: str, cfg) -> dict:
+def run_child(name: str, corpus_dir: str, units_path: str, out_dir: str, cfg) -> dict:
     t0 = time.perf_counter()
     summary = train_and_evaluate(Path(corpus_dir), Path(units_path), Path(out_dir), cfg,
                                  methods=[cfg.mapping.method], progress=False)
@@ -123,8 +124,8 @@ def run_ablations(grid: dict, corpus_dir: Path, units_path: Path, out_dir: Path,
     ctx = multiprocessing.get_context("spawn")  # torch is not fork-safe once its pools exist
     results = {}
     with ProcessPoolExecutor(max_workers=min(n, len(grid)), mp_context=ctx,
-                             initializer=_init_worker) as pool:
-        futs = [pool.submit(_run_child, name, str(corpus_dir), str(units_path),
+                             initializer=init_worker) as pool:
+        futs = [pool.submit(run_child, name, str(corpus_dir), str(units_path),
                             str(out_dir / name), c) for name, c in grid.items()]
         for fut in tqdm(as_completed(futs), total=len(futs), desc="ablations", unit="run",
                         disable=not progress):
@@ -173,6 +174,7 @@ def grid_file(paths: RunPaths, cfg) -> list:
     if not grid_path(cfg).is_file():
         raise ParameterError(f"ablation grid {grid_path(cfg)} not found (ablations.grid: "
                              "default, none or a grid file)")
+    load_grid(grid_path(cfg), cfg)  # a malformed grid is refused before the run is touched
     return [grid_path(cfg)]
 
 

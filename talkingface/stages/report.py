@@ -9,6 +9,7 @@ from analysis.mapping_report import mapping_section
 from analysis.motion_report import motion_section
 from analysis.perception_report import perception_section
 from analysis.report import Report
+from analysis.speech_report import speech_section
 from analysis.study_report import study_section
 from face_model.corpus import load_corpus
 from face_model.motion_units import MotionUnits
@@ -16,6 +17,7 @@ from talkingface.config import dump_config, flatten
 from talkingface.provenance import git_commit
 from talkingface.paths import RunPaths
 from talkingface.stages.base import read_done
+from talkingface.stages.voices import read_results
 
 
 def build_report(paths: RunPaths, cfg) -> dict:
@@ -35,6 +37,9 @@ def build_report(paths: RunPaths, cfg) -> dict:
     if mapping:
         ablations = paths.ablations / "results.csv"
         mapping_section(rep, mapping, paths.mapping, ablations if ablations.is_file() else None)
+    voices = read_done(paths.stage("voices"))
+    speech_section(rep, paths.stage("speech_eval"), read_results(paths),
+                   table_ii_R=_table_ii_R(mapping, cfg.mapping.method), default_model=(voices or {}).get("model"))
     if read_done(paths.keyframes):
         motion_section(rep, paths.keyframes, paths.render, paths.tracking)
     if (paths.stimuli / "stimuli.json").is_file():
@@ -45,6 +50,14 @@ def build_report(paths: RunPaths, cfg) -> dict:
     methods_section(rep, cfg, corpus.info, study=study)
     pdf = rep.build(paths.pdf)
     return {"pdf": str(pdf)}
+
+
+def _table_ii_R(mapping: dict | None, method: str) -> float | None:
+    """The run's mapping's mean test R on the utterance split (Table II), if trained."""
+    for x in ((mapping or {}).get("ranking") or {}).get("utterance", []):
+        if x.get("method") == method:
+            return float(x["R"])
+    return None
 
 
 def methods_section(rep, cfg, corpus_info: dict, *, study: dict | None = None) -> None:

@@ -21,7 +21,8 @@ from talkingface.paths import RunPaths
 
 
 def make_stimuli(paths: RunPaths, cfg) -> dict:
-    """The stimulus set, animated by the run's trained mapping."""
+    """The stimulus set, animated by the run's model: its voice-robust model (stage ``voices``)
+    when it has one, else the paper's single-voice mapping."""
     animator, _ = load_animator(str(paths.root))
     build_stimuli(paths.stimuli, animator=animator, synth_cfg=cfg.synth, seed=cfg.seed,
                   progress=True)

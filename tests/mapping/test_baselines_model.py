@@ -89,8 +89,9 @@ def test_baseline_context_sizes(data, masks):
 
 
 def test_baseline_stores_its_arguments_verbatim():
-    params = dict(kind="gru", context_back=2, context_forward=1,
-                  train=TrainSettings(max_epochs=7, patience=3), random_state=42)
+    params = dict(kind="gru", context_back=2, context_forward=1, cmvn="mean",
+                  cmvn_warmup_frames=12, train=TrainSettings(max_epochs=7, patience=3),
+                  random_state=42)
     b = Baseline(**params)
     for name, value in params.items():
         assert getattr(b, name) is value, name
@@ -111,9 +112,10 @@ def test_make_mapper():
 
 
 # The MappingConfig fields that are no estimator's hyper-parameter: they choose what is trained
-# and on which data (the method, the splits, the features and the visual source).
+# and on which data (the method, the splits, the features, the training copies and the visual
+# source).
 NOT_HYPER_PARAMETERS = {"method", "baselines", "splits", "train_fraction", "n_mfcc", "deltas",
-                        "visual_source"}
+                        "visual_source", "vtlp_range", "augment"}
 
 
 def estimator_parameters(cls) -> set:
@@ -129,7 +131,8 @@ def test_make_mapper_passes_every_config_field():
     mcfg = dataclasses.replace(
         MappingConfig(), context_back=2, context_forward=1, n_classes=8, gate_components=3,
         gate_covariance="full", min_class_frames=11, hidden_min=4, hidden_max=9,
-        expression_model="bank", cascade_hidden=12, train=train)
+        expression_model="bank", cascade_hidden=12, cmvn="meanvar", cmvn_warmup_frames=7,
+        train=train)
     fields = {f.name for f in dataclasses.fields(MappingConfig)}
     gated = estimator_parameters(GatedMLP)
     assert fields - gated == NOT_HYPER_PARAMETERS  # every other field is a hyper-parameter

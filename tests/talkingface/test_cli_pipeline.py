@@ -8,6 +8,17 @@ from pypdf import PdfReader
 from talkingface.cli import main
 
 TINY = ["--set", "synth.n_sentences=3", "--set", "synth.workers=2"]
+# two voice-robust configurations, small: the run's voice, and three engines with CMVN
+VOICES_GRID = """model: many
+base:
+  mapping.splits: [utterance]
+  mapping.baselines: []
+children:
+  one: {}
+  many:
+    synth.voices: [espeak:en-us+f3, flite:awb, festival:kal_diphone]
+    mapping.cmvn: meanvar
+"""
 
 
 @pytest.fixture
@@ -22,7 +33,9 @@ def pdf_text(path) -> str:
 
 
 def test_replicate_writes_runs_report_and_mlflow(workdir, capsys):
-    assert main(["replicate", "--name", "tiny", *TINY, "--ablations", "none"]) == 0
+    (workdir / "voices.yaml").write_text(VOICES_GRID)
+    assert main(["replicate", "--name", "tiny", *TINY, "--ablations", "none",
+                 "--voices", "voices.yaml"]) == 0
     run = workdir / "runs" / "tiny"
     for p in ("config.yaml", "corpus/manifest.csv", "corpus/done.json", "units/motion_units.npz",
               "units/variance.csv", "report/summary.json", "report/mu_variance.png"):
@@ -49,8 +62,13 @@ def test_replicate_writes_runs_report_and_mlflow(workdir, capsys):
 
     mlflow.set_tracking_uri(f"sqlite:///{workdir / 'mlflow.db'}")
     runs = mlflow.search_runs(experiment_names=["talkingface"], output_format="list")
-    assert len(runs) == 1
-    r = runs[0]
+    top = [r for r in runs if "mlflow.parentRunId" not in r.data.tags]
+    assert len(top) == 1
+    r = top[0]
+    # one child run per model scored on real speech, so they compare in the UI
+    scored = {c.data.tags.get("speech_eval.model") for c in runs
+              if c.data.tags.get("mlflow.parentRunId") == r.info.run_id}
+    assert {"gated_mlp_utterance", "voices-one", "voices-many"} <= scored
     # the UI opens the experiment on its training runs, not on its GenAI pages
     tags = mlflow.get_experiment_by_name("talkingface").tags
     assert tags["mlflow.experimentKind"] == "custom_model_development"
@@ -74,10 +92,40 @@ def test_replicate_writes_runs_report_and_mlflow(workdir, capsys):
     for table in ("TABLE III", "TABLE IV", "TABLE V", "TABLE VI", "TABLE VII"):
         assert f"{table}:" in text  # ours beside the paper's, all seven tables in one PDF
     assert "Model comparison" in text and "Synthetic vs real face: paired tests" in text
+    _check_voices_and_real_speech(run, rows, text)
+
+
+def _check_voices_and_real_speech(run, table_rows, text):
+    """The voice-robust models and their scores on real recordings (stages voices and
+    speech_eval), the default model of animate and the study, and the report's section."""
+    from talkingface.animate import find_model
+
+    with open(run / "voices" / "results.csv", newline="") as f:
+        voices = {r["model"]: r for r in csv.DictReader(f)}
+    assert set(voices) == {"one", "many"} and voices["many"]["default"] == "True"
+    # the child with the run's own settings is the run's mapping again: its in-domain R is
+    # Table II's mean test R (utterance split), recomputed from its predictions
+    ours = [float(r["R"]) for r in table_rows if r["method"] == "gated_mlp"
+            and r["split"] == "utterance" and r["part"] == "test"]
+    assert abs(float(voices["one"]["in_domain_R"]) - sum(ours) / len(ours)) < 1e-9
+    manifest = (run / "voices" / "corpora" / "0" / "manifest.csv").read_text()
+    assert all(v in manifest for v in ("espeak:en-us+f3", "flite:awb", "festival:kal_diphone"))
+    # every model scored on the real recordings; flite's awb is the ARCTIC speaker awb
+    with open(run / "speech_eval" / "results.csv", newline="") as f:
+        scores = list(csv.DictReader(f))
+    models = {r["model"] for r in scores}
+    assert {"gated_mlp_utterance", "voices-one", "voices-many"} <= models
+    seen = {r["model"]: int(r["files"]) for r in scores if r["split"] == "seen"}
+    assert seen["voices-many"] == 1 and seen["voices-one"] == 0
+    assert any(m.startswith("pocketsphinx") for m in models)
+    # animate, stream and the study use the voice-robust model by default
+    tfmap, _ = find_model(None)
+    assert tfmap.resolve() == run / "voices" / "many" / "gated_mlp_utterance.tfmap"
+    assert "Real speech, unseen speakers" in text and "voices-many is the one" in text
 
 
 def test_replicate_refuses_a_different_config_under_the_same_name(workdir, capsys):
-    assert main(["replicate", "--name", "r", *TINY, "--ablations", "none",
+    assert main(["replicate", "--name", "r", *TINY, "--ablations", "none", "--voices", "none",
                  "--set", "mlflow.enabled=false"]) == 0
     stamp = (workdir / "runs" / "r" / "corpus" / "done.json").read_text()
     code = main(["replicate", "--name", "r", *TINY, "--set", "mlflow.enabled=false",
@@ -87,15 +135,16 @@ def test_replicate_refuses_a_different_config_under_the_same_name(workdir, capsy
     # nothing was touched
     assert (workdir / "runs" / "r" / "corpus" / "done.json").read_text() == stamp
     # the same config again reuses the finished corpus
-    assert main(["replicate", "--name", "r", *TINY, "--ablations", "none",
+    assert main(["replicate", "--name", "r", *TINY, "--ablations", "none", "--voices", "none",
                  "--set", "mlflow.enabled=false"]) == 0
     assert (workdir / "runs" / "r" / "corpus" / "done.json").read_text() == stamp
     # a study setting with --overwrite re-runs the study stages and nothing upstream of them
     run = workdir / "runs" / "r"
     kept = {s: (run / s / "done.json").read_text() for s in ("corpus", "units", "mapping",
                                                             "stimuli")}
-    assert main(["replicate", "--name", "r", *TINY, "--ablations", "none", "--overwrite",
-                 "--set", "mlflow.enabled=false", "--set", "study.n_participants=4"]) == 0
+    assert main(["replicate", "--name", "r", *TINY, "--ablations", "none", "--voices", "none",
+                 "--overwrite", "--set", "mlflow.enabled=false", "--set",
+                 "study.n_participants=4"]) == 0
     assert {s: (run / s / "done.json").read_text() for s in kept} == kept
     assert len(list((run / "study_data").glob("sub-*/sub-*_task-emotion_beh.csv"))) == 4
     assert json.loads((run / "analysis" / "done.json").read_text())["participants"] == 4

@@ -105,7 +105,7 @@ BAD_VALUES = [
     ("synth.expressions=[sad, sad]", "['sad', 'sad']"),
     ("synth.expressions=[[neutral]]", "[['neutral']]"),
     ("synth.speakers=0", "0"),
-    ("synth.backend=festival", "'festival'"),
+    ("synth.backend=festival", "'festival'"),  # festival voices come through synth.voices
     ("synth.workers=-2", "-2"),
     ("synth.rate_wpm=-100", "-100"),
     ("synth.rate_wpm=0", "0"),
@@ -178,6 +178,10 @@ BAD_VALUES = [
     ("mapping.train.learning_rate=.nan", "nan"),
     ("mapping.train.weight_decay=-1e-4", "-0.0001"),
     ("mapping.train.batch_size=-1", "-1"),
+    ("mapping.cmvn=median", "'median'"),
+    ("mapping.vtlp_range=[1.1, 0.9]", "[1.1, 0.9]"),
+    ("mapping.augment.copies=-1", "-1"),
+    ("mapping.augment.noise_prob=2", "2.0"),
     ("study.n_participants=1", "1"),
     ("study.keys=[n, h, s]", "['n', 'h', 's']"),
     ("study.keys=[n, n, s, u]", "['n', 'n', 's', 'u']"),
@@ -189,6 +193,7 @@ BAD_VALUES = [
     ("study.iti_s=.nan", "nan"),
     ("study.audio_backend=pulse", "'pulse'"),
     ("ablations.workers=-1", "-1"),
+    ("voices.workers=-1", "-1"),
 ]
 
 

@@ -1,0 +1,251 @@
+"""The real-speech evaluation set shipped in ``analysis/real_speech/``: its manifest, its loader
+and the converters from the sources' own phone labels to the 44 classes.
+
+The folder holds real recordings found in package archives (CMU ARCTIC ``slt`` and ``awb``, the
+pocketsphinx test recordings, praatio's "bobby"), 16 kHz mono PCM16 WAV, each with a phone file in
+the corpus format (``start_s, end_s, phone``; phones in the 44-class set of
+:mod:`face_model.phones`). ``manifest.csv`` has one row per recording:
+
+=================  ==========================================================================
+``id``             a short name (``slt_a0009``)
+``wav``            the audio, relative to the set folder
+``labels``         the phone file, relative to the set folder
+``speaker``        the speaker's own name in the set (``arctic_slt``, ``ps_male_1`` …)
+``speaker_source`` where the voice comes from; a training voice built from the same speaker
+                   (flite's ``slt`` is ARCTIC ``slt``) makes the recording *seen*
+``label_source``   ``hts`` (the HTS labels shipped with it), ``textgrid`` (its own TextGrid)
+                   or ``pocketsphinx-5.1.1 forced alignment`` (``tools/align_real_speech.py``)
+``label_origin``   the original annotation file in the set (hts, textgrid), else empty
+``transcript``     the words spoken
+``licence``        the licence notice of the recording (the full texts sit beside the files)
+=================  ==========================================================================
+
+``README.md`` in the folder gives each file's package, version, path inside it and SHA-256.
+"""
+from __future__ import annotations
+
+import csv
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from face_model.audio import read_wav
+from face_model.corpus import PhoneSegment
+from face_model.errors import CorpusError
+from face_model.phones import PHONE_INDEX, PHONES
+
+SET_DIR = Path(__file__).resolve().parent / "real_speech"
+MANIFEST = "manifest.csv"
+MANIFEST_COLUMNS = ("id", "wav", "labels", "speaker", "speaker_source", "label_source",
+                    "label_origin", "transcript", "licence")
+ALIGNED = "pocketsphinx-5.1.1 forced alignment"
+LABEL_SOURCES = ("hts", "textgrid", ALIGNED)
+SAMPLE_RATE = 16000
+_SILENCES = {"pau", "sil", "h#", "ssil", "sp", "brth", ""}
+# festival / ARPAbet symbols outside the 44 classes
+_OTHER = {"axr": "er", "em": "m", "hv": "hh", "nx": "n", "ix": "ih", "ux": "uw"}
+
+
+@dataclass(frozen=True)
+class SpeechItem:
+    """One recording of the set, loaded and checked. ``audio`` float32 (n_samples,) at ``sr``."""
+
+    id: str
+    wav: Path
+    labels: Path
+    speaker: str
+    speaker_source: str
+    label_source: str
+    label_origin: str
+    transcript: str
+    licence: str
+    sr: int
+    audio: np.ndarray = field(repr=False)
+    phones: tuple = field(repr=False)  # PhoneSegment, contiguous from 0 to the end of the audio
+
+    @property
+    def duration_s(self) -> float:
+        return len(self.audio) / self.sr
+
+
+def phone_class(symbol: str, *, source: str = "") -> str:
+    """The 44-class label of an ARPAbet or festival phone symbol (any case, stress digits
+    allowed): ``AA1`` → ``aa``, ``pau`` → ``sil``, ``axr`` → ``er``."""
+    s = re.sub(r"[0-2]$", "", symbol.strip()).lower()
+    s = "sil" if s in _SILENCES else _OTHER.get(s, s)
+    if s not in PHONE_INDEX:
+        where = f" in {source}" if source else ""
+        raise CorpusError(f"phone symbol {symbol!r}{where} has no class among the 44: "
+                          f"{' '.join(PHONES)}")
+    return s
+
+
+def _tidy(segs: list, duration_s: float) -> list[PhoneSegment]:
+    """Contiguous segments from 0 to ``duration_s``: gaps and the ends filled with silence,
+    adjacent silences merged, times rounded to 0.1 ms."""
+    out: list[PhoneSegment] = []
+    t = 0.0
+    for s, e, p in list(segs) + [(duration_s, duration_s, "sil")]:
+        if s > t + 1e-9:
+            out.append(PhoneSegment(round(t, 4), round(s, 4), "sil"))
+        if e > s:
+            out.append(PhoneSegment(round(s, 4), round(e, 4), p))
+        t = max(t, e)
+    merged: list[PhoneSegment] = []
+    for seg in out:
+        if merged and merged[-1].phone == seg.phone == "sil":
+            merged[-1] = PhoneSegment(merged[-1].start_s, seg.end_s, "sil")
+        elif seg.end_s > seg.start_s:
+            merged.append(seg)
+    return merged
+
+
+def hts_segments(path, duration_s: float) -> list[PhoneSegment]:
+    """Phones of an HTS full-context label file (times in 100 ns; the centre phone sits between
+    ``-`` and ``+``), festival symbols mapped to the 44 classes (``ax`` stays ``ax``)."""
+    segs = []
+    for line_no, line in enumerate(Path(path).read_text(encoding="utf-8").splitlines(), 1):
+        parts = line.split()
+        if not parts:
+            continue
+        m = re.search(r"-([^+]+)\+", parts[2]) if len(parts) >= 3 else None
+        if m is None:
+            raise CorpusError(f"{path}, line {line_no}: not an HTS full-context label")
+        segs.append((int(parts[0]) / 1e7, int(parts[1]) / 1e7,
+                     phone_class(m.group(1), source=f"{path}, line {line_no}")))
+    return _tidy(segs, duration_s)
+
+
+def textgrid_segments(path, duration_s: float, tier: str = "phone") -> list[PhoneSegment]:
+    """Phones of the interval tier ``tier`` of a Praat TextGrid (long text format), ARPAbet with
+    stress. An empty interval is silence; the one merged label ``PT`` (praatio's "bobby":
+    "ripped the") is split into /p/ and /t/ of equal length (a modification of the labels)."""
+    text = Path(path).read_text(encoding="utf-8-sig")
+    m = re.search(rf'name = "{re.escape(tier)}"(.*?)(?:item \[\d+\]:|\Z)', text, re.S)
+    if m is None:
+        raise CorpusError(f"{path}: no interval tier named {tier!r}")
+    segs = []
+    for s, e, label in re.findall(r'xmin = ([\d.eE+-]+)\s*xmax = ([\d.eE+-]+)\s*text = "([^"]*)"',
+                                  m.group(1)):
+        s, e = float(s), float(e)
+        if label.upper() == "PT":
+            mid = 0.5 * (s + e)
+            segs += [(s, mid, "p"), (mid, e, "t")]
+        else:
+            segs.append((s, e, phone_class(label, source=str(path))))
+    return _tidy(segs, duration_s)
+
+
+def write_labels(path, segs) -> Path:
+    """A phone file in the corpus format."""
+    path = Path(path)
+    with open(path, "w", newline="", encoding="utf-8") as f:
+        w = csv.writer(f, lineterminator="\n")
+        w.writerow(["start_s", "end_s", "phone"])
+        for seg in segs:
+            w.writerow([f"{seg.start_s:.4f}", f"{seg.end_s:.4f}", seg.phone])
+    return path
+
+
+def read_labels(path, duration_s: float) -> tuple[PhoneSegment, ...]:
+    """The phone file at ``path``: contiguous segments from 0 to the end of the audio.
+
+    Raises
+    ------
+    CorpusError
+        Naming the file and line: a wrong header, an unknown phone, bad times, a gap or an
+        overlap, or an end more than 10 ms away from the audio's.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise CorpusError(f"{path}: phone file not found")
+    segs: list[PhoneSegment] = []
+    with open(path, newline="", encoding="utf-8-sig") as f:
+        reader = csv.reader(f)
+        header = next(reader, None)
+        if header != ["start_s", "end_s", "phone"]:
+            raise CorpusError(f"{path}: header must be 'start_s,end_s,phone', got {header}")
+        for line, row in enumerate(reader, start=2):
+            if len(row) != 3:
+                raise CorpusError(f"{path}, line {line}: need 3 fields, got {len(row)}")
+            if row[2] not in PHONE_INDEX:
+                raise CorpusError(f"{path}, line {line}: unknown phone {row[2]!r}; allowed are "
+                                  f"the 44 classes: {' '.join(PHONES)}")
+            try:
+                s, e = float(row[0]), float(row[1])
+            except ValueError:
+                raise CorpusError(f"{path}, line {line}: times must be numbers, got {row[0]!r}, "
+                                  f"{row[1]!r}") from None
+            expected = segs[-1].end_s if segs else 0.0
+            if not (np.isfinite(s) and np.isfinite(e)) or e <= s or abs(s - expected) > 1e-6:
+                raise CorpusError(f"{path}, line {line}: segment {s}–{e} s must start where the "
+                                  f"previous one ends ({expected} s) and end after it starts")
+            segs.append(PhoneSegment(s, e, row[2]))
+    if not segs:
+        raise CorpusError(f"{path}: no phone segments")
+    if abs(segs[-1].end_s - duration_s) > 0.01:
+        raise CorpusError(f"{path}: the last phone ends at {segs[-1].end_s:.4f} s but the audio "
+                          f"lasts {duration_s:.4f} s")
+    return tuple(segs)
+
+
+def read_manifest(set_dir=SET_DIR) -> list[dict]:
+    """The manifest's rows, with every column present and non-empty (``label_origin`` may be
+    empty), ids unique, and ``label_source`` one of :data:`LABEL_SOURCES`."""
+    set_dir = Path(set_dir)
+    path = set_dir / MANIFEST
+    if not path.is_file():
+        raise CorpusError(f"{path}: manifest not found (--set-dir must be a folder holding "
+                          f"{MANIFEST})")
+    with open(path, newline="", encoding="utf-8-sig") as f:
+        reader = csv.DictReader(f)
+        missing = [c for c in MANIFEST_COLUMNS if c not in (reader.fieldnames or [])]
+        if missing:
+            raise CorpusError(f"{path}: missing columns {missing}; need "
+                              f"{', '.join(MANIFEST_COLUMNS)}")
+        rows = list(reader)
+    if not rows:
+        raise CorpusError(f"{path}: no recordings listed")
+    seen = set()
+    for line, row in enumerate(rows, start=2):
+        empty = [c for c in MANIFEST_COLUMNS if c != "label_origin" and not (row[c] or "").strip()]
+        if empty:
+            raise CorpusError(f"{path}, line {line}: empty {', '.join(empty)}")
+        if row["id"] in seen:
+            raise CorpusError(f"{path}, line {line}: id {row['id']!r} is listed twice")
+        seen.add(row["id"])
+        if row["label_source"] not in LABEL_SOURCES:
+            raise CorpusError(f"{path}, line {line}: label_source {row['label_source']!r}; "
+                              f"allowed: {', '.join(LABEL_SOURCES)}")
+    return rows
+
+
+def _load_item(set_dir: Path, row: dict) -> SpeechItem:
+    wav = set_dir / row["wav"]
+    if not wav.is_file():
+        raise CorpusError(f"{wav}: audio file of {row['id']!r} not found")
+    y, sr = read_wav(wav)  # a file it cannot read is an AudioFileError naming it
+    if sr != SAMPLE_RATE or len(y) == 0:
+        raise CorpusError(f"{wav}: need {SAMPLE_RATE} Hz mono audio with samples, got {sr} Hz, "
+                          f"{len(y)} samples")
+    phones = read_labels(set_dir / row["labels"], len(y) / sr)
+    return SpeechItem(id=row["id"], wav=wav, labels=set_dir / row["labels"],
+                      speaker=row["speaker"], speaker_source=row["speaker_source"],
+                      label_source=row["label_source"], label_origin=row["label_origin"] or "",
+                      transcript=row["transcript"], licence=row["licence"], sr=sr,
+                      audio=np.asarray(y, dtype=np.float32), phones=phones)
+
+
+def load_speech_set(set_dir=SET_DIR, ids=None) -> list[SpeechItem]:
+    """Every recording of the set (or those in ``ids``), loaded and checked (see
+    :func:`read_manifest` and :func:`read_labels`); errors name the file."""
+    set_dir = Path(set_dir)
+    rows = read_manifest(set_dir)
+    if ids is not None:
+        unknown = sorted(set(ids) - {r["id"] for r in rows})
+        if unknown:
+            raise CorpusError(f"{set_dir / MANIFEST}: no recordings {unknown}")
+        rows = [r for r in rows if r["id"] in set(ids)]
+    return [_load_item(set_dir, r) for r in rows]

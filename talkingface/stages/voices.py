@@ -1,0 +1,190 @@
+"""The voice-robust models (issue 12): the ``voices`` stage.
+
+Its grid (``voices.grid``, by default ``configs/voices.yaml``) has the form of the ablation grid
+(:func:`talkingface.stages.ablations.load_grid`) plus ``model``, the child that ``animate``,
+``stream`` and the study's synthetic face use by default. Every child trains the paper's mapping
+(its ``mapping.method``) on the run's Motion Units:
+
+* a child that leaves ``synth`` as the run has it trains on the run's corpus (one voice);
+* a child that changes ``synth`` (``synth.voices``: many voices) trains on a corpus of its own,
+  made with the run's seed — the same faces and sentences, the speech drawn from its voices —
+  under ``voices/corpora/<k>/``, built once for every child that asks for the same settings.
+
+Files (``runs/<name>/voices/``)::
+
+    <child>/               the child's tables.csv, gate.json, <method>_<split>.tfmap, summary.json
+    corpora/<k>/           the many-voice corpora
+    results.csv            per child: its corpus, settings, test R on its own corpus, and the
+                           in-domain test R on the run's single-voice corpus (utterance split)
+
+The in-domain R puts every child on the paper's Table II footing: its predictions for the test
+sentences of the run's own corpus (the same sentences every child held out, since the split is
+drawn by sentence with the run's seed), measured as :mod:`analysis.evaluation` measures Table II.
+"""
+from __future__ import annotations
+
+import csv
+import multiprocessing
+import os
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from analysis.evaluation import database_scale, evaluate_predictions
+from data_synth.generate import synthesize_corpus
+from face_model.corpus import load_corpus
+from face_model.errors import ParameterError
+from face_model.motion_units import MotionUnits
+from mapping.checkpoint import AudioMapping
+from mapping.dataset import build_dataset, split_masks
+from mapping.experiment import SPLIT_SEED_OFFSET
+from talkingface.config import read_yaml
+from talkingface.paths import RunPaths
+from talkingface.stages.ablations import init_worker, load_grid, run_child
+from talkingface.stages.base import read_done, write_csv
+from talkingface.stages.motion import training_corpus
+
+DEFAULT_GRID = Path(__file__).resolve().parents[2] / "configs" / "voices.yaml"
+WHAT = "voices grid"
+
+
+def grid_path(cfg) -> Path | None:
+    """The grid file of ``voices.grid`` (None: no voice-robust models)."""
+    grid = cfg.voices.grid
+    if not grid or grid.lower() == "none":
+        return None
+    return DEFAULT_GRID if grid == "default" else Path(grid)
+
+
+def has_grid(cfg) -> bool:
+    return grid_path(cfg) is not None
+
+
+def load_voices_grid(path, cfg) -> tuple[dict, str]:
+    """``({child: Config}, default model child)`` of a voices grid; the children may not change
+    what the run's Motion Units or faces are made from (seed, units, tracker, visual source)."""
+    children = load_grid(path, cfg, what=WHAT, extra_keys=("model",))
+    model = (read_yaml(path, WHAT) or {}).get("model")
+    if model not in children:
+        raise ParameterError(f"{path}: 'model' is {model!r}; allowed: the name of a child "
+                             f"({', '.join(children)})")
+    for name, child in children.items():
+        if child.seed != cfg.seed or child.units != cfg.units:
+            raise ParameterError(f"{path}: child {name!r} changes the seed or the Motion Units; "
+                                 "the children share the run's, so set these for the whole run")
+        same_faces = replace(child.synth, voices=cfg.synth.voices,
+                             voice_weights=cfg.synth.voice_weights, workers=cfg.synth.workers)
+        if same_faces != cfg.synth:
+            raise ParameterError(f"{path}: child {name!r} changes synth settings other than "
+                                 "synth.voices and synth.voice_weights; its corpus must show "
+                                 "the run's faces saying the run's sentences")
+    return children, model
+
+
+def grid_file(paths: RunPaths, cfg) -> list:
+    """The grid file (its contents join the stage's key); a malformed grid is refused here,
+    before the run is touched."""
+    if not has_grid(cfg):
+        return []
+    load_voices_grid(grid_path(cfg), cfg)
+    return [grid_path(cfg)]
+
+
+def _corpora(children: dict, cfg, paths: RunPaths, out: Path) -> dict:
+    """Child → corpus folder: the run's own, or a many-voice one built under ``out``."""
+    built: list = []  # [(synth settings, folder)]
+    where = {}
+    for name, child in children.items():
+        if child.synth.voices == cfg.synth.voices:
+            where[name] = training_corpus(paths, cfg)
+            continue
+        folder = next((f for s, f in built if s == child.synth), None)
+        if folder is None:
+            folder = out / f"{len(built)}"
+            synthesize_corpus(folder, child.synth, cfg.seed)
+            built.append((child.synth, folder))
+        where[name] = folder
+    return where
+
+
+def in_domain_R(tfmap: Path, data: list, masks: list, scale, units) -> dict:
+    """Test R (Eq. 6) per expression and their mean of the model ``tfmap`` on the run's own
+    corpus (``data``, its utterance-split ``masks``), as Table II measures it."""
+    mapping = AudioMapping.load(tfmap)
+    preds = [mapping.mapper.predict(d.features, d.expression) for d in data]
+    tables = evaluate_predictions(data, masks, preds, units, scale)
+    r = {e: float(t["test"].R) for e, t in tables.items() if "test" in t}
+    return {**{f"in_domain_R_{e}": v for e, v in r.items()},
+            "in_domain_R": float(np.mean(list(r.values())))}
+
+
+def train_voices(paths: RunPaths, cfg) -> dict:
+    """Every child of the voices grid, trained (``voices.workers`` processes, 0: all cores)
+    and measured (stage ``voices``)."""
+    children, model = load_voices_grid(grid_path(cfg), cfg)
+    out = paths.stage("voices")
+    out.mkdir(parents=True, exist_ok=True)
+    corpora = _corpora(children, cfg, paths, out / "corpora")
+    n = cfg.voices.workers or os.cpu_count() or 1
+    ctx = multiprocessing.get_context("spawn")  # torch is not fork-safe once its pools exist
+    summaries = {}
+    with ProcessPoolExecutor(max_workers=min(n, len(children)), mp_context=ctx,
+                             initializer=init_worker) as pool:
+        futs = [pool.submit(run_child, name, str(corpora[name]), str(paths.units_model),
+                            str(out / name), child) for name, child in children.items()]
+        for fut in tqdm(as_completed(futs), total=len(futs), desc="voice-robust models",
+                        unit="model"):
+            res = fut.result()
+            summaries[res["name"]] = res
+    units = MotionUnits.load(paths.units_model)
+    own_corpus = load_corpus(training_corpus(paths, cfg))
+    own: dict = {}  # (n_mfcc, deltas) -> (data, masks, scale) of the run's corpus
+    rows, models = [], {}
+    for name, child in children.items():
+        m = child.mapping
+        tfmap = out / name / f"{m.method}_utterance.tfmap"
+        if not tfmap.is_file():
+            raise ParameterError(f"{WHAT} child {name!r} trained no utterance-split model; keep "
+                                 "'utterance' in its mapping.splits")
+        if (m.n_mfcc, m.deltas) not in own:
+            data = build_dataset(own_corpus, units, n_mfcc=m.n_mfcc, deltas=m.deltas)
+            own[m.n_mfcc, m.deltas] = (data, split_masks(
+                data, "utterance", train_fraction=cfg.mapping.train_fraction,
+                seed=cfg.seed + SPLIT_SEED_OFFSET), database_scale(data, units))
+        models[name] = {"tfmap": str(tfmap.relative_to(out)),
+                        "corpus": "" if corpora[name] == training_corpus(paths, cfg)
+                        else str(corpora[name].relative_to(out))}
+        summary = summaries[name]["summary"]
+        own_R = next(x["R"] for x in summary["ranking"]["utterance"] if x["method"] == m.method)
+        rows.append({"model": name, "default": name == model,
+                     "corpus": models[name]["corpus"] or "the run's",
+                     "voices": " ".join(child.synth.voices) or "(the run's voice)",
+                     "cmvn": m.cmvn, "vtlp_range": "-".join(map(str, m.vtlp_range)),
+                     "augment_copies": m.augment.copies, "own_corpus_test_R": own_R,
+                     **in_domain_R(tfmap, *own[m.n_mfcc, m.deltas], units),
+                     "seconds": round(summaries[name]["seconds"], 1)})
+    write_csv(out / "results.csv", rows)
+    return {"grid": str(grid_path(cfg)), "model": model, "models": models, "rows": rows}
+
+
+def voices_models(paths: RunPaths) -> dict:
+    """The trained voice-robust models of a run: child name → (tfmap, the corpus it was
+    trained on: its own many-voice corpus, or the run's); empty when the run has none."""
+    done = read_done(paths.stage("voices"))
+    if not done:
+        return {}
+    out = paths.stage("voices")
+    return {name: (out / m["tfmap"], out / m["corpus"] if m["corpus"] else paths.corpus)
+            for name, m in done.get("models", {}).items()}
+
+
+def read_results(paths: RunPaths) -> list[dict]:
+    """``voices/results.csv`` as rows (empty when the run has none)."""
+    f = paths.stage("voices") / "results.csv"
+    if not f.is_file():
+        return []
+    with open(f, newline="", encoding="utf-8-sig") as fh:
+        return list(csv.DictReader(fh))

@@ -1,0 +1,123 @@
+"""Regenerate the phone labels of the real-speech evaluation set (``analysis/real_speech/``).
+
+    python tools/align_real_speech.py [--set-dir DIR] [--check] [ID ...]
+
+For every recording of the manifest (or the ids given) the phone file ``labels`` is made from
+its ``label_source``:
+
+* ``hts``: the HTS full-context labels shipped beside it (``label_origin``), festival symbols
+  mapped to the 44 classes (``pau`` → ``sil``; ``ax`` kept);
+* ``textgrid``: its own TextGrid's ``phone`` tier (ARPAbet with stress; ``PT`` split in two);
+* ``pocketsphinx-5.1.1 forced alignment``: the transcript aligned to the audio by pocketsphinx's
+  en-US acoustic model (shipped in the wheel; nothing is downloaded), two passes as in the
+  package's own alignment test: words first (``set_align_text``), then phones
+  (``set_alignment``). Phones come in 10 ms frames; silences and noise are ``sil``; the ends
+  are padded with silence to the length of the audio.
+
+``--check`` writes nothing and exits 1 when a regenerated file differs from the shipped one.
+"""
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+from pocketsphinx import Decoder
+
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:
+    sys.path.insert(0, str(REPO))
+
+from analysis.speech_set import (ALIGNED, SAMPLE_RATE, SET_DIR, _tidy, hts_segments,  # noqa: E402
+                                 phone_class, read_manifest, textgrid_segments, write_labels)
+from face_model.audio import read_wav  # noqa: E402
+from face_model.errors import CorpusError  # noqa: E402
+
+FRAMES_PER_S = 100  # pocketsphinx's default frame rate
+
+
+def aligner() -> Decoder:
+    """A decoder with the wheel's default en-US model and dictionary, no language model."""
+    return Decoder(lm=None, loglevel="FATAL", backtrace=False)
+
+
+def _words(dec: Decoder, transcript: str) -> str:
+    words = re.sub(r"[^a-z0-9' ]+", " ", transcript.lower().replace("-", " ")).split()
+    oov = [w for w in words if dec.lookup_word(w) is None]
+    if oov:
+        raise CorpusError(f"words not in pocketsphinx's cmudict-en-us.dict: {oov}")
+    return " ".join(words)
+
+
+def align(dec: Decoder, samples: np.ndarray, transcript: str) -> list:
+    """``[(start_s, end_s, phone), ...]`` of int16 16 kHz mono ``samples`` spoken as
+    ``transcript``; phones in the 44 classes, covering the whole audio."""
+    buf = np.ascontiguousarray(samples, dtype="<i2").tobytes()
+    dec.set_align_text(_words(dec, transcript))
+    for second_pass in (False, True):
+        if second_pass:
+            dec.set_alignment()
+        dec.start_utt()
+        dec.process_raw(buf, no_search=False, full_utt=True)
+        dec.end_utt()
+    segs = []
+    for ph in dec.get_alignment().phones():
+        name = ph.name.lower()
+        name = "sil" if name.startswith(("+", "<")) else name
+        segs.append((ph.start / FRAMES_PER_S, (ph.start + ph.duration) / FRAMES_PER_S,
+                     phone_class(name, source="pocketsphinx alignment")))
+    return _tidy(segs, len(samples) / SAMPLE_RATE)
+
+
+def labels_for(row: dict, set_dir: Path, dec: Decoder | None) -> list:
+    """The phone segments of one manifest row, from its label source."""
+    y, sr = read_wav(set_dir / row["wav"])
+    duration = len(y) / sr
+    if row["label_source"] == "hts":
+        return hts_segments(set_dir / row["label_origin"], duration)
+    if row["label_source"] == "textgrid":
+        return textgrid_segments(set_dir / row["label_origin"], duration)
+    assert row["label_source"] == ALIGNED
+    samples = np.round(np.asarray(y, np.float64) * 32768).clip(-32768, 32767).astype(np.int16)
+    return align(dec or aligner(), samples, row["transcript"])
+
+
+def regenerate(set_dir=SET_DIR, ids=None, *, check: bool = False, out=sys.stdout) -> list:
+    """Write (or with ``check`` compare) the phone files; returns the ids that differ."""
+    set_dir = Path(set_dir)
+    rows = [r for r in read_manifest(set_dir) if ids is None or r["id"] in ids]
+    dec = aligner() if any(r["label_source"] == ALIGNED for r in rows) else None
+    differ = []
+    for row in rows:
+        segs = labels_for(row, set_dir, dec)
+        target = set_dir / row["labels"]
+        if check:
+            tmp = target.with_name(f".{target.name}.check")
+            try:
+                same = target.is_file() and (write_labels(tmp, segs).read_bytes()
+                                             == target.read_bytes())
+            finally:
+                tmp.unlink(missing_ok=True)
+            if not same:
+                differ.append(row["id"])
+            print(f"{row['id']}: {'same' if same else 'DIFFERS'}", file=out)
+        else:
+            write_labels(target, segs)
+            print(f"{row['id']}: {len(segs)} segments -> {target}", file=out)
+    return differ
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("ids", nargs="*", help="recordings to do (default: all)")
+    p.add_argument("--set-dir", type=Path, default=SET_DIR)
+    p.add_argument("--check", action="store_true", help="compare with the shipped files")
+    args = p.parse_args(argv)
+    differ = regenerate(args.set_dir, args.ids or None, check=args.check)
+    return 1 if differ else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
