@@ -355,6 +355,9 @@ class Allocation:
     def release(self, pid: str, note: str = "") -> dict:
         """Give an aborted participant's slot back to the pool (their data stay; logged)."""
         check_participant_id(pid)
+        if not self.path.is_file():  # checked before the lock, which would make the folder
+            raise ParameterError(f"{self.path} not found: {self.dir} holds no allocation list, "
+                                 "so there is no slot to release")
         with self._lock():
             rows = self.rows()
             for r in rows:

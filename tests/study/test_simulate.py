@@ -331,3 +331,15 @@ def test_the_progress_bar_counts_participants(make_stimuli, classifier, tmp_path
                    progress=True)
     err = capsys.readouterr().err
     assert "simulated participants" in err and "3/3" in err
+
+
+def test_each_participant_is_drawn_alone_as_in_the_whole_population():
+    """A study of a million participants starts at once: participant i is drawn when it is
+    simulated (child i of the seed), with the same parameters as from the whole population."""
+    from study.simulate import make_observer, make_observers
+
+    whole = make_observers(8, 2002)
+    for i in (0, 3, 7):
+        alone = make_observer(i, 2002)
+        assert alone.seed == whole[i].seed and alone.params == whole[i].params
+    assert make_observer(999_999, 2002).seed != whole[0].seed

@@ -3,14 +3,16 @@ stderr that names the offending file or value, no traceback, and every file that
 is byte-identical afterwards (hashes of the whole working folder: the run, its study data, the
 corpus, the model files).
 
-The cases are a table; Hypothesis adds out-of-range config values and random file contents.
+The cases are a table (:mod:`tests.talkingface.bad_input_cases`, with the folder they run in);
+Hypothesis adds out-of-range config values and random file contents. Inputs the project promises
+to take (stereo, six-channel and float WAVs, another sample rate, study CSVs saved with a UTF-8
+byte-order mark) are a small table of their own, which must exit 0.
 """
 from __future__ import annotations
 
 import hashlib
 import json
 import os
-import pickle
 import shutil
 import signal
 import subprocess
@@ -23,66 +25,25 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from analysis.study_data import read_study
 from face_model.audio import read_wav, write_wav
+from study.data import Allocation
 from talkingface.cli import main
+from tests.talkingface.bad_input_cases import ACCEPTED, CASES, QUICK, RUN, TINY, build_world
 
 REPO = Path(__file__).resolve().parents[2]
-
-TINY = ["--set", "synth.n_sentences=3", "--set", "synth.workers=2", "--set", "mlflow.enabled=false"]
-QUICK = [*TINY, "--set", "mapping.baselines=[linear]", "--set", "mapping.train.max_epochs=20",
-         "--set", "study.n_participants=4", "--ablations", "none"]
 
 
 @pytest.fixture(scope="module")
 def world(tmp_path_factory):
     """A working folder with a finished small run ``R`` (corpus, units, mapping, study data,
-    report), a corpus ``c`` and some input files, made once for all cases of a worker."""
+    report), a corpus ``c`` and the bad inputs of the cases (:mod:`bad_input_cases`), made once
+    for all cases of a worker."""
     root = tmp_path_factory.mktemp("bad_input")
     with pytest.MonkeyPatch.context() as mp:
         mp.chdir(root)
-        assert main(["replicate", "--name", "R", *QUICK]) == 0
-        assert main(["synth", "--out", "c", *TINY]) == 0
-    wav = sorted((root / "runs" / "R" / "corpus" / "audio").glob("*.wav"))[0]
-    shutil.copy(wav, root / "speech.wav")
-    (root / "empty.wav").write_bytes(b"")
-    (root / "corrupt.wav").write_bytes(b"RIFF\x10\x00\x00\x00WAVEfmt nonsense")
-    (root / "bad.yaml").write_text("synth: [unclosed\n")
-    (root / "utf16.yaml").write_bytes("synth:\n  speakers: 2\n".encode("utf-16"))
-    (root / "list.yaml").write_text("- synth\n")
-    (root / "a_folder").mkdir()
-    bad_info = root / "bad_info_corpus"
-    shutil.copytree(root / "c", bad_info)
-    (bad_info / "corpus.json").write_text("{ damaged")
-    damaged = root / "runs" / "D"  # a run whose records were damaged by hand
-    shutil.copytree(root / "runs" / "R", damaged)
-    for done in damaged.glob("*/done.json"):
-        done.write_text('{"fingerprint": ')
-    nan = root / "nan_corpus"
-    shutil.copytree(root / "c", nan)
-    m = next((nan / "markers").glob("*.npy"))
-    arr = np.load(m)
-    arr[3, 5, 0] = np.nan
-    np.save(m, arr)
-    # model files beside the run's own, so that --model reaches the loader (its Motion Units
-    # are found next to it)
-    models = root / "runs" / "R" / "mapping"
-    tfmap = next(models.glob("*.tfmap"))
-    (models / "truncated.tfmap").write_bytes(tfmap.read_bytes()[:200])
-    marker = root / "pwned"
-    (models / "evil.tfmap").write_bytes(
-        b'{"format": "talkingface.mapping/2"}\n'
-        + pickle.dumps(_Touch(str(marker))))
+        build_world(root, main)
     return root
-
-
-class _Touch:
-    """A pickle payload that would create a file when unpickled (a model file must be data)."""
-
-    def __init__(self, path):
-        self.path = path
-
-    def __reduce__(self):
-        return (Path.touch, (Path(self.path),))
 
 
 def _hashes(root: Path) -> dict:
@@ -105,84 +66,49 @@ def refused(world, monkeypatch, capsys, argv: list, *names: str) -> str:
         assert n in lines[0], (n, lines[0])
     after = _hashes(world)
     assert {k: after.get(k) for k in before} == before, "a file that existed was changed"
+    assert not set(after) - set(before), f"files were made: {sorted(set(after) - set(before))}"
     return lines[0]
 
 
-CASES = [
-    # config values and files (every command reads them the same way)
-    (["synth", "--out", "new1", "--set", "synth.bogus=1"], ["synth.bogus"]),
-    (["synth", "--out", "new1", "--set", "nosection.x=1"], ["nosection"]),
-    (["synth", "--out", "new1", "--set", "synth.speakers=two"], ["synth.speakers", "two"]),
-    (["synth", "--out", "new1", "--config", "bad.yaml"], ["bad.yaml"]),
-    (["synth", "--out", "new1", "--config", "utf16.yaml"], ["utf16.yaml"]),
-    (["synth", "--out", "new1", "--config", "list.yaml"], ["list.yaml"]),
-    (["synth", "--out", "new1", "--config", "missing.yaml"], ["missing.yaml"]),
-    (["synth", "--out", "new1", "--set", "tracker.init=magic"], ["tracker.init", "magic"]),
-    # corpus folders and files
-    (["synth", "--out", "c", *TINY], ["c", "--overwrite"]),
-    (["synth", "--out", "speech.wav", *TINY], ["speech.wav"]),
-    (["synth", "--out", "a_folder_x", "--text", "nope.txt"], ["nope.txt"]),
-    (["units", "--corpus", "missing", "--out", "u"], ["missing"]),
-    (["units", "--corpus", "nan_corpus", "--out", "u"], ["NaN"]),
-    (["units", "--corpus", "c", "--out", "runs/R/units"], ["motion_units.npz", "--overwrite"]),
-    # runs: a different config is refused before anything is touched
-    (["replicate", "--name", "R", *QUICK, "--seed", "5"], ["different config"]),
-    (["replicate", "--name", "../x"], ["../x"]),
-    (["train", "--name", "R", *QUICK[:-2], "--seed", "9"], ["different config"]),
-    (["ablate", "--grid", "missing.yaml", "--name", "R", *QUICK[:-2]], ["missing.yaml"]),
-    (["report", "--name", "never"], ["never"]),
-    (["report", "--study-data", "missing_study"], ["missing_study"]),
-    # WAV files and outputs
-    (["animate", "missing.wav", "-o", "o.mp4", "--model", "R"], ["missing.wav"]),
-    (["animate", "empty.wav", "-o", "o.mp4", "--model", "R"], ["empty.wav"]),
-    (["animate", "corrupt.wav", "-o", "o.mp4", "--model", "R"], ["corrupt.wav"]),
-    (["animate", "speech.wav", "-o", "a_folder", "--model", "R"], ["a_folder"]),
-    (["animate", "speech.wav", "-o", "speech.wav", "--model", "R"], ["speech.wav", "--overwrite"]),
-    (["animate", "speech.wav", "-o", "o.mp4", "--model", "R", "--expression", "angry"],
-     ["angry"]),
-    (["animate", "speech.wav", "-o", "o.mp4", "--model", "R", "--keyframes", "k.txt"],
-     ["k.txt"]),
-    (["animate", "speech.wav", "-o", "o.mp4", "--model", "nope"], ["nope"]),
-    (["stream", "--fast"], ["WAV file or --mic"]),
-    (["stream", "missing.wav", "--fast", "--model", "R"], ["missing.wav"]),
-    # model files
-    (["animate", "speech.wav", "-o", "o.mp4", "--model", "runs/R/mapping/truncated.tfmap"],
-     ["truncated.tfmap"]),
-    (["animate", "speech.wav", "-o", "o.mp4", "--model", "runs/R/mapping/evil.tfmap"],
-     ["evil.tfmap"]),
-    # study ids and study data
-    (["study", "run", "--participant", "P03\n", "--study-dir", "runs/R/study_data",
-      "--stimuli", "runs/R/stimuli"], ["P03"]),
-    (["study", "run", "--participant", "../P03", "--study-dir", "sd",
-      "--stimuli", "runs/R/stimuli"], ["../P03"]),
-    (["study", "release", "--participant", "NOBODY", "--study-dir", "runs/R/study_data"],
-     ["NOBODY"]),
-    (["analyze", "missing_study"], ["missing_study"]),
-    (["study", "allocate", "--study-dir", "runs/R/study_data", "--n", "8"], ["allocation"]),
-    (["study", "simulate", "--n", "4", "--study-dir", "sd2", "--stimuli", "missing_stim"],
-     ["missing_stim"]),
-    (["study", "stimuli", "--name", "R\n", *TINY], ["'R\\n'"]),
-    (["track", "--name", "R", *QUICK[:-2], "--set", "tracker.corpus_noise_sd=-3"],
-     ["tracker.corpus_noise_sd"]),
-    (["ui", "--config", "bad.yaml"], ["bad.yaml"]),
-    # damaged records
-    (["units", "--corpus", "bad_info_corpus", "--out", "u"], ["corpus.json"]),
-    (["report", "--name", "D"], ["done.json"]),
-    (["animate", "speech.wav", "-o", "o.mp4", "--model", "D"], ["done.json"]),
-]
+def _case_id(argv: list) -> str:
+    """The argv without the run's shared settings, as a test id."""
+    shared = " ".join(QUICK)
+    text = " ".join(argv).replace(shared, "").replace(" ".join(RUN), "")
+    return " ".join(text.replace(" ".join(TINY), "").split())[:80]
 
 
-@pytest.mark.parametrize("argv, names", CASES, ids=[" ".join(c[0])[:60] for c in CASES])
+@pytest.mark.parametrize("argv, names", CASES, ids=[_case_id(c[0]) for c in CASES])
 def test_bad_input_gets_one_clear_line_and_changes_nothing(world, monkeypatch, capsys, argv,
                                                            names):
     refused(world, monkeypatch, capsys, argv, *names)
 
 
 def test_a_pickled_model_is_refused_without_running_it(world, monkeypatch, capsys):
-    refused(world, monkeypatch, capsys,
-            ["animate", "speech.wav", "-o", "o.mp4", "--model", "runs/R/mapping/evil.tfmap"],
-            "evil.tfmap")
-    assert not (world / "pwned").exists()
+    for model in ("evil.tfmap", "member.tfmap"):  # a pickle for a model, or in one of its arrays
+        refused(world, monkeypatch, capsys,
+                ["animate", "speech.wav", "-o", "o.mp4", "--model", f"runs/R/mapping/{model}"],
+                model)
+    refused(world, monkeypatch, capsys, ["units", "--corpus", "obj_corpus", "--out", "u"], ".npy")
+    assert not [p.name for p in world.glob("pwned*")]
+
+
+@pytest.mark.parametrize("argv, what", ACCEPTED, ids=[w for _, w in ACCEPTED])
+def test_inputs_the_project_promises_to_take_are_taken(world, monkeypatch, capsys, argv, what):
+    monkeypatch.chdir(world)
+    before = _hashes(world)
+    code = main(argv)
+    err = capsys.readouterr().err
+    assert code == 0, (what, err)
+    assert "Traceback" not in err and "error:" not in err
+    after = _hashes(world)
+    assert {k: after.get(k) for k in before} == before, "a file that existed was changed"
+
+
+def test_study_csvs_saved_with_a_byte_order_mark_read_as_without(world):
+    """Excel saves CSVs with a UTF-8 byte-order mark: the same judgments and allocation."""
+    plain, bom = (read_study(world / d) for d in ("runs/R/study_data", "sd_bom"))
+    assert bom.trials.drop(columns="file").equals(plain.trials.drop(columns="file"))
+    assert Allocation(world / "sd_bom").rows() == Allocation(world / "runs/R/study_data").rows()
 
 
 @settings(max_examples=25)
@@ -290,17 +216,58 @@ def test_a_killed_simulation_resumes_to_the_uninterrupted_result(world):
     stim = ["--stimuli", "runs/R/stimuli", *TINY[-2:]]
     with pytest.MonkeyPatch.context() as mp:
         mp.chdir(world)
-        assert main(["study", "simulate", "--n", "6", "--study-dir", "sim_ref", *stim]) == 0
+        assert main(["study", "simulate", "--n", "60", "--study-dir", "sim_ref", *stim]) == 0
     run_before = _final_files(world / "runs" / "R")
-    _kill_when(["study", "simulate", "--n", "6", "--study-dir", "sim_cut", *stim], world,
+    # sixty participants, so the kill lands while many are still to come
+    _kill_when(["study", "simulate", "--n", "60", "--study-dir", "sim_cut", *stim], world,
                lambda: (world / "sim_cut" / "sub-SIM03").exists())
     assert _final_files(world / "runs" / "R") == run_before
     with pytest.MonkeyPatch.context() as mp:
         mp.chdir(world)
-        assert main(["study", "simulate", "--n", "6", "--study-dir", "sim_cut", *stim]) == 0
+        assert main(["study", "simulate", "--n", "60", "--study-dir", "sim_cut", *stim]) == 0
 
     def files(folder):  # the allocation list's timestamps are the wall clock: left out
         return {k: v for k, v in _final_files(world / folder).items()
                 if not k.startswith("allocation")}
 
     assert files("sim_cut") == files("sim_ref")
+
+
+# -- outputs that cannot be written, inputs that cannot be read ---------------------------
+
+def _as_a_user(cmd: list) -> list:
+    """``cmd`` without root's power to ignore file permissions (root keeps it otherwise)."""
+    if os.geteuid() == 0:
+        return ["setpriv", "--bounding-set=-dac_override,-dac_read_search", *cmd]
+    return cmd
+
+
+@pytest.mark.parametrize("argv, names", [
+    (["animate", "speech.wav", "-o", "ro/o.mp4"], ["ro/o.mp4", "not writable"]),
+    (["animate", "speech.wav", "-o", "o.mp4", "--markers", "ro/m.npy"],
+     ["ro/m.npy", "not writable"]),
+    (["animate", "locked.wav", "-o", "o.mp4"], ["locked.wav", "Permission denied"]),
+    (["synth", "--out", "ro/c2", *TINY], ["ro", "Permission denied"]),
+], ids=["animate -o read-only", "--markers read-only", "unreadable WAV", "synth --out read-only"])
+def test_permissions_are_one_line_naming_the_path(world, tmp_path, argv, names):
+    """In a subprocess, as an ordinary user would run it (exit status, stderr, files)."""
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    shutil.copy(world / "speech.wav", tmp_path / "speech.wav")
+    shutil.copy(world / "speech.wav", tmp_path / "locked.wav")
+    (tmp_path / "locked.wav").chmod(0)
+    ro.chmod(0o555)
+    state = lambda: (_hashes(ro), sorted(p.name for p in tmp_path.iterdir()),  # noqa: E731
+                     (tmp_path / "locked.wav").stat().st_mtime_ns)
+    before = state()
+    if argv[0] == "animate":
+        argv = [*argv, "--model", str(world / "runs" / "R")]
+    proc = subprocess.run(_as_a_user([sys.executable, "-m", "talkingface", *argv]),
+                          cwd=tmp_path, capture_output=True, text=True, timeout=600,
+                          env={**os.environ, "PYTHONPATH": str(REPO)})
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip() and "%|" not in ln]
+    assert proc.returncode == 2, proc.stderr
+    assert len(lines) == 1 and lines[0].startswith("error: ") and "Traceback" not in proc.stderr
+    for n in names:
+        assert n in lines[0], (n, lines[0])
+    assert state() == before  # nothing written, nothing changed

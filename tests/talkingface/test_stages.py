@@ -139,8 +139,10 @@ def test_real_stages_declare_what_a_study_and_a_mapping_setting_rerun(tmp_path):
     study = load_config(None, ["study.n_participants=12"])
     assert stale(REPLICATION, paths, study) == ["study_data", "analysis", "report"]
     mapping = load_config(None, ["mapping.hidden_max=30"])
-    assert stale(REPLICATION, paths, mapping) == ["mapping", "speech_eval", "render", "stimuli",
-                                                  "study_data", "analysis", "ablations", "report"]
+    # the voice-robust models are trained with the run's mapping settings too
+    assert stale(REPLICATION, paths, mapping) == ["mapping", "voices", "speech_eval", "render",
+                                                  "stimuli", "study_data", "analysis",
+                                                  "ablations", "report"]
     tracked = load_config(None, ["mapping.visual_source=tracked"])
     assert stale(REPLICATION, paths, tracked)[:2] == ["tracked", "mapping"]
 

@@ -1,0 +1,67 @@
+"""The voices grid (configs/voices.yaml): what its children may change, and its default model."""
+from pathlib import Path
+
+import pytest
+
+from face_model.errors import ParameterError
+from talkingface.config import Config, load_config
+from talkingface.stages.voices import DEFAULT_GRID, load_voices_grid
+
+GRID = """model: {model}
+base:
+  mapping.splits: [utterance]
+children:
+  one: {{}}
+  many:
+    synth.voices: [espeak:en-us+f3, flite:awb]
+    {extra}
+"""
+
+
+def test_the_project_grid_holds_the_issue_configurations():
+    children, model = load_voices_grid(DEFAULT_GRID, Config())
+    assert list(children) == ["one-voice", "many-voices", "many-cmvn", "many-cmvn-warp",
+                              "many-cmvn-warp-augment"]
+    assert model == "many-cmvn-warp-augment"
+    full = children[model].mapping
+    assert full.cmvn == "meanvar" and full.vtlp_range == (0.9, 1.1) and full.augment.copies >= 1
+    assert children["one-voice"].synth == Config().synth  # the paper's single voice
+    # no evaluation speaker is a training voice of the default model: a0009 stays unseen
+    from data_synth.backends import voice_speaker
+
+    sources = {voice_speaker(v) for v in children[model].synth.voices}
+    assert "arctic_slt" not in sources
+
+
+@pytest.mark.parametrize("model, extra, names", [
+    ("many", "synth.n_sentences: 7", ["'many'", "synth.voices"]),
+    ("many", "seed: 3", ["'many'", "seed"]),
+    ("nobody", "", ["'nobody'", "one, many"]),
+    ("many", "synth.voice_weights: [1, 2, 3]", ["synth.voice_weights"]),
+])
+def test_a_child_may_change_only_voices_and_mapping(tmp_path, model, extra, names):
+    grid = tmp_path / "g.yaml"
+    grid.write_text(GRID.format(model=model, extra=extra))
+    with pytest.raises(ParameterError) as info:
+        load_voices_grid(grid, Config())
+    for n in names:
+        assert n in str(info.value), str(info.value)
+
+
+def test_a_malformed_grid_is_refused_before_a_run_is_touched(tmp_path, monkeypatch, capsys):
+    from talkingface.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "g.yaml").write_text("model: one\nchildren: [one]\n")
+    code = main(["replicate", "--name", "r", "--voices", "g.yaml", "--set",
+                 "mlflow.enabled=false"])
+    assert code == 2 and "g.yaml" in capsys.readouterr().err
+    assert not Path("runs").exists()
+
+
+def test_none_switches_the_stage_off():
+    cfg = load_config(None, ["voices.grid=none"])
+    from talkingface.stages import stale
+    from talkingface.paths import RunPaths
+
+    assert "voices" not in stale(["voices", "speech_eval"], RunPaths.create("x"), cfg)
