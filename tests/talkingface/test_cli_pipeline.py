@@ -8,6 +8,9 @@ from pypdf import PdfReader
 from talkingface.cli import main
 
 TINY = ["--set", "synth.n_sentences=3", "--set", "synth.workers=2"]
+# for the tests of the pipeline's bookkeeping, not of its figures: less training
+QUICK = ["--set", "mapping.baselines=[linear]", "--set", "mapping.train.max_epochs=20"]
+SOLO = ["--ablations", "none", "--voices", "none"]  # no ablations, no voice-robust models
 # two voice-robust configurations, small: the run's voice, and three engines with CMVN
 VOICES_GRID = """model: many
 base:
@@ -125,24 +128,24 @@ def _check_voices_and_real_speech(run, table_rows, text):
 
 
 def test_replicate_refuses_a_different_config_under_the_same_name(workdir, capsys):
-    assert main(["replicate", "--name", "r", *TINY, "--ablations", "none", "--voices", "none",
+    assert main(["replicate", "--name", "r", *TINY, *QUICK, *SOLO,
                  "--set", "mlflow.enabled=false"]) == 0
     stamp = (workdir / "runs" / "r" / "corpus" / "done.json").read_text()
-    code = main(["replicate", "--name", "r", *TINY, "--set", "mlflow.enabled=false",
+    code = main(["replicate", "--name", "r", *TINY, *QUICK, "--set", "mlflow.enabled=false",
                  "--seed", "5"])
     assert code == 2
     assert "was made with a different config" in capsys.readouterr().err
     # nothing was touched
     assert (workdir / "runs" / "r" / "corpus" / "done.json").read_text() == stamp
     # the same config again reuses the finished corpus
-    assert main(["replicate", "--name", "r", *TINY, "--ablations", "none", "--voices", "none",
+    assert main(["replicate", "--name", "r", *TINY, *QUICK, *SOLO,
                  "--set", "mlflow.enabled=false"]) == 0
     assert (workdir / "runs" / "r" / "corpus" / "done.json").read_text() == stamp
     # a study setting with --overwrite re-runs the study stages and nothing upstream of them
     run = workdir / "runs" / "r"
     kept = {s: (run / s / "done.json").read_text() for s in ("corpus", "units", "mapping",
                                                             "stimuli")}
-    assert main(["replicate", "--name", "r", *TINY, "--ablations", "none", "--voices", "none",
+    assert main(["replicate", "--name", "r", *TINY, *QUICK, *SOLO,
                  "--overwrite", "--set", "mlflow.enabled=false", "--set",
                  "study.n_participants=4"]) == 0
     assert {s: (run / s / "done.json").read_text() for s in kept} == kept
