@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from face_model.audio import read_wav
-from face_model.corpus import PhoneSegment
+from face_model.corpus import PhoneSegment, read_phones
 from face_model.errors import CorpusError
 from face_model.phones import PHONE_INDEX, PHONES
 
@@ -159,32 +159,13 @@ def read_labels(path, duration_s: float) -> tuple[PhoneSegment, ...]:
         overlap, or an end more than 10 ms away from the audio's.
     """
     path = Path(path)
-    if not path.is_file():
-        raise CorpusError(f"{path}: phone file not found")
-    segs: list[PhoneSegment] = []
-    with open(path, newline="", encoding="utf-8-sig") as f:
-        reader = csv.reader(f)
-        header = next(reader, None)
-        if header != ["start_s", "end_s", "phone"]:
-            raise CorpusError(f"{path}: header must be 'start_s,end_s,phone', got {header}")
-        for line, row in enumerate(reader, start=2):
-            if len(row) != 3:
-                raise CorpusError(f"{path}, line {line}: need 3 fields, got {len(row)}")
-            if row[2] not in PHONE_INDEX:
-                raise CorpusError(f"{path}, line {line}: unknown phone {row[2]!r}; allowed are "
-                                  f"the 44 classes: {' '.join(PHONES)}")
-            try:
-                s, e = float(row[0]), float(row[1])
-            except ValueError:
-                raise CorpusError(f"{path}, line {line}: times must be numbers, got {row[0]!r}, "
-                                  f"{row[1]!r}") from None
-            expected = segs[-1].end_s if segs else 0.0
-            if not (np.isfinite(s) and np.isfinite(e)) or e <= s or abs(s - expected) > 1e-6:
-                raise CorpusError(f"{path}, line {line}: segment {s}–{e} s must start where the "
-                                  f"previous one ends ({expected} s) and end after it starts")
-            segs.append(PhoneSegment(s, e, row[2]))
-    if not segs:
-        raise CorpusError(f"{path}: no phone segments")
+    segs = read_phones(path, duration_s)  # the corpus's phone files, then the stricter rules
+    expected = 0.0
+    for line, seg in enumerate(segs, start=2):  # one segment per line after the header
+        if abs(seg.start_s - expected) > 1e-6:
+            raise CorpusError(f"{path}, line {line}: segment {seg.start_s}–{seg.end_s} s must "
+                              f"start where the previous one ends ({expected} s)")
+        expected = seg.end_s
     if abs(segs[-1].end_s - duration_s) > 0.01:
         raise CorpusError(f"{path}: the last phone ends at {segs[-1].end_s:.4f} s but the audio "
                           f"lasts {duration_s:.4f} s")

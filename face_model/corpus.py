@@ -101,7 +101,15 @@ class Corpus:
         return [u for u in self.utterances if u.expression == expression]
 
 
-def _read_phones(path: Path, duration_s: float, fps: int) -> list[PhoneSegment]:
+def read_phones(path: Path, duration_s: float, fps: int = 30) -> list[PhoneSegment]:
+    """A phone file of the corpus contract (``start_s,end_s,phone``): segments in time order,
+    44-class phones, finite times, no overlap, ending by one frame after the audio.
+
+    Raises
+    ------
+    CorpusError
+        Naming the file (and the line): missing, wrong header, unknown phone, bad times.
+    """
     if not path.is_file():
         raise CorpusError(f"{path}: phone file not found")
     segs: list[PhoneSegment] = []
@@ -188,7 +196,7 @@ def _load_utterance(root: Path, row: dict, line: int, resample_to: int | None) -
         raise CorpusError(f"{paths['audio']}: audio lasts {len(y) / sr:.3f} s = "
                           f"{audio_frames:.2f} frames, but {paths['markers'].name} has {n_frames} "
                           "frames (more than one frame apart)")
-    phones = _read_phones(paths["phones"], len(y) / sr, fps)
+    phones = read_phones(paths["phones"], len(y) / sr, fps)
     return Utterance(row["utt_id"], row["speaker"], row["expression"], row["text"], fps, sr,
                      y, markers, phones, voice=row.get("voice") or "")
 

@@ -155,12 +155,16 @@ def _result_row(name: str, cfg, res: dict) -> dict:
     return row
 
 
-def grid_path(cfg) -> Path | None:
-    """The ablation grid file of ``ablations.grid`` (None: no ablations)."""
-    grid = cfg.ablations.grid
+def resolve_grid(grid: str, default: Path) -> Path | None:
+    """A grid setting as a file: ``default`` → the project's grid, ``none`` or empty → None."""
     if not grid or grid.lower() == "none":
         return None
-    return DEFAULT_GRID if grid == "default" else Path(grid)
+    return default if grid == "default" else Path(grid)
+
+
+def grid_path(cfg) -> Path | None:
+    """The ablation grid file of ``ablations.grid`` (None: no ablations)."""
+    return resolve_grid(cfg.ablations.grid, DEFAULT_GRID)
 
 
 def has_grid(cfg) -> bool:

@@ -43,7 +43,7 @@ from mapping.dataset import build_dataset, split_masks
 from mapping.experiment import SPLIT_SEED_OFFSET
 from talkingface.config import read_yaml
 from talkingface.paths import RunPaths
-from talkingface.stages.ablations import init_worker, load_grid, run_child
+from talkingface.stages.ablations import init_worker, load_grid, resolve_grid, run_child
 from talkingface.stages.base import read_done, write_csv
 from talkingface.stages.motion import training_corpus
 
@@ -53,10 +53,7 @@ WHAT = "voices grid"
 
 def grid_path(cfg) -> Path | None:
     """The grid file of ``voices.grid`` (None: no voice-robust models)."""
-    grid = cfg.voices.grid
-    if not grid or grid.lower() == "none":
-        return None
-    return DEFAULT_GRID if grid == "default" else Path(grid)
+    return resolve_grid(cfg.voices.grid, DEFAULT_GRID)
 
 
 def has_grid(cfg) -> bool:
