@@ -232,7 +232,7 @@ def gate_tracks(mapping, y: np.ndarray, sr: int, true_phone: np.ndarray):
     # no gate, or every class merged into one (a corpus too small for more): nothing to score
     if not hasattr(mapper, "gate_classes") or len(set(mapper.group_of_phone_.tolist())) == 1:
         return float("nan"), float("nan"), None
-    gated = mapper.gate_classes(mapping.features(y, sr))[:len(true_phone)]
+    gated = mapping.gate_classes(y, sr)[:len(true_phone)]
     names = [mapper.class_names_[g] for g in gated]
     true = true_phone[:len(gated)]
     vis = frame_accuracy(viseme_index(true), [group_viseme(n) for n in names])

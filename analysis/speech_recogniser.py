@@ -11,44 +11,32 @@ silence. Phones are the 39 ARPAbet phones plus ``SIL`` (noise fillers are silenc
 """
 from __future__ import annotations
 
-import os
-
 import numpy as np
-from pocketsphinx import Decoder, get_model_path
 
 from face_model.errors import ParameterError
 from analysis.speech_eval import phone_frames, viseme_index
 from face_model.phones import PHONE_INDEX
-
-SAMPLE_RATE = 16000
-FRAMES_PER_S = 100  # pocketsphinx's frame rate
-DECODER_SETTINGS = {"lw": 2.0, "beam": 1e-20, "pbeam": 1e-20, "bestpath": False}
-
-
-def _phone(word: str) -> int:
-    w = word.lower()
-    return PHONE_INDEX[w] if w in PHONE_INDEX else PHONE_INDEX["sil"]
+from mapping.recogniser import (RECOGNISER_FPS as FRAMES_PER_S, RECOGNISER_NAME,
+                                RECOGNISER_RATE as SAMPLE_RATE, new_decoder, phone_index, to_pcm16)
 
 
 class PhoneRecogniser:
-    """pocketsphinx allphone decoding of 16 kHz mono audio into phone indices per video frame."""
+    """pocketsphinx allphone decoding of 16 kHz mono audio into phone indices per video frame
+    (a fresh decoder per utterance: its live cepstral mean would carry over)."""
 
     def __init__(self, fps: int = 30):
-        model = get_model_path()
         self.fps = int(fps)
-        self.decoder = Decoder(hmm=os.path.join(model, "en-us", "en-us"),
-                               allphone=os.path.join(model, "en-us-phone.lm.bin"),
-                               samprate=SAMPLE_RATE, loglevel="FATAL", **DECODER_SETTINGS)
+        self.decoder = None
 
     @staticmethod
     def _pcm(y: np.ndarray, sr: int) -> np.ndarray:
         if sr != SAMPLE_RATE:
             raise ParameterError(f"the recogniser needs {SAMPLE_RATE} Hz audio, got {sr} Hz")
-        return np.round(np.asarray(y, np.float64) * 32768).clip(-32768, 32767).astype("<i2")
+        return np.frombuffer(to_pcm16(y), dtype="<i2")
 
     def _segments(self) -> list:
         segs = self.decoder.seg()
-        return [] if segs is None else [(s.start_frame, s.end_frame, _phone(s.word))
+        return [] if segs is None else [(s.start_frame, s.end_frame, phone_index(s.word))
                                         for s in segs]
 
     def _label(self, segs: list, k: int) -> int:
@@ -64,7 +52,7 @@ class PhoneRecogniser:
     def whole(self, y: np.ndarray, sr: int) -> np.ndarray:
         """Phone index per frame (frame k at k / fps s) from the final hypothesis."""
         pcm = self._pcm(y, sr)
-        d = self.decoder
+        d = self.decoder = new_decoder()
         d.start_utt()
         d.process_raw(pcm.tobytes(), full_utt=True)
         d.end_utt()
@@ -78,7 +66,7 @@ class PhoneRecogniser:
         pcm = self._pcm(y, sr)
         n = self.n_frames(len(pcm))
         out = np.full(n, -1)
-        d = self.decoder
+        d = self.decoder = new_decoder()
         d.start_utt()
         done = 0
         for b in range(n):
@@ -114,7 +102,7 @@ def recogniser_scores(items, seen_sources=frozenset(), *, delay_s: float = 0.1,
                 "stream": viseme_index(true) == viseme_index(stream)}
         split = "seen" if it.speaker_source in seen_sources else "unseen"
         pooled[split].append(hits)
-        files.append({"model": "pocketsphinx-5.1.1 allphone", "id": it.id,
+        files.append({"model": RECOGNISER_NAME, "id": it.id,
                       "speaker_source": it.speaker_source, "split": split,
                       "seconds": round(it.duration_s, 3), "frames": len(true),
                       "phone_acc": float(hits["phone"].mean()),
@@ -124,7 +112,7 @@ def recogniser_scores(items, seen_sources=frozenset(), *, delay_s: float = 0.1,
     pooled["all"] = pooled["seen"] + pooled["unseen"]
     summary = []
     for split, hits in pooled.items():
-        row = {"model": "pocketsphinx-5.1.1 allphone", "split": split, "files": len(hits)}
+        row = {"model": RECOGNISER_NAME, "split": split, "files": len(hits)}
         if hits:
             for key, name in (("phone", "phone_acc"), ("viseme", "viseme_acc"),
                               ("stream", f"viseme_acc_stream_{round(1000 * delay_s)}ms")):

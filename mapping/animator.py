@@ -12,6 +12,10 @@ window, i.e. up to (k + forward)·hop + window/2 samples. Its frames equal the o
 the same audio (the same MFCC columns, the same normalisation and networks, row by row).
 Causal cepstral normalisation (``cmvn``, :mod:`mapping.normalize`) keeps its running sums per
 stream: each frame's features are pushed through it once, in order, as offline.
+With the recogniser gate (:mod:`mapping.recogniser`) the stream also feeds a
+:class:`~mapping.recogniser.PhoneStream` whose look-ahead is the mapping's: frame k's phone is
+decided before frame k leaves, from the same blocks of audio as offline, so the phones are the
+offline phones too.
 """
 from __future__ import annotations
 
@@ -25,6 +29,7 @@ from face_model.errors import ParameterError
 from face_model.layout import default_layout
 from mapping.checkpoint import rest_mups
 from mapping.features import MFCC_SETTINGS, hop_samples, mfcc, window_dbfs
+from mapping.recogniser import PhoneStream
 
 
 class FaceAnimator:
@@ -124,6 +129,17 @@ class StreamingAnimator:
         self._next_out = 0
         self._done = False
         self._cmvn = self.context.start_stream()  # running CMVN sums (None: no CMVN)
+        mapping = self.animator.mapping
+        # the recogniser gate's phones: decided ones by frame (None: the gate needs none)
+        self._phones = (PhoneStream(self.sr, self.fps, self.forward) if mapping.needs_phones
+                        else None)
+        self._heard: dict[int, int] = {}
+        self._n_heard = 0
+
+    def _hear(self, phones: list) -> None:
+        for p in phones:
+            self._heard[self._n_heard] = p
+            self._n_heard += 1
 
     @property
     def latency_s(self) -> float:
@@ -151,7 +167,12 @@ class StreamingAnimator:
         rows = [self._feats[min(max(j, 0), last)] for j in range(k - self.back,
                                                                 k + self.forward + 1)]
         x = np.concatenate(rows)[None]
-        mups = self.animator.mapping.mapper.predict_stacked(x, self.expression)
+        mapper = self.animator.mapping.mapper
+        if self._phones is None:
+            mups = mapper.predict_stacked(x, self.expression)
+        else:
+            classes = mapper.phone_classes(np.array([self._heard.pop(k)]), 1)
+            mups = mapper.predict_stacked(x, self.expression, classes)
         # the kept samples start at self._a0 (earlier ones are no longer needed)
         level = window_dbfs(self._audio, k * self.hop - self._a0, self.half)
         mups = self.animator.mapping.silence_fix(mups, np.array([level]))
@@ -169,6 +190,8 @@ class StreamingAnimator:
             raise ParameterError("the audio chunk holds NaN or inf samples")
         self._audio = np.concatenate([self._audio, chunk])
         self._n_samples += len(chunk)
+        if self._phones is not None:
+            self._hear(self._phones.push(chunk))
         # Frames 0 and 1 wait for frame 2's window too: a segment shorter than the FFT would be
         # padded differently from the whole signal (it costs no latency: frame 0 leaves only
         # with frame 3's features).
@@ -200,6 +223,8 @@ class StreamingAnimator:
             return []
         self._done = True
         n_total = int(np.ceil(self._n_samples / self.hop))
+        if self._phones is not None:
+            self._hear(self._phones.flush())
         if n_total == 0:
             return []
         while self._n_feats < n_total:

@@ -35,6 +35,7 @@ from face_model.errors import ParameterError
 from mapping.baselines import BASELINES, Baseline
 from mapping.features import audio_features, frame_rms_dbfs
 from mapping.gated import GatedMLP
+from mapping.recogniser import fit_length, recognise
 from mapping.state import NUMERIC_KINDS, ArrayGroup
 
 # /1: JSON header line + pickle; /2: the silence rule (rest_mups, silence_dbfs) in the header;
@@ -131,13 +132,36 @@ class AudioMapping:
         out[quiet, : self.n_utterance] = self.rest_mups
         return out
 
+    @property
+    def needs_phones(self) -> bool:
+        """True when the mapping's gate is the phone recogniser (:mod:`mapping.recogniser`)."""
+        return bool(getattr(self.mapper, "needs_phones", False))
+
+    def recognised_phones(self, y_m: np.ndarray, n_frames: int) -> np.ndarray | None:
+        """The recogniser's phones of audio at the model's rate, decided with the mapping's
+        look-ahead as a live stream decides them (None when the gate does not use them)."""
+        if not self.needs_phones:
+            return None
+        return fit_length(recognise(y_m, self.sample_rate, fps=self.fps,
+                                    delay_frames=self.mapper.context_forward), n_frames)
+
+    def gate_classes(self, y: np.ndarray, sr: int) -> np.ndarray:
+        """The gate's class of every frame of mono audio (a gated mapping only)."""
+        y_m = self.at_model_rate(y, sr)
+        feats = audio_features(y_m, sr=self.sample_rate, fps=self.fps, n_mfcc=self.n_mfcc,
+                               deltas=self.deltas)
+        return self.mapper.gate_classes(feats, self.recognised_phones(y_m, len(feats)))
+
     def predict_audio(self, y: np.ndarray, sr: int, expression: str = "neutral") -> np.ndarray:
         """MUPs (n_frames, A0 + Ak) with the silence rule; frame k is centred at k / fps s."""
         self.check_expression(expression)
         y_m = self.at_model_rate(y, sr)  # checked and resampled once
         feats = audio_features(y_m, sr=self.sample_rate, fps=self.fps, n_mfcc=self.n_mfcc,
                                deltas=self.deltas)
-        est = self.mapper.predict(feats, expression)
+        if self.needs_phones:
+            est = self.mapper.predict(feats, expression, self.recognised_phones(y_m, len(feats)))
+        else:
+            est = self.mapper.predict(feats, expression)
         levels = frame_rms_dbfs(y_m, sr=self.sample_rate, fps=self.fps, n_frames=len(est))
         return self.silence_fix(est, levels)
 

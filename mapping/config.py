@@ -12,7 +12,10 @@ are unchanged:
   saved in the model) weighing ``cmvn_warmup_frames`` frames (:mod:`mapping.normalize`);
 * ``vtlp_range`` — the VTLP speaker warp (Jaitly & Hinton 2013) of the training copies: each
   copy's mel filterbank is warped by α ~ U(lo, hi); [1, 1] is off, inference is never warped;
-* ``augment.copies`` — augmented copies of every training utterance (:mod:`mapping.augment`).
+* ``augment.copies`` — augmented copies of every training utterance (:mod:`mapping.augment`);
+* ``gate_front_end`` — "mfcc", the paper's mixtures on the MFCC, or "recogniser", the phones that
+  pocketsphinx's en-US model (trained on real speech) hears, decided with the context look-ahead
+  (:mod:`mapping.recogniser`): the recogniser front end.
 
 The training set gains ``augment.copies`` copies of each training utterance (its training
 frames only; test utterances never), or one warped copy each when only the warp is on
@@ -38,6 +41,7 @@ SPLIT_NAMES = ("random_frames", "utterance")
 MAX_MFCC = 25  # MFCCs of 26 mel bands
 CMVN_NAMES = ("none", "mean", "meanvar")  # mapping.normalize.CMVN_MODES
 NOISE_COLOURS = ("white", "pink", "brown")  # mapping.augment.NOISE_BETA
+GATE_FRONT_END_NAMES = ("mfcc", "recogniser")  # mapping.gated.GATE_FRONT_ENDS
 
 
 @dataclass(frozen=True)
@@ -118,7 +122,9 @@ class MappingConfig:
     cmvn: str = choice(*CMVN_NAMES)
     cmvn_warmup_frames: int = integer(30, ge=1)
     vtlp_range: tuple = span((1.0, 1.0), ge=0.8, le=1.2)
-    # gate: one Gaussian mixture per phone class
+    # gate: one Gaussian mixture per phone class on the MFCC ("mfcc", the paper), or the phones
+    # of a recogniser trained on real speech ("recogniser", mapping.recogniser)
+    gate_front_end: str = choice(*GATE_FRONT_END_NAMES)
     n_classes: int = choice(44, 8, 1)  # 44 phone classes | 8 viseme groups | 1 (a single MLP)
     gate_components: int = integer(4, ge=1)
     gate_covariance: str = choice("diag", "full", "tied", "spherical")

@@ -16,12 +16,14 @@ import zlib
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from tqdm import tqdm
 
 from face_model.alignment import corpus_deformations
 from face_model.errors import ParameterError
 from mapping.augment import augment, retime_labels, retime_targets, rir_bank
 from mapping.config import AugmentSettings
 from mapping.features import audio_features, hop_samples
+from mapping.recogniser import fit_length, recognise
 
 SPLITS = ("random_frames", "utterance")
 
@@ -41,6 +43,8 @@ class UttData:
     audio: np.ndarray | None = field(default=None, repr=False)  # (n_samples,) float
     sample_rate: int = 0  # Hz, of ``audio``
     fps: int = 30
+    # the phones a recogniser heard, per frame (the recogniser gate's input; None: not needed)
+    recognised: np.ndarray | None = field(default=None, repr=False)  # (n_frames,) indices
 
     def __post_init__(self):
         n = len(self.features)
@@ -48,6 +52,9 @@ class UttData:
             raise ParameterError(
                 f"utterance {self.utt_id}: features ({n} frames), MUPs ({len(self.mups)} frames) "
                 f"and phone labels ({len(self.phones)} frames) must have the same length")
+        if self.recognised is not None and len(self.recognised) != n:
+            raise ParameterError(f"utterance {self.utt_id}: {n} frames but "
+                                 f"{len(self.recognised)} recognised phones")
         if not np.all(np.isfinite(self.features)):
             raise ParameterError(f"utterance {self.utt_id}: features hold NaN or inf values")
         if not np.all(np.isfinite(self.mups)):
@@ -59,22 +66,30 @@ class UttData:
 
 
 def build_dataset(corpus, units, *, n_mfcc: int = 10, deltas: bool = False,
-                  alignment: str | None = None) -> list[UttData]:
+                  alignment: str | None = None, recognise_delay: int | None = None,
+                  progress: bool = False) -> list[UttData]:
     """Features, true MUPs and phone labels of every utterance of ``corpus``.
 
     The MUPs are the Motion Units' projection of the aligned deformations (the alignment model
-    recorded in the units' metadata unless given).
+    recorded in the units' metadata unless given). ``recognise_delay`` (frames): also the phones
+    the recogniser hears, decided with that look-ahead (:func:`mapping.recogniser.recognise`;
+    the recogniser gate's input), fitted to the utterance's frames.
     """
     alignment = alignment or units.metadata_.get("alignment", "similarity")
     defs = corpus_deformations(corpus, model=alignment)
     out = []
-    for u in corpus.utterances:
+    for u in tqdm(corpus.utterances, desc="recognising phones", unit="utt",
+                  disable=not progress or recognise_delay is None):
         feats = audio_features(u.audio, sr=u.sample_rate, fps=u.fps, n_mfcc=n_mfcc,
                                deltas=deltas, n_frames=u.n_frames)
+        heard = None
+        if recognise_delay is not None:
+            heard = fit_length(recognise(u.audio, u.sample_rate, fps=u.fps,
+                                         delay_frames=recognise_delay), u.n_frames)
         out.append(UttData(u.utt_id, u.speaker, u.expression, u.text, feats,
                            units.transform(defs[u.utt_id], u.expression).astype(np.float32),
                            u.phone_per_frame(), audio=u.audio, sample_rate=u.sample_rate,
-                           fps=u.fps))
+                           fps=u.fps, recognised=heard))
     return out
 
 
@@ -138,7 +153,8 @@ def training_copies(data: list[UttData], masks: list, *, settings: AugmentSettin
                 phones = retime_labels(d.phones, scale, n)
                 mask = retime_labels(np.asarray(masks[i]), scale, n)
             out.append(replace(d, utt_id=f"{d.utt_id}+copy{c}", features=feats, mups=mups,
-                               phones=phones, audio=None))  # features suffice: no copy kept
+                               phones=phones, audio=None,  # features suffice: no copy kept
+                               recognised=None))  # copies train, never estimate
             out_masks.append(mask)
     return out, out_masks
 

@@ -41,7 +41,8 @@ def make_mapper(method: str, mcfg: MappingConfig, *, n_utterance: int = 7,
                         min_class_frames=mcfg.min_class_frames, hidden_min=mcfg.hidden_min,
                         hidden_max=mcfg.hidden_max, expression_model=mcfg.expression_model,
                         cascade_hidden=mcfg.cascade_hidden, cmvn=mcfg.cmvn,
-                        cmvn_warmup_frames=mcfg.cmvn_warmup_frames, train=mcfg.train,
+                        cmvn_warmup_frames=mcfg.cmvn_warmup_frames,
+                        gate_front_end=mcfg.gate_front_end, train=mcfg.train,
                         random_state=random_state)
     if method in BASELINES:
         return Baseline(method, context_back=mcfg.context_back,
@@ -84,9 +85,23 @@ def train_method(method: str, data: list, masks: list, mcfg: MappingConfig, *,
     t0 = time.perf_counter()
     mapper.fit([*data, *extra], [*masks, *extra_masks])
     seconds = time.perf_counter() - t0
-    preds = [mapper.predict(d.features, d.expression) for d in data]
+    preds = [predict_utterance(mapper, d) for d in data]
     gate = gate_accuracy(mapper, data, masks) if hasattr(mapper, "gate_") else None
     return TrainedMethod(method, split, seconds, mapper.reference, mapper, preds, masks, gate)
+
+
+def recognise_delay(mcfg: MappingConfig) -> int | None:
+    """The look-ahead (frames) of the recognised phones the data must carry: the context's
+    look-ahead with the recogniser gate, else None (no recognition)."""
+    return mcfg.context_forward if mcfg.gate_front_end == "recogniser" else None
+
+
+def predict_utterance(mapper, d):
+    """A trained method's MUPs of one :class:`~mapping.dataset.UttData` (with its recognised
+    phones when the method's gate is the recogniser)."""
+    if getattr(mapper, "needs_phones", False):
+        return mapper.predict(d.features, d.expression, phones=d.recognised)
+    return mapper.predict(d.features, d.expression)
 
 
 def experiment_methods(mcfg: MappingConfig) -> list[str]:

@@ -18,6 +18,13 @@ Training, as in the paper:
 
 Estimation: features → context → gate → the chosen MLP → utterance MUPs → Υ_k (or bank_k).
 Neutral speech has zero expression MUPs.
+
+The recogniser gate (``gate_front_end="recogniser"``, issue 12 part 6): the class of each frame
+is the phone a recogniser trained on real speech heard there (:mod:`mapping.recogniser`), in
+place of the mixtures on our MFCC; no mixture is fitted, and each MLP is trained on the neutral
+training frames labelled with its class. The recognised phones are not a function of the
+features, so every estimate takes them beside the features (``phones``: a phone index per
+frame).
 """
 from __future__ import annotations
 
@@ -39,7 +46,9 @@ _HYPER_PARAMETERS = ("n_utterance", "context_back", "context_forward", "n_classe
                      "gate_components", "gate_covariance", "min_class_frames", "hidden_min",
                      "hidden_max", "expression_model", "cascade_hidden", "random_state")
 # added later: a model saved without them has these values
-_LATER_HYPER_PARAMETERS = {"cmvn": "none", "cmvn_warmup_frames": 30}
+_LATER_HYPER_PARAMETERS = {"cmvn": "none", "cmvn_warmup_frames": 30,
+                           "gate_front_end": "mfcc"}
+GATE_FRONT_ENDS = ("mfcc", "recogniser")  # mapping.config.GATE_FRONT_END_NAMES
 
 
 def hidden_units(n_frames: int, smallest: int, largest: int, lo: int = 15, hi: int = 25) -> int:
@@ -143,6 +152,9 @@ class GatedMLP:
         :mod:`mapping.normalize`): "none" (the paper), "mean" or "meanvar".
     n_classes : int
         Gate classes: 44 phone classes, 8 viseme groups or 1 (a single MLP).
+    gate_front_end : {"mfcc", "recogniser"}
+        The paper's mixtures on the MFCC context, or the phones of a recogniser trained on
+        real speech (:mod:`mapping.recogniser`; see the module docstring).
     gate_components : int
         Mixture components per class; ``gate_covariance`` their covariance type.
     min_class_frames : int
@@ -167,6 +179,7 @@ class GatedMLP:
                  min_class_frames: int = 40, hidden_min: int = 15, hidden_max: int = 25,
                  expression_model: str = "cascade", cascade_hidden: int = 30,
                  cmvn: str = "none", cmvn_warmup_frames: int = 30,
+                 gate_front_end: str = "mfcc",
                  train: TrainSettings = TrainSettings(), random_state: int = 0):
         self.n_utterance = n_utterance
         self.context_back = context_back
@@ -181,6 +194,7 @@ class GatedMLP:
         self.cascade_hidden = cascade_hidden
         self.cmvn = cmvn
         self.cmvn_warmup_frames = cmvn_warmup_frames
+        self.gate_front_end = gate_front_end
         self.train = train
         self.random_state = random_state
 
@@ -196,6 +210,9 @@ class GatedMLP:
         if self.hidden_min > self.hidden_max:
             raise ParameterError(f"hidden_min ({self.hidden_min}) must not exceed hidden_max "
                                  f"({self.hidden_max})")
+        if self.gate_front_end not in GATE_FRONT_ENDS:
+            raise ParameterError(f"gate_front_end must be one of {GATE_FRONT_ENDS}, got "
+                                 f"{self.gate_front_end!r}")
         if self.gate_covariance not in GATE_COVARIANCES:
             raise ParameterError(f"gate_covariance must be one of {GATE_COVARIANCES}, got "
                                  f"{self.gate_covariance!r}")
@@ -222,9 +239,14 @@ class GatedMLP:
         self.class_names_ = names
         labels = target[labels]
         classes = np.unique(labels[neutral])
-        self.gate_ = PhoneGate(self.gate_components, self.gate_covariance, seed).fit(
-            X[neutral], labels[neutral], classes)
-        gated = self.gate_.predict(X)
+        self.classes_ = classes
+        if self.gate_front_end == "mfcc":
+            self.gate_ = PhoneGate(self.gate_components, self.gate_covariance, seed).fit(
+                X[neutral], labels[neutral], classes)
+            gated = self.gate_.predict(X)
+        else:  # the recogniser decides at estimation time; train on the labelled classes
+            self.gate_ = None
+            gated = labels
         self.bank_ = MLPBank(self.hidden_min, self.hidden_max, self.train, seed + 1).fit(
             X, Y[:, :self.n_utterance], self._subsets(gated, labels, neutral, classes))
         self.expressions_ = tuple(sorted({e for e in expr if e != "neutral"}))
@@ -267,24 +289,61 @@ class GatedMLP:
         if not hasattr(self, "bank_"):
             raise NotFittedError("GatedMLP is not trained yet: call fit() first")
 
-    def gate_classes(self, features: np.ndarray) -> np.ndarray:
-        """The class chosen by the gate for each frame of one utterance's raw features."""
+    @property
+    def needs_phones(self) -> bool:
+        """True when every estimate needs the recognised phones (the recogniser gate)."""
+        return self.gate_front_end == "recogniser"
+
+    def phone_classes(self, phones, n_frames: int) -> np.ndarray:
+        """The gate classes of recognised phone indices (one per frame, ``n_frames`` of them)."""
+        if phones is None:
+            raise ParameterError("this mapping's gate is the phone recogniser: give the "
+                                 "recognised phones of the audio (mapping.recogniser.recognise)")
+        p = np.asarray(phones)
+        if p.shape != (n_frames,) or p.dtype.kind not in "iu" or p.min(initial=0) < 0 \
+                or p.max(initial=0) >= len(self.group_of_phone_):
+            raise ParameterError(f"recognised phones must be {n_frames} class indices in "
+                                 f"0..{len(self.group_of_phone_) - 1}, got shape {p.shape}")
+        return self.group_of_phone_[p]
+
+    def _gated(self, X: np.ndarray, classes) -> np.ndarray:
+        if self.gate_ is None:
+            if classes is None:
+                raise ParameterError("this mapping's gate is the phone recogniser: give the "
+                                     "gate classes of the recognised phones")
+            classes = np.asarray(classes)
+            if classes.shape != (len(X),):
+                raise ParameterError(f"{len(X)} frames need {len(X)} gate classes, got shape "
+                                     f"{classes.shape}")
+            return classes
+        return self.gate_.predict(X)
+
+    def gate_classes(self, features: np.ndarray, phones=None) -> np.ndarray:
+        """The class chosen by the gate for each frame of one utterance's raw features
+        (``phones``: the recognised phones, for the recogniser gate)."""
         self._check_fitted()
+        if self.gate_ is None:
+            return self.phone_classes(phones, len(features))
         return self.gate_.predict(self.context_.transform(features))
 
-    def predict(self, features: np.ndarray, expression: str = "neutral") -> np.ndarray:
-        """MUPs (n_frames, A0 + Ak) of one utterance from its raw features (n_frames, n_feat)."""
+    def predict(self, features: np.ndarray, expression: str = "neutral",
+                phones=None) -> np.ndarray:
+        """MUPs (n_frames, A0 + Ak) of one utterance from its raw features (n_frames, n_feat)
+        (``phones``: the recognised phones, for the recogniser gate)."""
         self._check_fitted()
-        return self.predict_stacked(self.context_.transform(features), expression)
+        classes = None if self.gate_ is not None else self.phone_classes(phones, len(features))
+        return self.predict_stacked(self.context_.transform(features), expression, classes)
 
-    def predict_stacked(self, X: np.ndarray, expression: str = "neutral") -> np.ndarray:
+    def predict_stacked(self, X: np.ndarray, expression: str = "neutral",
+                        classes=None) -> np.ndarray:
         """MUPs from normalised, context-stacked features (n_frames, n_inputs); each row is
-        estimated on its own, which is what the streaming animator needs."""
+        estimated on its own, which is what the streaming animator needs. ``classes``: the
+        gate's class of each row, for the recogniser gate (:meth:`phone_classes`)."""
         self._check_fitted()
         if expression != "neutral" and expression not in self.experts_:
             raise ParameterError(f"expression {expression!r} was not trained; allowed: neutral, "
                                  f"{', '.join(self.expressions_)}")
-        gated = self.gate_.predict(X)
+        gated = self._gated(X, classes)
         c0 = self.bank_.predict(X, gated)
         if expression == "neutral":
             return np.concatenate([c0, np.zeros((len(X), self.n_mups_ - c0.shape[1]),
@@ -312,8 +371,10 @@ class GatedMLP:
         params.update(merges=dict(self.merges_), class_names=list(self.class_names_),
                       expressions=list(self.expressions_), n_mups=int(self.n_mups_))
         arrays = {"group_of_phone": self.group_of_phone_}
-        for key, part in (("context", self.context_), ("gate", self.gate_),
-                          ("bank", self.bank_)):
+        parts = (("context", self.context_), ("gate", self.gate_), ("bank", self.bank_))
+        for key, part in parts:
+            if part is None:  # the recogniser gate has nothing to save
+                continue
             a, params[key] = part.to_arrays()
             arrays.update(nest(key, a))
         params["experts"] = []
@@ -337,13 +398,16 @@ class GatedMLP:
             raise ParameterError(f"the context window ({m.context_.back}, "
                                  f"{m.context_.forward}) differs from the hyper-parameters "
                                  f"({m.context_back}, {m.context_forward})")
-        m.gate_ = PhoneGate.from_arrays(g.group("gate"), params["gate"])
+        m.gate_ = (PhoneGate.from_arrays(g.group("gate"), params["gate"])
+                   if m.gate_front_end == "mfcc" else None)
         m.bank_ = MLPBank.from_arrays(g.group("bank"), params["bank"])
-        if set(m.bank_.nets_) != set(m.gate_.classes_.tolist()):
-            raise ParameterError(f"the MLP bank's classes {sorted(m.bank_.nets_)} are not the "
-                                 f"gate's {m.gate_.classes_.tolist()}")
         group_of_phone, _, _ = class_groups(m.n_classes)
         m.group_of_phone_ = g.take("group_of_phone", group_of_phone.shape, kinds="iu")
+        m.classes_ = (m.gate_.classes_ if m.gate_ is not None
+                      else np.unique(m.group_of_phone_))
+        if set(m.bank_.nets_) != set(m.classes_.tolist()):
+            raise ParameterError(f"the MLP bank's classes {sorted(m.bank_.nets_)} are not the "
+                                 f"gate's {m.classes_.tolist()}")
         m.merges_ = dict(params["merges"])
         m.class_names_ = tuple(params["class_names"])
         m.expressions_ = tuple(params["expressions"])

@@ -40,7 +40,7 @@ from face_model.errors import ParameterError
 from face_model.motion_units import MotionUnits
 from mapping.checkpoint import AudioMapping
 from mapping.dataset import build_dataset, split_masks
-from mapping.experiment import SPLIT_SEED_OFFSET
+from mapping.experiment import SPLIT_SEED_OFFSET, predict_utterance, recognise_delay
 from talkingface.config import read_yaml
 from talkingface.paths import RunPaths
 from talkingface.stages.ablations import init_worker, load_grid, resolve_grid, run_child
@@ -111,7 +111,7 @@ def in_domain_R(tfmap: Path, data: list, masks: list, scale, units) -> dict:
     """Test R (Eq. 6) per expression and their mean of the model ``tfmap`` on the run's own
     corpus (``data``, its utterance-split ``masks``), as Table II measures it."""
     mapping = AudioMapping.load(tfmap)
-    preds = [mapping.mapper.predict(d.features, d.expression) for d in data]
+    preds = [predict_utterance(mapping.mapper, d) for d in data]
     tables = evaluate_predictions(data, masks, preds, units, scale)
     r = {e: float(t["test"].R) for e, t in tables.items() if "test" in t}
     return {**{f"in_domain_R_{e}": v for e, v in r.items()},
@@ -146,9 +146,11 @@ def train_voices(paths: RunPaths, cfg) -> dict:
         if not tfmap.is_file():
             raise ParameterError(f"{WHAT} child {name!r} trained no utterance-split model; keep "
                                  "'utterance' in its mapping.splits")
-        if (m.n_mfcc, m.deltas) not in own:
-            data = build_dataset(own_corpus, units, n_mfcc=m.n_mfcc, deltas=m.deltas)
-            own[m.n_mfcc, m.deltas] = (data, split_masks(
+        key = (m.n_mfcc, m.deltas, recognise_delay(m))
+        if key not in own:
+            data = build_dataset(own_corpus, units, n_mfcc=m.n_mfcc, deltas=m.deltas,
+                                 recognise_delay=key[2])
+            own[key] = (data, split_masks(
                 data, "utterance", train_fraction=cfg.mapping.train_fraction,
                 seed=cfg.seed + SPLIT_SEED_OFFSET), database_scale(data, units))
         models[name] = {"tfmap": str(tfmap.relative_to(out)),
@@ -161,7 +163,7 @@ def train_voices(paths: RunPaths, cfg) -> dict:
                      "voices": " ".join(child.synth.voices) or "(the run's voice)",
                      "cmvn": m.cmvn, "vtlp_range": "-".join(map(str, m.vtlp_range)),
                      "augment_copies": m.augment.copies, "own_corpus_test_R": own_R,
-                     **in_domain_R(tfmap, *own[m.n_mfcc, m.deltas], units),
+                     **in_domain_R(tfmap, *own[key], units),
                      "seconds": round(summaries[name]["seconds"], 1)})
     write_csv(out / "results.csv", rows)
     return {"grid": str(grid_path(cfg)), "model": model, "models": models, "rows": rows}

@@ -231,8 +231,8 @@ def test_constructor_stores_its_arguments_verbatim():
     params = dict(n_utterance=5, context_back=2, context_forward=1, n_classes=8,
                   gate_components=3, gate_covariance="full", min_class_frames=11, hidden_min=4,
                   hidden_max=9, expression_model="bank", cascade_hidden=12, cmvn="meanvar",
-                  cmvn_warmup_frames=12, train=TrainSettings(max_epochs=7, patience=3),
-                  random_state=42)
+                  cmvn_warmup_frames=12, gate_front_end="recogniser",
+                  train=TrainSettings(max_epochs=7, patience=3), random_state=42)
     m = GatedMLP(**params)
     for name, value in params.items():
         assert getattr(m, name) is value, name

@@ -1,0 +1,172 @@
+"""A phone recogniser trained on real speech as the gate's front end (issue 12, part 6).
+
+pocketsphinx's en-US acoustic model (in its PyPI wheel, no download) decodes the audio into
+phones with its phone language model (``allphone`` search; FIELD_NOTES "Real speech available
+offline": ``lw=2.0``, ``beam=pbeam=1e-20``, no best-path pass). It is the route Rhubarb Lip
+Sync takes: the recogniser has heard many real voices, where our MFCC gate has heard only the
+corpus's synthetic ones.
+
+:class:`PhoneStream` is the one way the phones are read, offline and live alike, so the two give
+the same phones for the same audio:
+
+* the audio (at the mapping's rate) is cut into blocks of one video frame (``sr / fps``
+  samples), resampled to 16 kHz by one ``soxr.ResampleStream`` and fed to the decoder block by
+  block;
+* frame k (time k / fps) is labelled once the audio has reached (k + ``delay_frames``) / fps
+  seconds, from the partial hypothesis (``Decoder.seg()``) at that moment: the segment covering
+  the decoder's 10-ms frame ⌊100·k / fps⌋, silence when none covers it yet;
+* at the end of the audio the frames still open are labelled from the final hypothesis.
+
+With ``delay_frames`` equal to the mapping's context look-ahead the phones cost no latency: the
+MFCC window of frame k + look-ahead reaches further than the audio the decision waits for.
+Every stream gets a fresh decoder (pocketsphinx's live cepstral mean carries over from one
+utterance to the next in one decoder, which would make a phone depend on what was decoded
+before). Phones are the 39 ARPAbet phones plus silence (noise fillers are silence), as indices
+of the project's 44 classes (:data:`face_model.phones.PHONE_INDEX`).
+"""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import soxr
+from pocketsphinx import Decoder, get_model_path
+
+from face_model.errors import ParameterError
+from face_model.phones import PHONE_INDEX
+
+RECOGNISER_RATE = 16000  # Hz, the acoustic model's rate
+RECOGNISER_FPS = 100  # the decoder's frames per second
+DECODER_SETTINGS = {"lw": 2.0, "beam": 1e-20, "pbeam": 1e-20, "bestpath": False}
+RECOGNISER_NAME = "pocketsphinx-5.1.1 allphone"
+SILENCE = PHONE_INDEX["sil"]
+
+
+def new_decoder() -> Decoder:
+    """A fresh pocketsphinx decoder with the wheel's en-US model and phone language model."""
+    model = get_model_path()
+    return Decoder(hmm=os.path.join(model, "en-us", "en-us"),
+                   allphone=os.path.join(model, "en-us-phone.lm.bin"),
+                   samprate=RECOGNISER_RATE, loglevel="FATAL", **DECODER_SETTINGS)
+
+
+def phone_index(word: str) -> int:
+    """The class index of a recognised phone (fillers and unknown symbols are silence)."""
+    w = word.lower()
+    return PHONE_INDEX[w] if w in PHONE_INDEX else SILENCE
+
+
+def to_pcm16(y: np.ndarray) -> bytes:
+    """Float audio in [-1, 1] as little-endian 16-bit PCM bytes (clipped at full scale)."""
+    return np.round(np.asarray(y, np.float64) * 32768).clip(-32768, 32767).astype("<i2").tobytes()
+
+
+class PhoneStream:
+    """Recognised phones per video frame of one audio stream (see the module docstring).
+
+    Parameters
+    ----------
+    sample_rate : int
+        The rate of the audio pushed (Hz); ``sample_rate / fps`` must be an integer.
+    fps : int
+        Video frames per second.
+    delay_frames : int
+        Frames of look-ahead before a frame's phone is decided (≥ 0).
+    """
+
+    def __init__(self, sample_rate: int, fps: int = 30, delay_frames: int = 3):
+        if sample_rate <= 0 or fps <= 0 or sample_rate % fps:
+            raise ParameterError(f"sample rate {sample_rate} Hz has no integer hop at {fps} fps")
+        if isinstance(delay_frames, bool) or not isinstance(delay_frames, (int, np.integer)) \
+                or delay_frames < 0:
+            raise ParameterError(f"delay_frames must be a non-negative integer, got "
+                                 f"{delay_frames!r}")
+        self.sample_rate, self.fps, self.delay = int(sample_rate), int(fps), int(delay_frames)
+        self.hop = self.sample_rate // self.fps
+        self.decoder = new_decoder()
+        self.decoder.start_utt()
+        self._resampler = (None if self.sample_rate == RECOGNISER_RATE else
+                           soxr.ResampleStream(self.sample_rate, RECOGNISER_RATE, 1,
+                                               dtype="float32", quality="HQ"))
+        self._pending = np.zeros(0, np.float32)  # samples of the block not yet complete
+        self._blocks = 0  # whole blocks fed
+        self._n_samples = 0
+        self._labels: list[int] = []
+        self._done = False
+
+    def _feed(self, block: np.ndarray, last: bool = False) -> None:
+        x = block if self._resampler is None else self._resampler.resample_chunk(block,
+                                                                                 last=last)
+        if len(x):
+            self.decoder.process_raw(to_pcm16(x), full_utt=False)
+
+    def _segments(self) -> list:
+        segs = self.decoder.seg()
+        return [] if segs is None else [(s.start_frame, s.end_frame, phone_index(s.word))
+                                        for s in segs]
+
+    def _label(self, segs: list, k: int) -> int:
+        f = (k * RECOGNISER_FPS) // self.fps
+        for start, end, p in segs:
+            if start <= f <= end:
+                return p
+        return SILENCE
+
+    def push(self, chunk: np.ndarray) -> list[int]:
+        """Add mono samples (any length); return the phones of the frames newly decided."""
+        if self._done:
+            raise ParameterError("the phone stream has ended; start a new one")
+        chunk = np.asarray(chunk, dtype=np.float32)
+        if chunk.ndim != 1 or not np.all(np.isfinite(chunk)):
+            raise ParameterError("the audio chunk must be mono and finite")
+        self._n_samples += len(chunk)
+        audio = np.concatenate([self._pending, chunk])
+        out = []
+        n_whole = len(audio) // self.hop
+        for b in range(n_whole):
+            self._feed(audio[b * self.hop:(b + 1) * self.hop])
+            self._blocks += 1
+            segs = None
+            while len(self._labels) + self.delay <= self._blocks:
+                segs = self._segments() if segs is None else segs
+                self._labels.append(self._label(segs, len(self._labels)))
+                out.append(self._labels[-1])
+        self._pending = audio[n_whole * self.hop:]
+        return out
+
+    def flush(self) -> list[int]:
+        """End of the audio: the phones of the remaining frames (``ceil(n_samples / hop)`` in
+        all), from the final hypothesis."""
+        if self._done:
+            return []
+        self._done = True
+        self._feed(self._pending, last=True)
+        self.decoder.end_utt()
+        n_total = -(-self._n_samples // self.hop)
+        segs = self._segments()
+        out = [self._label(segs, k) for k in range(len(self._labels), n_total)]
+        self._labels.extend(out)
+        return out
+
+    @property
+    def labels(self) -> np.ndarray:
+        """Every phone decided so far, frame 0 first."""
+        return np.asarray(self._labels, dtype=np.int64)
+
+
+def fit_length(labels: np.ndarray, n: int) -> np.ndarray:
+    """``labels`` cut or extended (repeating the last) to ``n`` frames, as the features are."""
+    labels = np.asarray(labels)
+    if len(labels) >= n:
+        return labels[:n]
+    return np.concatenate([labels, np.repeat(labels[-1:], n - len(labels))])
+
+
+def recognise(y: np.ndarray, sample_rate: int, *, fps: int = 30, delay_frames: int = 3
+              ) -> np.ndarray:
+    """Phone index per frame of a whole utterance, exactly as a :class:`PhoneStream` fed the same
+    audio live decides them; ``ceil(n_samples / hop)`` frames."""
+    stream = PhoneStream(sample_rate, fps, delay_frames)
+    stream.push(y)
+    stream.flush()
+    return stream.labels
