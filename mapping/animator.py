@@ -13,9 +13,9 @@ the same audio (the same MFCC columns, the same normalisation and networks, row 
 Causal cepstral normalisation (``cmvn``, :mod:`mapping.normalize`) keeps its running sums per
 stream: each frame's features are pushed through it once, in order, as offline.
 With the recogniser gate (:mod:`mapping.recogniser`) the stream also feeds a
-:class:`~mapping.recogniser.PhoneStream` whose look-ahead is the mapping's: frame k's phone is
-decided before frame k leaves, from the same blocks of audio as offline, so the phones are the
-offline phones too.
+:class:`~mapping.recogniser.PhoneStream` whose context and look-ahead are the mapping's: frame
+k's window of phones is decided before frame k leaves, from the same blocks of audio as offline,
+so the phones are the offline phones too.
 """
 from __future__ import annotations
 
@@ -131,9 +131,9 @@ class StreamingAnimator:
         self._cmvn = self.context.start_stream()  # running CMVN sums (None: no CMVN)
         mapping = self.animator.mapping
         # the recogniser gate's phones: decided ones by frame (None: the gate needs none)
-        self._phones = (PhoneStream(self.sr, self.fps, self.forward) if mapping.needs_phones
-                        else None)
-        self._heard: dict[int, int] = {}
+        self._phones = (PhoneStream(self.sr, self.fps, self.forward, self.back)
+                        if mapping.needs_phones else None)
+        self._heard: dict[int, list] = {}  # frame → its window of phones
         self._n_heard = 0
 
     def _hear(self, phones: list) -> None:
@@ -171,8 +171,7 @@ class StreamingAnimator:
         if self._phones is None:
             mups = mapper.predict_stacked(x, self.expression)
         else:
-            classes = mapper.phone_classes(np.array([self._heard.pop(k)]), 1)
-            mups = mapper.predict_stacked(x, self.expression, classes)
+            mups = mapper.predict_stacked(x, self.expression, np.array([self._heard.pop(k)]))
         # the kept samples start at self._a0 (earlier ones are no longer needed)
         level = window_dbfs(self._audio, k * self.hop - self._a0, self.half)
         mups = self.animator.mapping.silence_fix(mups, np.array([level]))
@@ -191,7 +190,7 @@ class StreamingAnimator:
         self._audio = np.concatenate([self._audio, chunk])
         self._n_samples += len(chunk)
         if self._phones is not None:
-            self._hear(self._phones.push(chunk))
+            self._hear(self._phones.push_windows(chunk))
         # Frames 0 and 1 wait for frame 2's window too: a segment shorter than the FFT would be
         # padded differently from the whole signal (it costs no latency: frame 0 leaves only
         # with frame 3's features).
@@ -224,7 +223,7 @@ class StreamingAnimator:
         self._done = True
         n_total = int(np.ceil(self._n_samples / self.hop))
         if self._phones is not None:
-            self._hear(self._phones.flush())
+            self._hear(self._phones.flush_windows())
         if n_total == 0:
             return []
         while self._n_feats < n_total:

@@ -35,7 +35,7 @@ from face_model.errors import ParameterError
 from mapping.baselines import BASELINES, Baseline
 from mapping.features import audio_features, frame_rms_dbfs
 from mapping.gated import GatedMLP
-from mapping.recogniser import fit_length, recognise
+from mapping.recogniser import fit_length, recognise_windows
 from mapping.state import NUMERIC_KINDS, ArrayGroup
 
 # /1: JSON header line + pickle; /2: the silence rule (rest_mups, silence_dbfs) in the header;
@@ -138,12 +138,15 @@ class AudioMapping:
         return bool(getattr(self.mapper, "needs_phones", False))
 
     def recognised_phones(self, y_m: np.ndarray, n_frames: int) -> np.ndarray | None:
-        """The recogniser's phones of audio at the model's rate, decided with the mapping's
-        look-ahead as a live stream decides them (None when the gate does not use them)."""
+        """The recogniser's windows of phones of audio at the model's rate, for the mapping's
+        context and decided with its look-ahead as a live stream decides them (None when the
+        gate does not use them)."""
         if not self.needs_phones:
             return None
-        return fit_length(recognise(y_m, self.sample_rate, fps=self.fps,
-                                    delay_frames=self.mapper.context_forward), n_frames)
+        m = self.mapper
+        return fit_length(recognise_windows(y_m, self.sample_rate, fps=self.fps,
+                                            delay_frames=m.context_forward,
+                                            back=m.context_back), n_frames)
 
     def gate_classes(self, y: np.ndarray, sr: int) -> np.ndarray:
         """The gate's class of every frame of mono audio (a gated mapping only)."""

@@ -15,7 +15,10 @@ are unchanged:
 * ``augment.copies`` — augmented copies of every training utterance (:mod:`mapping.augment`);
 * ``gate_front_end`` — "mfcc", the paper's mixtures on the MFCC, or "recogniser", the phones that
   pocketsphinx's en-US model (trained on real speech) hears, decided with the context look-ahead
-  (:mod:`mapping.recogniser`): the recogniser front end.
+  (:mod:`mapping.recogniser`): the recogniser front end;
+* ``mlp_input`` — what the MLP bank reads: "mfcc", the paper's MFCC context, or "phones", the
+  recogniser's window of phones around the frame (one-hot; the phone-posterior front end, the
+  route Rhubarb Lip Sync takes), which needs the recogniser gate.
 
 The training set gains ``augment.copies`` copies of each training utterance (its training
 frames only; test utterances never), or one warped copy each when only the warp is on
@@ -34,7 +37,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from face_model.settings import (check_fields, check_order, choice, fraction, integer, number,
-                                 numbers, span, subset)
+                                 numbers, require, span, subset)
 
 METHOD_NAMES = ("gated_mlp", "vq", "linear", "gmm_regression", "mlp_large", "tdnn", "gru")
 SPLIT_NAMES = ("random_frames", "utterance")
@@ -42,6 +45,7 @@ MAX_MFCC = 25  # MFCCs of 26 mel bands
 CMVN_NAMES = ("none", "mean", "meanvar")  # mapping.normalize.CMVN_MODES
 NOISE_COLOURS = ("white", "pink", "brown")  # mapping.augment.NOISE_BETA
 GATE_FRONT_END_NAMES = ("mfcc", "recogniser")  # mapping.gated.GATE_FRONT_ENDS
+MLP_INPUT_NAMES = ("mfcc", "phones")  # mapping.gated.MLP_INPUTS
 
 
 @dataclass(frozen=True)
@@ -125,6 +129,8 @@ class MappingConfig:
     # gate: one Gaussian mixture per phone class on the MFCC ("mfcc", the paper), or the phones
     # of a recogniser trained on real speech ("recogniser", mapping.recogniser)
     gate_front_end: str = choice(*GATE_FRONT_END_NAMES)
+    # what the MLPs read: the MFCC context (the paper) or the recogniser's window of phones
+    mlp_input: str = choice(*MLP_INPUT_NAMES)
     n_classes: int = choice(44, 8, 1)  # 44 phone classes | 8 viseme groups | 1 (a single MLP)
     gate_components: int = integer(4, ge=1)
     gate_covariance: str = choice("diag", "full", "tied", "spherical")
@@ -147,3 +153,6 @@ class MappingConfig:
     def __post_init__(self):
         check_fields(self)
         check_order(self, "hidden_min", "hidden_max")
+        require(self, "mlp_input", self.mlp_input == "mfcc" or self.gate_front_end == "recogniser",
+                "'mfcc' unless gate_front_end is 'recogniser' (the phones are the recogniser's)",
+                ("gate_front_end",))

@@ -23,7 +23,7 @@ from face_model.errors import ParameterError
 from mapping.augment import augment, retime_labels, retime_targets, rir_bank
 from mapping.config import AugmentSettings
 from mapping.features import audio_features, hop_samples
-from mapping.recogniser import fit_length, recognise
+from mapping.recogniser import fit_length, recognise_windows
 
 SPLITS = ("random_frames", "utterance")
 
@@ -43,8 +43,9 @@ class UttData:
     audio: np.ndarray | None = field(default=None, repr=False)  # (n_samples,) float
     sample_rate: int = 0  # Hz, of ``audio``
     fps: int = 30
-    # the phones a recogniser heard, per frame (the recogniser gate's input; None: not needed)
-    recognised: np.ndarray | None = field(default=None, repr=False)  # (n_frames,) indices
+    # the phones a recogniser heard: per frame its window of phone indices (the recogniser
+    # gate's input, mapping.recogniser.recognise_windows; None: not needed)
+    recognised: np.ndarray | None = field(default=None, repr=False)  # (n_frames, window)
 
     def __post_init__(self):
         n = len(self.features)
@@ -66,31 +67,42 @@ class UttData:
 
 
 def build_dataset(corpus, units, *, n_mfcc: int = 10, deltas: bool = False,
-                  alignment: str | None = None, recognise_delay: int | None = None,
+                  alignment: str | None = None, recognise_context: tuple | None = None,
                   progress: bool = False) -> list[UttData]:
     """Features, true MUPs and phone labels of every utterance of ``corpus``.
 
     The MUPs are the Motion Units' projection of the aligned deformations (the alignment model
-    recorded in the units' metadata unless given). ``recognise_delay`` (frames): also the phones
-    the recogniser hears, decided with that look-ahead (:func:`mapping.recogniser.recognise`;
-    the recogniser gate's input), fitted to the utterance's frames.
+    recorded in the units' metadata unless given). ``recognise_context`` (back, forward) frames:
+    also the phones the recogniser hears, per frame the window of ``back`` past to ``forward``
+    future frames decided with ``forward`` frames of look-ahead
+    (:func:`mapping.recogniser.recognise_windows`; the recogniser gate's input), fitted to the
+    utterance's frames.
     """
     alignment = alignment or units.metadata_.get("alignment", "similarity")
     defs = corpus_deformations(corpus, model=alignment)
     out = []
     for u in tqdm(corpus.utterances, desc="recognising phones", unit="utt",
-                  disable=not progress or recognise_delay is None):
+                  disable=not progress or recognise_context is None):
         feats = audio_features(u.audio, sr=u.sample_rate, fps=u.fps, n_mfcc=n_mfcc,
                                deltas=deltas, n_frames=u.n_frames)
         heard = None
-        if recognise_delay is not None:
-            heard = fit_length(recognise(u.audio, u.sample_rate, fps=u.fps,
-                                         delay_frames=recognise_delay), u.n_frames)
+        if recognise_context is not None:
+            heard = recognised_windows(u.audio, u.sample_rate, u.fps, recognise_context,
+                                       u.n_frames)
         out.append(UttData(u.utt_id, u.speaker, u.expression, u.text, feats,
                            units.transform(defs[u.utt_id], u.expression).astype(np.float32),
                            u.phone_per_frame(), audio=u.audio, sample_rate=u.sample_rate,
                            fps=u.fps, recognised=heard))
     return out
+
+
+def recognised_windows(y: np.ndarray, sr: int, fps: int, context: tuple, n_frames: int
+                       ) -> np.ndarray:
+    """The recogniser's windows (n_frames, back + 1 + forward) of audio ``y`` for the context
+    ``(back, forward)``, fitted to ``n_frames``."""
+    back, forward = context
+    return fit_length(recognise_windows(y, sr, fps=fps, delay_frames=forward, back=back),
+                      n_frames)
 
 
 def copies_per_utterance(settings: AugmentSettings, vtlp_range) -> int:
@@ -107,7 +119,8 @@ def utterance_key(utt_id: str) -> int:
 
 def training_copies(data: list[UttData], masks: list, *, settings: AugmentSettings,
                     vtlp_range=(1.0, 1.0), n_mfcc: int = 10, deltas: bool = False,
-                    seed: int = 0) -> tuple[list[UttData], list[np.ndarray]]:
+                    seed: int = 0, recognise_context: tuple | None = None
+                    ) -> tuple[list[UttData], list[np.ndarray]]:
     """Augmented copies of the training utterances and their training-frame masks.
 
     Copy c of an utterance with training frames (:func:`copies_per_utterance` of them) is drawn
@@ -115,8 +128,10 @@ def training_copies(data: list[UttData], masks: list, *, settings: AugmentSettin
     (the mel filterbank of its features), then, when ``settings.copies`` > 0, its audio
     (:func:`mapping.augment.augment`; babble from other training utterances, preferably of
     other speakers). A tempo change re-times the copy's MUPs (linear interpolation), phone
-    labels and mask (nearest frame), so features and targets stay aligned. Utterances without
-    training frames (test utterances) are never copied.
+    labels and mask (nearest frame), so features and targets stay aligned. With
+    ``recognise_context`` the recogniser hears each copy's audio too (the phone-input MLPs read
+    it); otherwise a copy carries no recognised phones. Utterances without training frames
+    (test utterances) are never copied.
     """
     n_copies = copies_per_utterance(settings, vtlp_range)
     train = [i for i, m in enumerate(masks) if np.any(m)]
@@ -152,9 +167,11 @@ def training_copies(data: list[UttData], masks: list, *, settings: AugmentSettin
                 mups = retime_targets(d.mups, scale, n)
                 phones = retime_labels(d.phones, scale, n)
                 mask = retime_labels(np.asarray(masks[i]), scale, n)
+            heard = (None if recognise_context is None else
+                     recognised_windows(y, d.sample_rate, d.fps, recognise_context, n))
             out.append(replace(d, utt_id=f"{d.utt_id}+copy{c}", features=feats, mups=mups,
                                phones=phones, audio=None,  # features suffice: no copy kept
-                               recognised=None))  # copies train, never estimate
+                               recognised=heard))
             out_masks.append(mask)
     return out, out_masks
 

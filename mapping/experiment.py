@@ -42,7 +42,8 @@ def make_mapper(method: str, mcfg: MappingConfig, *, n_utterance: int = 7,
                         hidden_max=mcfg.hidden_max, expression_model=mcfg.expression_model,
                         cascade_hidden=mcfg.cascade_hidden, cmvn=mcfg.cmvn,
                         cmvn_warmup_frames=mcfg.cmvn_warmup_frames,
-                        gate_front_end=mcfg.gate_front_end, train=mcfg.train,
+                        gate_front_end=mcfg.gate_front_end, mlp_input=mcfg.mlp_input,
+                        train=mcfg.train,
                         random_state=random_state)
     if method in BASELINES:
         return Baseline(method, context_back=mcfg.context_back,
@@ -71,7 +72,9 @@ def augmented_copies(data: list, masks: list, mcfg: MappingConfig, *, seed: int
     """The training copies of a split (none unless ``mcfg`` asks for the warp or augmentation)."""
     return training_copies(data, masks, settings=mcfg.augment, vtlp_range=mcfg.vtlp_range,
                            n_mfcc=mcfg.n_mfcc, deltas=mcfg.deltas,
-                           seed=seed + AUGMENT_SEED_OFFSET)
+                           seed=seed + AUGMENT_SEED_OFFSET,
+                           recognise_context=(recognise_context(mcfg)
+                                              if mcfg.mlp_input == "phones" else None))
 
 
 def train_method(method: str, data: list, masks: list, mcfg: MappingConfig, *,
@@ -90,10 +93,13 @@ def train_method(method: str, data: list, masks: list, mcfg: MappingConfig, *,
     return TrainedMethod(method, split, seconds, mapper.reference, mapper, preds, masks, gate)
 
 
-def recognise_delay(mcfg: MappingConfig) -> int | None:
-    """The look-ahead (frames) of the recognised phones the data must carry: the context's
-    look-ahead with the recogniser gate, else None (no recognition)."""
-    return mcfg.context_forward if mcfg.gate_front_end == "recogniser" else None
+def recognise_context(mcfg: MappingConfig) -> tuple | None:
+    """The window ``(back, forward)`` of recognised phones the data must carry: the mapping's
+    context with the recogniser gate (decided with its look-ahead), else None (no
+    recognition)."""
+    if mcfg.gate_front_end != "recogniser":
+        return None
+    return (mcfg.context_back, mcfg.context_forward)
 
 
 def predict_utterance(mapper, d):

@@ -21,16 +21,24 @@ Neutral speech has zero expression MUPs.
 
 The recogniser gate (``gate_front_end="recogniser"``, issue 12 part 6): the class of each frame
 is the phone a recogniser trained on real speech heard there (:mod:`mapping.recogniser`), in
-place of the mixtures on our MFCC; no mixture is fitted, and each MLP is trained on the neutral
-training frames labelled with its class. The recognised phones are not a function of the
-features, so every estimate takes them beside the features (``phones``: a phone index per
-frame).
+place of the mixtures on our MFCC; no mixture is fitted. As the paper divides the training
+frames by the gate's decision, each training frame goes to the MLP of the phone the recogniser
+heard (an augmented copy that was not recognised, to the MLP of its label). The recognised
+phones are not a function of the features, so every estimate takes them beside the features
+(``phones``: per frame the recogniser's window of phones, ``context_back + 1 +
+context_forward`` of them, :func:`mapping.recogniser.recognise_windows`; column
+``context_back`` is the frame's own).
+
+The phone input (``mlp_input="phones"``, with the recogniser gate): the MLPs read that window of
+phones, one-hot (:func:`phone_inputs`), in place of the MFCC context — the phone-posterior front
+end. The MFCC are then not used by any network.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from face_model.errors import NotFittedError, ParameterError
+from face_model.phones import PHONES
 from mapping.features import ContextFeatures, check_context, check_seed
 from mapping.gate import COVARIANCE_TYPES, PhoneGate, class_groups, merge_small_classes
 from mapping.config import TrainSettings
@@ -47,8 +55,19 @@ _HYPER_PARAMETERS = ("n_utterance", "context_back", "context_forward", "n_classe
                      "hidden_max", "expression_model", "cascade_hidden", "random_state")
 # added later: a model saved without them has these values
 _LATER_HYPER_PARAMETERS = {"cmvn": "none", "cmvn_warmup_frames": 30,
-                           "gate_front_end": "mfcc"}
+                           "gate_front_end": "mfcc", "mlp_input": "mfcc"}
 GATE_FRONT_ENDS = ("mfcc", "recogniser")  # mapping.config.GATE_FRONT_END_NAMES
+MLP_INPUTS = ("mfcc", "phones")  # mapping.config.MLP_INPUT_NAMES
+N_PHONES = len(PHONES)
+
+
+def phone_inputs(windows: np.ndarray) -> np.ndarray:
+    """The one-hot code (n_frames, window · 44) of windows of phone indices (n_frames, window),
+    frame-major: the phone-input MLPs' features."""
+    w = np.asarray(windows)
+    out = np.zeros((len(w), w.shape[1], N_PHONES), np.float32)
+    np.put_along_axis(out, w[:, :, None], 1.0, axis=2)
+    return out.reshape(len(w), -1)
 
 
 def hidden_units(n_frames: int, smallest: int, largest: int, lo: int = 15, hi: int = 25) -> int:
@@ -155,6 +174,9 @@ class GatedMLP:
     gate_front_end : {"mfcc", "recogniser"}
         The paper's mixtures on the MFCC context, or the phones of a recogniser trained on
         real speech (:mod:`mapping.recogniser`; see the module docstring).
+    mlp_input : {"mfcc", "phones"}
+        What the MLPs read: the MFCC context (the paper) or the recogniser's window of phones
+        (needs the recogniser gate).
     gate_components : int
         Mixture components per class; ``gate_covariance`` their covariance type.
     min_class_frames : int
@@ -179,7 +201,7 @@ class GatedMLP:
                  min_class_frames: int = 40, hidden_min: int = 15, hidden_max: int = 25,
                  expression_model: str = "cascade", cascade_hidden: int = 30,
                  cmvn: str = "none", cmvn_warmup_frames: int = 30,
-                 gate_front_end: str = "mfcc",
+                 gate_front_end: str = "mfcc", mlp_input: str = "mfcc",
                  train: TrainSettings = TrainSettings(), random_state: int = 0):
         self.n_utterance = n_utterance
         self.context_back = context_back
@@ -195,6 +217,7 @@ class GatedMLP:
         self.cmvn = cmvn
         self.cmvn_warmup_frames = cmvn_warmup_frames
         self.gate_front_end = gate_front_end
+        self.mlp_input = mlp_input
         self.train = train
         self.random_state = random_state
 
@@ -213,6 +236,12 @@ class GatedMLP:
         if self.gate_front_end not in GATE_FRONT_ENDS:
             raise ParameterError(f"gate_front_end must be one of {GATE_FRONT_ENDS}, got "
                                  f"{self.gate_front_end!r}")
+        if self.mlp_input not in MLP_INPUTS:
+            raise ParameterError(f"mlp_input must be one of {MLP_INPUTS}, got "
+                                 f"{self.mlp_input!r}")
+        if self.mlp_input == "phones" and self.gate_front_end != "recogniser":
+            raise ParameterError("mlp_input 'phones' needs gate_front_end 'recogniser' (the "
+                                 f"phones are the recogniser's), got {self.gate_front_end!r}")
         if self.gate_covariance not in GATE_COVARIANCES:
             raise ParameterError(f"gate_covariance must be one of {GATE_COVARIANCES}, got "
                                  f"{self.gate_covariance!r}")
@@ -228,7 +257,7 @@ class GatedMLP:
                                         self.cmvn_warmup_frames).fit([d.features for d in data],
                                                                      masks)
         group_of_phone, names, visemes = class_groups(self.n_classes)
-        X, Y, labels, expr = self._stack(data, masks, group_of_phone)
+        X, Y, labels, expr, heard = self._stack(data, masks, group_of_phone)
         neutral = expr == "neutral"
         if not neutral.any():
             raise ParameterError("the mapping needs neutral training frames (Ψ_0) for the gate "
@@ -244,9 +273,10 @@ class GatedMLP:
             self.gate_ = PhoneGate(self.gate_components, self.gate_covariance, seed).fit(
                 X[neutral], labels[neutral], classes)
             gated = self.gate_.predict(X)
-        else:  # the recogniser decides at estimation time; train on the labelled classes
+        else:  # the recogniser decides: the class it heard, or the label where none was heard
             self.gate_ = None
-            gated = labels
+            gated = np.where(heard >= 0, target[np.maximum(heard, 0)], labels)
+            gated = np.where(np.isin(gated, classes), gated, labels)
         self.bank_ = MLPBank(self.hidden_min, self.hidden_max, self.train, seed + 1).fit(
             X, Y[:, :self.n_utterance], self._subsets(gated, labels, neutral, classes))
         self.expressions_ = tuple(sorted({e for e in expr if e != "neutral"}))
@@ -266,14 +296,32 @@ class GatedMLP:
         return self
 
     def _stack(self, data, masks, group_of_phone):
-        xs, ys, ls, es = [], [], [], []
+        """Training rows: inputs, MUPs, labelled class, expression, and the class the
+        recogniser heard (−1 where the utterance carries no recognised phones)."""
+        xs, ys, ls, es, hs = [], [], [], [], []
         for d, mk in zip(data, masks):
-            xs.append(self.context_.transform(d.features)[mk])
+            windows = getattr(d, "recognised", None)
+            if windows is None and self.mlp_input == "phones":
+                raise ParameterError(f"utterance {d.utt_id} carries no recognised phones; the "
+                                     "phone-input MLPs need them (build_dataset with "
+                                     "recognise_context)")
+            if windows is not None:
+                windows = self._check_windows(windows, d.n_frames)
+            xs.append(self._inputs(d.features, windows)[mk])
             ys.append(d.mups[mk])
             ls.append(group_of_phone[d.phones[mk]])
             es.append(np.full(int(mk.sum()), d.expression))
+            hs.append(np.full(int(mk.sum()), -1) if windows is None
+                      else group_of_phone[windows[mk, self.context_back]])
         return (np.concatenate(xs), np.concatenate(ys).astype(np.float32), np.concatenate(ls),
-                np.concatenate(es))
+                np.concatenate(es), np.concatenate(hs))
+
+    def _inputs(self, features: np.ndarray, windows) -> np.ndarray:
+        """The MLPs' inputs of one utterance: its normalised MFCC context, or its one-hot
+        windows of recognised phones (``mlp_input="phones"``)."""
+        if self.mlp_input == "phones":
+            return phone_inputs(windows)
+        return self.context_.transform(features)
 
     def _subsets(self, gated, labels, use, classes) -> dict:
         subsets = {}
@@ -294,29 +342,28 @@ class GatedMLP:
         """True when every estimate needs the recognised phones (the recogniser gate)."""
         return self.gate_front_end == "recogniser"
 
-    def phone_classes(self, phones, n_frames: int) -> np.ndarray:
-        """The gate classes of recognised phone indices (one per frame, ``n_frames`` of them)."""
+    @property
+    def window(self) -> int:
+        """Phones in each frame's recognised window: ``context_back + 1 + context_forward``."""
+        return self.context_back + 1 + self.context_forward
+
+    def _check_windows(self, phones, n_frames: int) -> np.ndarray:
         if phones is None:
             raise ParameterError("this mapping's gate is the phone recogniser: give the "
-                                 "recognised phones of the audio (mapping.recogniser.recognise)")
+                                 "recognised phones of the audio "
+                                 "(mapping.recogniser.recognise_windows)")
         p = np.asarray(phones)
-        if p.shape != (n_frames,) or p.dtype.kind not in "iu" or p.min(initial=0) < 0 \
-                or p.max(initial=0) >= len(self.group_of_phone_):
-            raise ParameterError(f"recognised phones must be {n_frames} class indices in "
-                                 f"0..{len(self.group_of_phone_) - 1}, got shape {p.shape}")
-        return self.group_of_phone_[p]
+        if p.shape != (n_frames, self.window) or p.dtype.kind not in "iu" \
+                or p.min(initial=0) < 0 or p.max(initial=0) >= N_PHONES:
+            raise ParameterError(f"recognised phones must be {n_frames} windows of "
+                                 f"{self.window} class indices in 0..{N_PHONES - 1}, got shape "
+                                 f"{p.shape}")
+        return p
 
-    def _gated(self, X: np.ndarray, classes) -> np.ndarray:
-        if self.gate_ is None:
-            if classes is None:
-                raise ParameterError("this mapping's gate is the phone recogniser: give the "
-                                     "gate classes of the recognised phones")
-            classes = np.asarray(classes)
-            if classes.shape != (len(X),):
-                raise ParameterError(f"{len(X)} frames need {len(X)} gate classes, got shape "
-                                     f"{classes.shape}")
-            return classes
-        return self.gate_.predict(X)
+    def phone_classes(self, phones, n_frames: int) -> np.ndarray:
+        """The gate classes of the recognised phones: windows (``n_frames``, :attr:`window`)
+        of phone indices, each frame's own in column ``context_back``."""
+        return self.group_of_phone_[self._check_windows(phones, n_frames)[:, self.context_back]]
 
     def gate_classes(self, features: np.ndarray, phones=None) -> np.ndarray:
         """The class chosen by the gate for each frame of one utterance's raw features
@@ -331,19 +378,23 @@ class GatedMLP:
         """MUPs (n_frames, A0 + Ak) of one utterance from its raw features (n_frames, n_feat)
         (``phones``: the recognised phones, for the recogniser gate)."""
         self._check_fitted()
-        classes = None if self.gate_ is not None else self.phone_classes(phones, len(features))
-        return self.predict_stacked(self.context_.transform(features), expression, classes)
+        return self.predict_stacked(self.context_.transform(features), expression, phones)
 
     def predict_stacked(self, X: np.ndarray, expression: str = "neutral",
-                        classes=None) -> np.ndarray:
+                        phones=None) -> np.ndarray:
         """MUPs from normalised, context-stacked features (n_frames, n_inputs); each row is
-        estimated on its own, which is what the streaming animator needs. ``classes``: the
-        gate's class of each row, for the recogniser gate (:meth:`phone_classes`)."""
+        estimated on its own, which is what the streaming animator needs. ``phones``: the
+        recognised window of each row, for the recogniser gate (:meth:`phone_classes`)."""
         self._check_fitted()
         if expression != "neutral" and expression not in self.experts_:
             raise ParameterError(f"expression {expression!r} was not trained; allowed: neutral, "
                                  f"{', '.join(self.expressions_)}")
-        gated = self._gated(X, classes)
+        if self.gate_ is None:
+            gated = self.phone_classes(phones, len(X))
+            if self.mlp_input == "phones":
+                X = phone_inputs(phones)
+        else:
+            gated = self.gate_.predict(X)
         c0 = self.bank_.predict(X, gated)
         if expression == "neutral":
             return np.concatenate([c0, np.zeros((len(X), self.n_mups_ - c0.shape[1]),

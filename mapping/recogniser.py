@@ -17,6 +17,12 @@ the same phones for the same audio:
   the decoder's 10-ms frame ⌊100·k / fps⌋, silence when none covers it yet;
 * at the end of the audio the frames still open are labelled from the final hypothesis.
 
+With ``back`` > 0 each decision also keeps the *window* the hypothesis holds at that moment:
+the phones of frames k − back … k + delay_frames (frames before 0 are silence), the past ones as
+revised by then, the future ones as far as the audio so far has been heard. The window is what
+the phone-input MLPs read (``mapping.mlp_input = "phones"``): a context of phones that costs no
+latency beyond the decision's own look-ahead. Its column ``back`` is the frame's phone.
+
 With ``delay_frames`` equal to the mapping's context look-ahead the phones cost no latency: the
 MFCC window of frame k + look-ahead reaches further than the audio the decision waits for.
 Every stream gets a fresh decoder (pocketsphinx's live cepstral mean carries over from one
@@ -72,16 +78,21 @@ class PhoneStream:
         Video frames per second.
     delay_frames : int
         Frames of look-ahead before a frame's phone is decided (≥ 0).
+    back : int
+        Past frames in each decision's window (≥ 0; see the module docstring).
     """
 
-    def __init__(self, sample_rate: int, fps: int = 30, delay_frames: int = 3):
+    def __init__(self, sample_rate: int, fps: int = 30, delay_frames: int = 3, back: int = 0):
         if sample_rate <= 0 or fps <= 0 or sample_rate % fps:
             raise ParameterError(f"sample rate {sample_rate} Hz has no integer hop at {fps} fps")
         if isinstance(delay_frames, bool) or not isinstance(delay_frames, (int, np.integer)) \
                 or delay_frames < 0:
             raise ParameterError(f"delay_frames must be a non-negative integer, got "
                                  f"{delay_frames!r}")
+        if isinstance(back, bool) or not isinstance(back, (int, np.integer)) or back < 0:
+            raise ParameterError(f"back must be a non-negative integer, got {back!r}")
         self.sample_rate, self.fps, self.delay = int(sample_rate), int(fps), int(delay_frames)
+        self.back = int(back)
         self.hop = self.sample_rate // self.fps
         self.decoder = new_decoder()
         self.decoder.start_utt()
@@ -91,7 +102,7 @@ class PhoneStream:
         self._pending = np.zeros(0, np.float32)  # samples of the block not yet complete
         self._blocks = 0  # whole blocks fed
         self._n_samples = 0
-        self._labels: list[int] = []
+        self._windows: list[list[int]] = []  # per decided frame: phones of k - back .. k + delay
         self._done = False
 
     def _feed(self, block: np.ndarray, last: bool = False) -> None:
@@ -106,14 +117,28 @@ class PhoneStream:
                                         for s in segs]
 
     def _label(self, segs: list, k: int) -> int:
+        if k < 0:
+            return SILENCE
         f = (k * RECOGNISER_FPS) // self.fps
         for start, end, p in segs:
             if start <= f <= end:
                 return p
         return SILENCE
 
+    def _decide(self, segs: list) -> list[int]:
+        """Decide the next frame: its window of phones under the hypothesis ``segs``."""
+        k = len(self._windows)
+        window = [self._label(segs, j) for j in range(k - self.back, k + self.delay + 1)]
+        self._windows.append(window)
+        return window
+
     def push(self, chunk: np.ndarray) -> list[int]:
-        """Add mono samples (any length); return the phones of the frames newly decided."""
+        """Add mono samples (any length); return the phones of the frames newly decided (their
+        windows: :meth:`push_windows`)."""
+        return [w[self.back] for w in self.push_windows(chunk)]
+
+    def push_windows(self, chunk: np.ndarray) -> list[list[int]]:
+        """Add mono samples (any length); return the windows of the frames newly decided."""
         if self._done:
             raise ParameterError("the phone stream has ended; start a new one")
         chunk = np.asarray(chunk, dtype=np.float32)
@@ -127,16 +152,19 @@ class PhoneStream:
             self._feed(audio[b * self.hop:(b + 1) * self.hop])
             self._blocks += 1
             segs = None
-            while len(self._labels) + self.delay <= self._blocks:
+            while len(self._windows) + self.delay <= self._blocks:
                 segs = self._segments() if segs is None else segs
-                self._labels.append(self._label(segs, len(self._labels)))
-                out.append(self._labels[-1])
+                out.append(self._decide(segs))
         self._pending = audio[n_whole * self.hop:]
         return out
 
     def flush(self) -> list[int]:
         """End of the audio: the phones of the remaining frames (``ceil(n_samples / hop)`` in
-        all), from the final hypothesis."""
+        all), from the final hypothesis (their windows: :meth:`flush_windows`)."""
+        return [w[self.back] for w in self.flush_windows()]
+
+    def flush_windows(self) -> list[list[int]]:
+        """End of the audio: the windows of the remaining frames, from the final hypothesis."""
         if self._done:
             return []
         self._done = True
@@ -144,29 +172,41 @@ class PhoneStream:
         self.decoder.end_utt()
         n_total = -(-self._n_samples // self.hop)
         segs = self._segments()
-        out = [self._label(segs, k) for k in range(len(self._labels), n_total)]
-        self._labels.extend(out)
-        return out
+        return [self._decide(segs) for _ in range(len(self._windows), n_total)]
+
+    @property
+    def windows(self) -> np.ndarray:
+        """Every window decided so far (n_decided, back + 1 + delay_frames), frame 0 first."""
+        return np.asarray(self._windows, dtype=np.int64).reshape(-1, self.back + 1 + self.delay)
 
     @property
     def labels(self) -> np.ndarray:
         """Every phone decided so far, frame 0 first."""
-        return np.asarray(self._labels, dtype=np.int64)
+        return self.windows[:, self.back]
 
 
 def fit_length(labels: np.ndarray, n: int) -> np.ndarray:
-    """``labels`` cut or extended (repeating the last) to ``n`` frames, as the features are."""
+    """``labels`` (or windows, frame-major) cut or extended (repeating the last) to ``n``
+    frames, as the features are."""
     labels = np.asarray(labels)
     if len(labels) >= n:
         return labels[:n]
-    return np.concatenate([labels, np.repeat(labels[-1:], n - len(labels))])
+    return np.concatenate([labels, np.repeat(labels[-1:], n - len(labels), axis=0)])
+
+
+def recognise_windows(y: np.ndarray, sample_rate: int, *, fps: int = 30, delay_frames: int = 3,
+                      back: int = 0) -> np.ndarray:
+    """The window of phones (n_frames, back + 1 + delay_frames) of every frame of a whole
+    utterance, exactly as a :class:`PhoneStream` fed the same audio live decides them;
+    ``ceil(n_samples / hop)`` frames. Column ``back`` is each frame's phone."""
+    stream = PhoneStream(sample_rate, fps, delay_frames, back)
+    stream.push_windows(y)
+    stream.flush_windows()
+    return stream.windows
 
 
 def recognise(y: np.ndarray, sample_rate: int, *, fps: int = 30, delay_frames: int = 3
               ) -> np.ndarray:
     """Phone index per frame of a whole utterance, exactly as a :class:`PhoneStream` fed the same
     audio live decides them; ``ceil(n_samples / hop)`` frames."""
-    stream = PhoneStream(sample_rate, fps, delay_frames)
-    stream.push(y)
-    stream.flush()
-    return stream.labels
+    return recognise_windows(y, sample_rate, fps=fps, delay_frames=delay_frames)[:, 0]

@@ -25,7 +25,7 @@ from face_model.corpus import corpus_hash, load_corpus
 from face_model.motion_units import MotionUnits
 from mapping.checkpoint import AudioMapping, rest_mups
 from mapping.dataset import build_dataset
-from mapping.experiment import recognise_delay, run_experiment
+from mapping.experiment import recognise_context, run_experiment
 from talkingface.config import to_dict
 from talkingface.paths import RunPaths
 from talkingface.stages.base import write_csv
@@ -57,7 +57,7 @@ def train_and_evaluate(corpus_dir: Path, units_path: Path, out_dir: Path, cfg, *
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     data = build_dataset(corpus, units, n_mfcc=m.n_mfcc, deltas=m.deltas,
-                         recognise_delay=recognise_delay(m), progress=progress)
+                         recognise_context=recognise_context(m), progress=progress)
     feature_seconds = time.perf_counter() - t0
     trained = run_experiment(data, m, n_utterance=units.n_utterance, seed=cfg.seed,
                              methods=methods, splits=splits, progress=progress)

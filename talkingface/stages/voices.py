@@ -40,7 +40,7 @@ from face_model.errors import ParameterError
 from face_model.motion_units import MotionUnits
 from mapping.checkpoint import AudioMapping
 from mapping.dataset import build_dataset, split_masks
-from mapping.experiment import SPLIT_SEED_OFFSET, predict_utterance, recognise_delay
+from mapping.experiment import SPLIT_SEED_OFFSET, predict_utterance, recognise_context
 from talkingface.config import read_yaml
 from talkingface.paths import RunPaths
 from talkingface.stages.ablations import init_worker, load_grid, resolve_grid, run_child
@@ -146,10 +146,10 @@ def train_voices(paths: RunPaths, cfg) -> dict:
         if not tfmap.is_file():
             raise ParameterError(f"{WHAT} child {name!r} trained no utterance-split model; keep "
                                  "'utterance' in its mapping.splits")
-        key = (m.n_mfcc, m.deltas, recognise_delay(m))
+        key = (m.n_mfcc, m.deltas, recognise_context(m))
         if key not in own:
             data = build_dataset(own_corpus, units, n_mfcc=m.n_mfcc, deltas=m.deltas,
-                                 recognise_delay=key[2])
+                                 recognise_context=key[2])
             own[key] = (data, split_masks(
                 data, "utterance", train_fraction=cfg.mapping.train_fraction,
                 seed=cfg.seed + SPLIT_SEED_OFFSET), database_scale(data, units))

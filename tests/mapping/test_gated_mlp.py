@@ -231,7 +231,7 @@ def test_constructor_stores_its_arguments_verbatim():
     params = dict(n_utterance=5, context_back=2, context_forward=1, n_classes=8,
                   gate_components=3, gate_covariance="full", min_class_frames=11, hidden_min=4,
                   hidden_max=9, expression_model="bank", cascade_hidden=12, cmvn="meanvar",
-                  cmvn_warmup_frames=12, gate_front_end="recogniser",
+                  cmvn_warmup_frames=12, gate_front_end="recogniser", mlp_input="phones",
                   train=TrainSettings(max_epochs=7, patience=3), random_state=42)
     m = GatedMLP(**params)
     for name, value in params.items():
@@ -249,6 +249,10 @@ BAD_VALUES = [
     (dict(gate_components=True), r"gate_components must be a positive integer, got True"),
     (dict(min_class_frames=-3), r"min_class_frames must be a positive integer, got -3"),
     (dict(n_classes=7), r"n_classes must be one of \(1, 8, 44\), got 7"),
+    (dict(mlp_input="lpc"), r"mlp_input must be one of \('mfcc', 'phones'\), got 'lpc'"),
+    (dict(mlp_input="phones"),
+     r"mlp_input 'phones' needs gate_front_end 'recogniser' \(the phones are the recogniser's\), "
+     r"got 'mfcc'"),
 ]
 
 

@@ -15,7 +15,11 @@ from face_model.phones import PHONE_INDEX
 from mapping import build_dataset, make_mapper, split_masks
 from mapping.animator import FaceAnimator, StreamingAnimator
 from mapping.checkpoint import AudioMapping, rest_mups
-from mapping.recogniser import PhoneStream, fit_length, recognise
+from face_model.settings import SettingError
+from mapping.config import MappingConfig
+from mapping.experiment import augmented_copies, recognise_context
+from mapping.gated import phone_inputs
+from mapping.recogniser import PhoneStream, fit_length, recognise, recognise_windows
 from talkingface.config import Config
 
 SR = 22050  # a model rate (an integer hop at 30 fps)
@@ -113,7 +117,8 @@ def recogniser_mapping(small_corpus):
     mcfg = dataclasses.replace(cfg.mapping, gate_front_end="recogniser", min_class_frames=5,
                                train=dataclasses.replace(cfg.mapping.train, max_epochs=30))
     units, _ = fit_corpus_units(small_corpus)
-    data = build_dataset(small_corpus, units, recognise_delay=mcfg.context_forward)
+    data = build_dataset(small_corpus, units,
+                         recognise_context=(mcfg.context_back, mcfg.context_forward))
     masks = split_masks(data, "random_frames", seed=cfg.seed)
     mapper = make_mapper("gated_mlp", mcfg, n_utterance=units.n_utterance,
                          random_state=cfg.seed).fit(data, masks)
@@ -128,15 +133,17 @@ def test_the_recogniser_gate_uses_the_recognised_phones(recogniser_mapping):
     m, d = mapping.mapper, data[0]
     assert m.gate_ is None and m.needs_phones
     assert len(m.bank_.nets_) > 1  # several classes for the phones to choose from
+    assert d.recognised.shape == (d.n_frames, 7)
+    own = d.recognised[:, 3]  # each frame's own phone in its window
     np.testing.assert_array_equal(m.gate_classes(d.features, d.recognised),
-                                  m.group_of_phone_[d.recognised])
+                                  m.group_of_phone_[own])
     # the phones offline are those the data carries (one PhoneStream, the same look-ahead)
     u_audio = d.audio
     np.testing.assert_array_equal(mapping.gate_classes(u_audio, d.sample_rate),
-                                  m.group_of_phone_[d.recognised])
+                                  m.group_of_phone_[own])
     other = d.recognised.copy()
     other[:] = PHONE_INDEX["m"]  # the lips' class, which the corpus speaks
-    assert m.group_of_phone_[other[0]] != m.group_of_phone_[PHONE_INDEX["aa"]]
+    assert m.group_of_phone_[other[0, 3]] != m.group_of_phone_[PHONE_INDEX["aa"]]
     assert not np.allclose(m.predict(d.features, "neutral", other),
                            m.predict(d.features, "neutral", d.recognised))
 
@@ -145,8 +152,8 @@ def test_the_recogniser_gate_refuses_an_estimate_without_phones(recogniser_mappi
     m, d = recogniser_mapping[0].mapper, recogniser_mapping[2][0]
     with pytest.raises(ParameterError, match="this mapping's gate is the phone recogniser"):
         m.predict(d.features)
-    with pytest.raises(ParameterError, match=f"recognised phones must be {d.n_frames} class "
-                                              "indices in 0..43, got shape"):
+    with pytest.raises(ParameterError, match=f"recognised phones must be {d.n_frames} windows "
+                                              "of 7 class indices in 0..43, got shape"):
         m.predict(d.features, "neutral", d.recognised[:-1])
 
 
@@ -174,4 +181,116 @@ def test_streaming_with_the_recogniser_gate_equals_offline(recogniser_mapping, s
     frames += s.flush()
     assert [f.index for f in frames] == list(range(len(mups)))
     # the same rows as offline (to float32 rounding of (1, d) against (n, d) products)
+    np.testing.assert_allclose(np.stack([f.mups for f in frames]), mups, rtol=0, atol=1e-3)
+
+
+# -- windows of phones and the phone-input MLPs ------------------------------------------------
+
+def _stream_windows(y, chunks, back, delay):
+    s = PhoneStream(SR, 30, delay, back)
+    out, i = [], 0
+    for n in chunks:
+        out += s.push_windows(y[i:i + n])
+        i += n
+    out += s.push_windows(y[i:])
+    return np.array(out + s.flush_windows())
+
+
+def test_windows_live_equal_windows_offline_and_hold_the_frames_phone(a0009):
+    y, _ = a0009
+    back, delay = 3, 3
+    offline = recognise_windows(y, SR, delay_frames=delay, back=back)
+    assert offline.shape == (int(np.ceil(len(y) / (SR // 30))), back + 1 + delay)
+    chunks = np.random.default_rng(7).integers(1, 4000, size=40)
+    np.testing.assert_array_equal(_stream_windows(y, chunks, back, delay), offline)
+    # the frame's own column is the phone decided alone; frames before 0 are silence
+    np.testing.assert_array_equal(offline[:, back], recognise(y, SR, delay_frames=delay))
+    assert np.all(offline[0, :back] == PHONE_INDEX["sil"])
+    # a window's past is the hypothesis at decision time, not a copy of earlier decisions
+    assert not np.array_equal(offline[1:, back - 1], offline[:-1, back])
+
+
+def test_a_window_does_not_depend_on_audio_after_its_decision(a0009):
+    y, _ = a0009
+    hop, back, delay, cut = SR // 30, 3, 3, 60
+    other = y.copy()
+    other[cut * hop:] = np.random.default_rng(2).normal(0, 0.2, len(y) - cut * hop)
+    a = recognise_windows(y, SR, delay_frames=delay, back=back)
+    b = recognise_windows(other, SR, delay_frames=delay, back=back)
+    np.testing.assert_array_equal(a[:cut - delay + 1], b[:cut - delay + 1])
+
+
+def test_phone_inputs_are_one_hot_per_window_position():
+    w = np.array([[0, 5, 43], [2, 2, 2]])
+    x = phone_inputs(w)
+    assert x.shape == (2, 3 * 44) and x.dtype == np.float32
+    np.testing.assert_array_equal(x.sum(axis=1), [3, 3])
+    for r in range(2):
+        for j in range(3):
+            assert x[r, j * 44 + w[r, j]] == 1.0
+
+
+def test_phone_input_needs_the_recogniser_gate():
+    with pytest.raises(SettingError, match="mlp_input is 'phones'; allowed: 'mfcc' unless "
+                                           "gate_front_end is 'recogniser'"):
+        MappingConfig(mlp_input="phones")
+    assert MappingConfig(mlp_input="phones", gate_front_end="recogniser").mlp_input == "phones"
+
+
+@pytest.fixture(scope="module")
+def phone_input_mapping(small_corpus):
+    from face_model.motion_units import fit_corpus_units
+
+    cfg = Config()
+    mcfg = dataclasses.replace(cfg.mapping, gate_front_end="recogniser", mlp_input="phones",
+                               min_class_frames=5, vtlp_range=(0.9, 1.1),
+                               train=dataclasses.replace(cfg.mapping.train, max_epochs=30))
+    units, _ = fit_corpus_units(small_corpus)
+    data = build_dataset(small_corpus, units, recognise_context=recognise_context(mcfg))
+    masks = split_masks(data, "utterance", seed=cfg.seed)
+    copies = augmented_copies(data, masks, mcfg, seed=cfg.seed)
+    mapper = make_mapper("gated_mlp", mcfg, n_utterance=units.n_utterance,
+                         random_state=cfg.seed).fit([*data, *copies[0]], [*masks, *copies[1]])
+    sr = small_corpus.utterances[0].sample_rate
+    mapping = AudioMapping(mapper, sample_rate=sr, n_utterance=units.n_utterance,
+                           rest_mups=rest_mups(units))
+    return mapping, units, data, copies
+
+
+def test_warped_copies_are_recognised_for_the_phone_input(phone_input_mapping):
+    _, _, data, (copies, masks) = phone_input_mapping
+    assert copies and all(c.recognised is not None for c in copies)
+    for c, m in zip(copies, masks):
+        assert c.recognised.shape == (c.n_frames, 7) and len(m) == c.n_frames
+
+
+def test_the_phone_input_mlps_read_the_phones_not_the_mfcc(phone_input_mapping):
+    mapping, _, data, _ = phone_input_mapping
+    m, d = mapping.mapper, data[0]
+    assert all(net.x_mean_.shape == (7 * 44,) for net in m.bank_.nets_.values())
+    same = m.predict(d.features, "neutral", d.recognised)
+    noise = np.random.default_rng(3).normal(size=d.features.shape).astype(np.float32)
+    np.testing.assert_array_equal(m.predict(noise, "neutral", d.recognised), same)
+    other = d.recognised.copy()
+    other[:, 4:] = PHONE_INDEX["m"]  # only the window's future changes; the gate does not
+    changed = m.predict(d.features, "neutral", other)
+    assert not np.allclose(changed, same)
+
+
+def test_a_phone_input_model_round_trips_and_streams_as_offline(phone_input_mapping, tmp_path,
+                                                                small_corpus):
+    mapping, units, data, _ = phone_input_mapping
+    back = AudioMapping.load(mapping.save(tmp_path / "p.tfmap"))
+    assert back.mapper.mlp_input == "phones"
+    u = small_corpus.utterances[1]
+    np.testing.assert_array_equal(back.predict_audio(u.audio, u.sample_rate, "sad"),
+                                  mapping.predict_audio(u.audio, u.sample_rate, "sad"))
+    animator = FaceAnimator(back, units)
+    mups, _ = animator.animate(u.audio, u.sample_rate, "sad")
+    s = StreamingAnimator(animator, "sad")
+    frames = []
+    for i in range(0, len(u.audio), 1000):
+        frames += s.push(u.audio[i:i + 1000])
+    frames += s.flush()
+    assert [f.index for f in frames] == list(range(len(mups)))
     np.testing.assert_allclose(np.stack([f.mups for f in frames]), mups, rtol=0, atol=1e-3)
