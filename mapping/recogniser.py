@@ -23,6 +23,13 @@ revised by then, the future ones as far as the audio so far has been heard. The 
 the phone-input MLPs read (``mapping.mlp_input = "phones"``): a context of phones that costs no
 latency beyond the decision's own look-ahead. Its column ``back`` is the frame's phone.
 
+A live stream runs for hours, and the decoder's hypothesis (and the cost of reading it) grows
+with its utterance, so the stream is cut into utterances at pauses: once an utterance is
+``MIN_UTTERANCE_S`` long and its hypothesis ends in ``PAUSE_S`` of silence — or, without a
+pause, once it is ``MAX_UTTERANCE_S`` long — the utterance ends there (its frames keep their
+final phones) and the next starts on the following block. The rule reads only the hypothesis
+of the blocks fed, so offline and live cut at the same blocks.
+
 With ``delay_frames`` equal to the mapping's context look-ahead the phones cost no latency: the
 MFCC window of frame k + look-ahead reaches further than the audio the decision waits for.
 Every stream gets a fresh decoder (pocketsphinx's live cepstral mean carries over from one
@@ -46,6 +53,10 @@ RECOGNISER_FPS = 100  # the decoder's frames per second
 DECODER_SETTINGS = {"lw": 2.0, "beam": 1e-20, "pbeam": 1e-20, "bestpath": False}
 RECOGNISER_NAME = "pocketsphinx-5.1.1 allphone"
 SILENCE = PHONE_INDEX["sil"]
+MIN_UTTERANCE_S = 5.0  # an utterance may end at a pause once it is this long (s)
+PAUSE_S = 0.3  # silence at the end of the hypothesis that makes a pause (s)
+MAX_UTTERANCE_S = 30.0  # an utterance ends here without a pause (s)
+_SAMPLES_PER_DECODER_FRAME = RECOGNISER_RATE // RECOGNISER_FPS
 
 
 def new_decoder() -> Decoder:
@@ -104,12 +115,17 @@ class PhoneStream:
         self._n_samples = 0
         self._windows: list[list[int]] = []  # per decided frame: phones of k - back .. k + delay
         self._done = False
+        self._fed = 0  # samples (at RECOGNISER_RATE) fed to the decoder
+        self._utt_start = 0  # the sample at which the current utterance starts
+        self._closed: dict[int, int] = {}  # frame -> final phone, frames of ended utterances
+        self.utterances = 1  # utterances begun
 
     def _feed(self, block: np.ndarray, last: bool = False) -> None:
         x = block if self._resampler is None else self._resampler.resample_chunk(block,
                                                                                  last=last)
         if len(x):
             self.decoder.process_raw(to_pcm16(x), full_utt=False)
+            self._fed += len(x)
 
     def _segments(self) -> list:
         segs = self.decoder.seg()
@@ -117,13 +133,39 @@ class PhoneStream:
                                         for s in segs]
 
     def _label(self, segs: list, k: int) -> int:
+        """Frame k's phone: final when its instant lies in an ended utterance, else from the
+        current utterance's hypothesis ``segs`` (silence where it does not reach)."""
         if k < 0:
             return SILENCE
-        f = (k * RECOGNISER_FPS) // self.fps
-        for start, end, p in segs:
+        t = (k * RECOGNISER_RATE) // self.fps  # the frame's instant, in samples
+        if t < self._utt_start:
+            return self._closed.get(k, SILENCE)
+        f = (t - self._utt_start) // _SAMPLES_PER_DECODER_FRAME
+        for start, end, p in reversed(segs):  # the window sits at the end of the hypothesis
             if start <= f <= end:
                 return p
+            if end < f:
+                break
         return SILENCE
+
+    def _maybe_end_utterance(self, segs: list) -> None:
+        """End the current utterance at a pause (or at its longest), keeping the final phones of
+        the frames still to be read, and begin the next one (see the module docstring)."""
+        length = (self._fed - self._utt_start) / RECOGNISER_RATE
+        if length < MIN_UTTERANCE_S:
+            return
+        pause = bool(segs) and segs[-1][2] == SILENCE and \
+            (segs[-1][1] - segs[-1][0] + 1) >= PAUSE_S * RECOGNISER_FPS
+        if not pause and length < MAX_UTTERANCE_S:
+            return
+        self.decoder.end_utt()
+        final = self._segments()
+        first = max(0, len(self._windows) - self.back)
+        last = -(-self._fed * self.fps // RECOGNISER_RATE)  # frames whose instant was fed
+        self._closed = {k: self._label(final, k) for k in range(first, last + 1)}
+        self._utt_start = self._fed
+        self.decoder.start_utt()
+        self.utterances += 1
 
     def _decide(self, segs: list) -> list[int]:
         """Decide the next frame: its window of phones under the hypothesis ``segs``."""
@@ -151,10 +193,10 @@ class PhoneStream:
         for b in range(n_whole):
             self._feed(audio[b * self.hop:(b + 1) * self.hop])
             self._blocks += 1
-            segs = None
+            segs = self._segments()
             while len(self._windows) + self.delay <= self._blocks:
-                segs = self._segments() if segs is None else segs
                 out.append(self._decide(segs))
+            self._maybe_end_utterance(segs)
         self._pending = audio[n_whole * self.hop:]
         return out
 

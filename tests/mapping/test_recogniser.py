@@ -19,7 +19,8 @@ from face_model.settings import SettingError
 from mapping.config import MappingConfig
 from mapping.experiment import augmented_copies, recognise_context
 from mapping.gated import phone_inputs
-from mapping.recogniser import PhoneStream, fit_length, recognise, recognise_windows
+from mapping.recogniser import (MIN_UTTERANCE_S, PhoneStream, fit_length, recognise,
+                                recognise_windows)
 from talkingface.config import Config
 
 SR = 22050  # a model rate (an integer hop at 30 fps)
@@ -294,3 +295,24 @@ def test_a_phone_input_model_round_trips_and_streams_as_offline(phone_input_mapp
     frames += s.flush()
     assert [f.index for f in frames] == list(range(len(mups)))
     np.testing.assert_allclose(np.stack([f.mups for f in frames]), mups, rtol=0, atol=1e-3)
+
+
+def test_a_long_stream_is_cut_into_utterances_at_pauses_alike_offline_and_live():
+    """Real sentences one after another with short pauses: the stream begins new utterances
+    (the hypothesis stays short however long it runs), at the same blocks offline and live."""
+    items = load_speech_set(SET_DIR)[:6]
+    pause = np.zeros(SR // 2, np.float32)
+    y = np.concatenate([np.concatenate([resample(i.audio.astype(np.float32), sr_in=i.sr,
+                                                 sr_out=SR), pause]) for i in items])
+    assert len(y) / SR > 2 * MIN_UTTERANCE_S
+    live = PhoneStream(SR, 30, 3, 3)
+    got, i = [], 0
+    for n in np.random.default_rng(11).integers(1, 5000, size=400):
+        got += live.push_windows(y[i:i + n])
+        i += n
+    got += live.push_windows(y[i:])
+    got += live.flush_windows()
+    assert live.utterances >= 2
+    offline = recognise_windows(y, SR, delay_frames=3, back=3)
+    np.testing.assert_array_equal(np.array(got), offline)
+    assert np.mean(offline[:, 3] != PHONE_INDEX["sil"]) > 0.3  # speech is still heard
