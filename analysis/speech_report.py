@@ -52,7 +52,12 @@ def speech_section(rep, speech_dir: Path, voices_rows: list, *, table_ii_R: floa
         "Which model is which: Tables I-II are the paper's single-voice mapping "
         "(mapping/gated_mlp_*.tfmap, one espeak voice). "
         + (f"The models named voices-* are the voice-robust configurations of configs/voices.yaml "
-           f"(stage voices); <b>{robust}</b> is the one `talkingface animate`, `talkingface "
+           f"(stage voices): one-voice is the paper's espeak voice, many-* a corpus speaking "
+           f"with ten synthetic voices; -cmvn, -warp and -augment add cepstral normalisation, "
+           f"the VTLP warp and augmented copies; -recogniser takes the gate's phones from "
+           f"pocketsphinx (trained on real speech) instead of mixtures on our MFCC; -phones "
+           f"also feeds the MLPs the recogniser's window of phones instead of the MFCC. "
+           f"<b>{robust}</b> is the one `talkingface animate`, `talkingface "
            f"stream` and the study's synthetic face use by default." if robust else
            "This run trained no voice-robust models (voices.grid: none), so `animate`, `stream` "
            "and the study use the single-voice mapping."))

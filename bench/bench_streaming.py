@@ -8,7 +8,11 @@ analysis window. Runs on one core (BLAS and torch threads set to 1).
 ``--cmvn MODE`` streams a model trained with that causal cepstral normalisation (issue 12);
 ``--cmvn compare`` trains one model without CMVN and one with "meanvar" on the same data, streams
 the same utterances through both (interleaved, so machine load hits both alike) and reports the
-per-frame cost of each and their ratio (target: <= 1.25). ``--sentences N`` shrinks the corpus.
+per-frame cost of each and their ratio (target: <= 1.25). ``--front-end phones`` streams the
+phone-input model (the recogniser gate and MLPs reading its phones, issue 12 part 6: the
+default voice-robust model's front end); ``--front-end compare`` streams it beside the paper's
+MFCC model in the same way and reports the ratio (target: <= 1.25). ``--sentences N`` shrinks
+the corpus.
 """
 from __future__ import annotations
 
@@ -42,6 +46,9 @@ def parse_args() -> argparse.Namespace:
     p.add_argument("--repeat", type=int, default=3, help="timed passes over the test utterances")
     p.add_argument("--cmvn", choices=("none", "mean", "meanvar", "compare"), default="none",
                    help="the model's cepstral normalisation, or 'compare' (none vs meanvar)")
+    p.add_argument("--front-end", choices=("mfcc", "phones", "compare"), default="mfcc",
+                   help="the MLPs' input: the MFCC (the paper), the recogniser's phones, or "
+                        "'compare' (mfcc vs phones)")
     p.add_argument("--sentences", type=int, default=0,
                    help="corpus sentences (default: the paper's config)")
     return p.parse_args()
@@ -71,17 +78,28 @@ def main() -> None:
     if args.sentences:
         cfg = dataclasses.replace(cfg, synth=dataclasses.replace(cfg.synth,
                                                                  n_sentences=args.sentences))
-    modes = ["none", "meanvar"] if args.cmvn == "compare" else [args.cmvn]
+    phones = dataclasses.replace(cfg.mapping, gate_front_end="recogniser", mlp_input="phones")
+    if args.cmvn == "compare":
+        what = "cmvn"
+        configs = {m: dataclasses.replace(cfg.mapping, cmvn=m) for m in ("none", "meanvar")}
+    elif args.front_end == "compare":
+        what = "front_end"
+        configs = {"mfcc": dataclasses.replace(cfg.mapping, cmvn=args.cmvn), "phones": phones}
+    else:
+        what = None
+        configs = {args.front_end: (phones if args.front_end == "phones"
+                                    else dataclasses.replace(cfg.mapping, cmvn=args.cmvn))}
     with tempfile.TemporaryDirectory() as tmp:
         synthesize_corpus(Path(tmp) / "corpus", cfg.synth, cfg.seed, progress=False)
         corpus = load_corpus(Path(tmp) / "corpus")
         units, _ = fit_corpus_units(corpus)
-        data = build_dataset(corpus, units)
+        context = (phones.context_back, phones.context_forward)
+        data = build_dataset(corpus, units, recognise_context=(
+            context if any(c.mlp_input == "phones" for c in configs.values()) else None))
         masks = split_masks(data, "utterance", seed=cfg.seed)
         sr = corpus.utterances[0].sample_rate
         anims = {}
-        for mode in modes:
-            mcfg = dataclasses.replace(cfg.mapping, cmvn=mode)
+        for mode, mcfg in configs.items():
             mapper = make_mapper("gated_mlp", mcfg, n_utterance=units.n_utterance,
                                  random_state=cfg.seed).fit(data, masks)
             anims[mode] = FaceAnimator(AudioMapping(mapper, sample_rate=sr,
@@ -89,7 +107,7 @@ def main() -> None:
                                                     rest_mups=rest_mups(units)), units)
         test = [u for u, m in zip(corpus.utterances, masks) if not m.any()][:20]
         costs = stream_costs(anims, test, args.repeat)
-        anim = anims[modes[0]]
+        anim = anims[next(iter(configs))]
         s = StreamingAnimator(anim)
         u = test[0]
         renderer = FaceRenderer()
@@ -110,12 +128,13 @@ def main() -> None:
         figures.update({f"stream_frame_p50_ms{tag}": float(np.percentile(pf, 50)),
                         f"stream_frame_mean_ms{tag}": float(np.mean(pf)),
                         f"stream_frame_p99_ms{tag}": float(np.percentile(pf, 99))})
-    if len(costs) == 2:
-        a, b = costs["none"], costs["meanvar"]
-        figures.update({"cmvn_cost_ratio_p50": float(np.percentile(b, 50) / np.percentile(a, 50)),
-                        "cmvn_cost_ratio_mean": float(np.mean(b) / np.mean(a)),
-                        "target_cmvn_cost_ratio": 1.25})
-    report({"cmvn": args.cmvn, **figures, "target_p99_ms": 1.0,
+    if what is not None:
+        a, b = (costs[k] for k in configs)
+        figures.update({f"{what}_cost_ratio_p50": float(np.percentile(b, 50)
+                                                        / np.percentile(a, 50)),
+                        f"{what}_cost_ratio_mean": float(np.mean(b) / np.mean(a)),
+                        f"target_{what}_cost_ratio": 1.25})
+    report({"cmvn": args.cmvn, "front_end": args.front_end, **figures, "target_p99_ms": 1.0,
             "frames_measured": sum(len(v) for v in costs.values()),
             "algorithmic_latency_ms": 1000 * s.latency_s,
             "animate_markers_render_x_realtime": audio_s / render_s,

@@ -15,7 +15,9 @@ stream: each frame's features are pushed through it once, in order, as offline.
 With the recogniser gate (:mod:`mapping.recogniser`) the stream also feeds a
 :class:`~mapping.recogniser.PhoneStream` whose context and look-ahead are the mapping's: frame
 k's window of phones is decided before frame k leaves, from the same blocks of audio as offline,
-so the phones are the offline phones too.
+so the phones are the offline phones too. When the MLPs read the phones
+(``mlp_input="phones"``) no network reads the MFCC, and the stream does not compute them (its
+frames carry no features).
 """
 from __future__ import annotations
 
@@ -118,6 +120,8 @@ class StreamingAnimator:
         ctx = m.mapper.context_
         self.back, self.forward = ctx.back, ctx.forward
         self.context = ctx
+        # the phone-input MLPs read no MFCC: the stream skips them
+        self._uses_mfcc = getattr(m.mapper, "mlp_input", "mfcc") == "mfcc"
         self.reset()
 
     def reset(self) -> None:
@@ -149,10 +153,12 @@ class StreamingAnimator:
     def _samples(self, start: int, end: int) -> np.ndarray:
         return self._audio[max(start, self._a0) - self._a0:max(end, self._a0) - self._a0]
 
-    def _feature(self, k: int, final: bool) -> np.ndarray:
+    def _feature(self, k: int, final: bool) -> np.ndarray | None:
         # The frame's MFCC from a segment starting two hops earlier: the STFT column sees exactly
         # the samples it sees offline (the window is zero beyond ±window/2 of the frame centre,
         # and a segment from sample 0 reflects at the start as the whole signal does).
+        if not self._uses_mfcc:
+            return None
         col = min(k, 2)
         start = (k - col) * self.hop
         end = self._n_samples if final else max(k, 2) * self.hop + self.half + 1
@@ -164,9 +170,12 @@ class StreamingAnimator:
 
     def _emit(self, k: int, n_total: int | None) -> StreamFrame:
         last = self._n_feats - 1 if n_total is None else n_total - 1
-        rows = [self._feats[min(max(j, 0), last)] for j in range(k - self.back,
-                                                                k + self.forward + 1)]
-        x = np.concatenate(rows)[None]
+        if self._uses_mfcc:
+            rows = [self._feats[min(max(j, 0), last)] for j in range(k - self.back,
+                                                                    k + self.forward + 1)]
+            x = np.concatenate(rows)[None]
+        else:
+            x = np.zeros((1, 0), np.float32)
         mapper = self.animator.mapping.mapper
         if self._phones is None:
             mups = mapper.predict_stacked(x, self.expression)

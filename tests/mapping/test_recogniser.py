@@ -295,6 +295,7 @@ def test_a_phone_input_model_round_trips_and_streams_as_offline(phone_input_mapp
     frames += s.flush()
     assert [f.index for f in frames] == list(range(len(mups)))
     np.testing.assert_allclose(np.stack([f.mups for f in frames]), mups, rtol=0, atol=1e-3)
+    assert all(f.features is None for f in frames)  # no MFCC computed: no network reads them
 
 
 def test_a_long_stream_is_cut_into_utterances_at_pauses_alike_offline_and_live():
