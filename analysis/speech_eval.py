@@ -48,6 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.speech_set import PARTS
 from data_synth.articulation import coarticulate
 from data_synth.backends import ESPEAK_SPEAKER, voice_speaker
 from data_synth.config import SynthConfig
@@ -195,6 +196,7 @@ class FileScores:
     speaker_source: str
     seen: bool
     seconds: float
+    part: str  # "dev" or "test" (analysis.speech_set)
     phone_acc: float
     viseme_acc: float
     bilabial: Contact
@@ -207,7 +209,8 @@ class FileScores:
     def row(self) -> dict:
         b, f = self.bilabial, self.labiodental
         return {"id": self.id, "speaker_source": self.speaker_source,
-                "split": "seen" if self.seen else "unseen", "seconds": round(self.seconds, 3),
+                "split": "seen" if self.seen else "unseen", "part": self.part,
+                "seconds": round(self.seconds, 3),
                 "frames": self.n_frames, "phone_acc": self.phone_acc,
                 "viseme_acc": self.viseme_acc, "bilabial_segments": b.n,
                 "bilabial_closed": int(b.met.sum()), "bilabial_closed_frac": b.fraction,
@@ -253,7 +256,7 @@ def score_file(animator: FaceAnimator, item, synth: SynthConfig, seed: int, *, s
     ref = reference_opening(item.phones, n, fps, synth, seed)
     return FileScores(
         id=item.id, speaker_source=item.speaker_source, seen=seen, seconds=item.duration_s,
-        phone_acc=phone_acc, viseme_acc=vis_acc,
+        part=item.part, phone_acc=phone_acc, viseme_acc=vis_acc,
         bilabial=segment_contact(opening, fps, item.phones, BILABIALS, threshold),
         labiodental=segment_contact(opening, fps, item.phones, LABIODENTALS, threshold),
         vowel_median_px=vowel_median(opening, true), r_reference=correlation(opening, ref),
@@ -331,7 +334,9 @@ def score_model(name: str, mapping, units, items, seen_sources=frozenset()) -> M
     files = [score_file(animator, it, synth, seed, seen=it.speaker_source in seen_sources,
                         threshold=threshold) for it in items]
     summary = [pooled([f for f in files if f.seen], "seen"),
-               pooled([f for f in files if not f.seen], "unseen"), pooled(files, "all")]
+               pooled([f for f in files if not f.seen], "unseen"), pooled(files, "all"),
+               *[pooled([f for f in files if not f.seen and f.part == p], f"unseen-{p}")
+                 for p in PARTS]]
     return ModelScores(name, threshold, files, summary)
 
 

@@ -15,6 +15,7 @@ import numpy as np
 
 from face_model.errors import ParameterError
 from analysis.speech_eval import phone_frames, viseme_index
+from analysis.speech_set import PARTS
 from face_model.phones import PHONE_INDEX
 from mapping.recogniser import (RECOGNISER_FPS as FRAMES_PER_S, RECOGNISER_NAME,
                                 RECOGNISER_RATE as SAMPLE_RATE, new_decoder, phone_index, to_pcm16)
@@ -93,7 +94,7 @@ def recogniser_scores(items, seen_sources=frozenset(), *, delay_s: float = 0.1,
     accuracy counts the 44 classes; ``ax dx el en`` labels are never recognised (pocketsphinx
     has only the 39 ARPAbet phones), so it is a lower bound."""
     rec = PhoneRecogniser(fps)
-    files, pooled = [], {"seen": [], "unseen": []}
+    files, pooled = [], {"seen": [], "unseen": [], **{f"unseen-{p}": [] for p in PARTS}}
     for it in items:
         whole = rec.whole(it.audio, it.sr)
         stream = rec.streaming(it.audio, it.sr, delay_s)
@@ -102,8 +103,10 @@ def recogniser_scores(items, seen_sources=frozenset(), *, delay_s: float = 0.1,
                 "stream": viseme_index(true) == viseme_index(stream)}
         split = "seen" if it.speaker_source in seen_sources else "unseen"
         pooled[split].append(hits)
+        if split == "unseen":
+            pooled[f"unseen-{it.part}"].append(hits)
         files.append({"model": RECOGNISER_NAME, "id": it.id,
-                      "speaker_source": it.speaker_source, "split": split,
+                      "speaker_source": it.speaker_source, "split": split, "part": it.part,
                       "seconds": round(it.duration_s, 3), "frames": len(true),
                       "phone_acc": float(hits["phone"].mean()),
                       "viseme_acc": float(hits["viseme"].mean()),
@@ -111,7 +114,8 @@ def recogniser_scores(items, seen_sources=frozenset(), *, delay_s: float = 0.1,
                           float(hits["stream"].mean())})
     pooled["all"] = pooled["seen"] + pooled["unseen"]
     summary = []
-    for split, hits in pooled.items():
+    for split in ("seen", "unseen", "all", *[f"unseen-{p}" for p in PARTS]):
+        hits = pooled[split]
         row = {"model": RECOGNISER_NAME, "split": split, "files": len(hits)}
         if hits:
             for key, name in (("phone", "phone_acc"), ("viseme", "viseme_acc"),

@@ -16,6 +16,8 @@ the corpus format (``start_s, end_s, phone``; phones in the 44-class set of
 ``label_source``   ``hts`` (the HTS labels shipped with it), ``textgrid`` (its own TextGrid)
                    or ``pocketsphinx-5.1.1 forced alignment`` (``tools/align_real_speech.py``)
 ``label_origin``   the original annotation file in the set (hts, textgrid), else empty
+``part``           ``dev`` or ``test`` (optional; ``test`` when absent): the development speakers
+                   a configuration may be chosen on, and the test speakers it is reported on
 ``transcript``     the words spoken
 ``licence``        the licence notice of the recording (the full texts sit beside the files)
 =================  ==========================================================================
@@ -42,6 +44,7 @@ MANIFEST_COLUMNS = ("id", "wav", "labels", "speaker", "speaker_source", "label_s
                     "label_origin", "transcript", "licence")
 ALIGNED = "pocketsphinx-5.1.1 forced alignment"
 LABEL_SOURCES = ("hts", "textgrid", ALIGNED)
+PARTS = ("dev", "test")  # the optional ``part`` column
 SAMPLE_RATE = 16000
 _SILENCES = {"pau", "sil", "h#", "ssil", "sp", "brth", ""}
 # festival / ARPAbet symbols outside the 44 classes
@@ -64,6 +67,7 @@ class SpeechItem:
     sr: int
     audio: np.ndarray = field(repr=False)
     phones: tuple = field(repr=False)  # PhoneSegment, contiguous from 0 to the end of the audio
+    part: str = "test"  # "dev" or "test"
 
     @property
     def duration_s(self) -> float:
@@ -200,6 +204,10 @@ def read_manifest(set_dir=SET_DIR) -> list[dict]:
         if row["label_source"] not in LABEL_SOURCES:
             raise CorpusError(f"{path}, line {line}: label_source {row['label_source']!r}; "
                               f"allowed: {', '.join(LABEL_SOURCES)}")
+        row["part"] = (row.get("part") or "test").strip()
+        if row["part"] not in PARTS:
+            raise CorpusError(f"{path}, line {line}: part {row['part']!r}; allowed: "
+                              f"{', '.join(PARTS)} (or empty: test)")
     return rows
 
 
@@ -216,7 +224,7 @@ def _load_item(set_dir: Path, row: dict) -> SpeechItem:
                       speaker=row["speaker"], speaker_source=row["speaker_source"],
                       label_source=row["label_source"], label_origin=row["label_origin"] or "",
                       transcript=row["transcript"], licence=row["licence"], sr=sr,
-                      audio=np.asarray(y, dtype=np.float32), phones=phones)
+                      audio=np.asarray(y, dtype=np.float32), phones=phones, part=row["part"])
 
 
 def load_speech_set(set_dir=SET_DIR, ids=None) -> list[SpeechItem]:

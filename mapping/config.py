@@ -18,7 +18,11 @@ are unchanged:
   (:mod:`mapping.recogniser`): the recogniser front end;
 * ``mlp_input`` — what the MLP bank reads: "mfcc", the paper's MFCC context, or "phones", the
   recogniser's window of phones around the frame (one-hot; the phone-posterior front end, the
-  route Rhubarb Lip Sync takes), which needs the recogniser gate.
+  route Rhubarb Lip Sync takes), which needs the recogniser gate;
+* ``phone_training`` — with the recogniser gate, whether training reads the phones the
+  recogniser heard in the training audio ("recognised") or the corpus's labels ("labels": the
+  phone-input MLPs learn the mouth of the labelled phones, and each training frame goes to the
+  MLP of its labelled phone).
 
 The training set gains ``augment.copies`` copies of each training utterance (its training
 frames only; test utterances never), or one warped copy each when only the warp is on
@@ -46,6 +50,7 @@ CMVN_NAMES = ("none", "mean", "meanvar")  # mapping.normalize.CMVN_MODES
 NOISE_COLOURS = ("white", "pink", "brown")  # mapping.augment.NOISE_BETA
 GATE_FRONT_END_NAMES = ("mfcc", "recogniser")  # mapping.gated.GATE_FRONT_ENDS
 MLP_INPUT_NAMES = ("mfcc", "phones")  # mapping.gated.MLP_INPUTS
+PHONE_TRAINING_NAMES = ("recognised", "labels")  # mapping.gated.PHONE_TRAINING
 
 
 @dataclass(frozen=True)
@@ -131,6 +136,9 @@ class MappingConfig:
     gate_front_end: str = choice(*GATE_FRONT_END_NAMES)
     # what the MLPs read: the MFCC context (the paper) or the recogniser's window of phones
     mlp_input: str = choice(*MLP_INPUT_NAMES)
+    # with the recogniser gate, what training reads: the phones the recogniser heard in the
+    # training audio, or the corpus's phone labels (what a perfect recogniser would hear)
+    phone_training: str = choice(*PHONE_TRAINING_NAMES)
     n_classes: int = choice(44, 8, 1)  # 44 phone classes | 8 viseme groups | 1 (a single MLP)
     gate_components: int = integer(4, ge=1)
     gate_covariance: str = choice("diag", "full", "tied", "spherical")

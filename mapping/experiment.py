@@ -43,6 +43,7 @@ def make_mapper(method: str, mcfg: MappingConfig, *, n_utterance: int = 7,
                         cascade_hidden=mcfg.cascade_hidden, cmvn=mcfg.cmvn,
                         cmvn_warmup_frames=mcfg.cmvn_warmup_frames,
                         gate_front_end=mcfg.gate_front_end, mlp_input=mcfg.mlp_input,
+                        phone_training=mcfg.phone_training,
                         train=mcfg.train,
                         random_state=random_state)
     if method in BASELINES:
@@ -74,7 +75,8 @@ def augmented_copies(data: list, masks: list, mcfg: MappingConfig, *, seed: int
                            n_mfcc=mcfg.n_mfcc, deltas=mcfg.deltas,
                            seed=seed + AUGMENT_SEED_OFFSET,
                            recognise_context=(recognise_context(mcfg)
-                                              if mcfg.mlp_input == "phones" else None))
+                                              if mcfg.mlp_input == "phones"
+                                              and mcfg.phone_training == "recognised" else None))
 
 
 def train_method(method: str, data: list, masks: list, mcfg: MappingConfig, *,

@@ -23,7 +23,9 @@ The recogniser gate (``gate_front_end="recogniser"``, issue 12 part 6): the clas
 is the phone a recogniser trained on real speech heard there (:mod:`mapping.recogniser`), in
 place of the mixtures on our MFCC; no mixture is fitted. As the paper divides the training
 frames by the gate's decision, each training frame goes to the MLP of the phone the recogniser
-heard (an augmented copy that was not recognised, to the MLP of its label). The recognised
+heard (an augmented copy that was not recognised, to the MLP of its label) — or, with
+``phone_training="labels"``, to the MLP of its labelled phone, the training windows then being
+the labelled phones around it (:func:`label_windows`: what a perfect recogniser would hear). The recognised
 phones are not a function of the features, so every estimate takes them beside the features
 (``phones``: per frame the recogniser's window of phones, ``context_back + 1 +
 context_forward`` of them, :func:`mapping.recogniser.recognise_windows`; column
@@ -38,12 +40,12 @@ from __future__ import annotations
 import numpy as np
 
 from face_model.errors import NotFittedError, ParameterError
-from face_model.phones import PHONES
 from mapping.features import ContextFeatures, check_context, check_seed
 from mapping.gate import COVARIANCE_TYPES, PhoneGate, class_groups, merge_small_classes
 from mapping.config import TrainSettings
 from mapping.nets import MLP, NetRegressor
 from mapping.normalize import check_cmvn
+from mapping.recogniser import N_PHONES, label_windows, phone_inputs
 from mapping.state import (ArrayGroup, nest, part_name, settings_from_params,
                            settings_to_params)
 
@@ -55,21 +57,11 @@ _HYPER_PARAMETERS = ("n_utterance", "context_back", "context_forward", "n_classe
                      "hidden_max", "expression_model", "cascade_hidden", "random_state")
 # added later: a model saved without them has these values
 _LATER_HYPER_PARAMETERS = {"cmvn": "none", "cmvn_warmup_frames": 30,
-                           "gate_front_end": "mfcc", "mlp_input": "mfcc"}
+                           "gate_front_end": "mfcc", "mlp_input": "mfcc",
+                           "phone_training": "recognised"}
 GATE_FRONT_ENDS = ("mfcc", "recogniser")  # mapping.config.GATE_FRONT_END_NAMES
 MLP_INPUTS = ("mfcc", "phones")  # mapping.config.MLP_INPUT_NAMES
-N_PHONES = len(PHONES)
-
-
-def phone_inputs(windows: np.ndarray) -> np.ndarray:
-    """The one-hot code (n_frames, window · 44) of windows of phone indices (n_frames, window),
-    frame-major: the phone-input MLPs' features."""
-    w = np.asarray(windows)
-    out = np.zeros((len(w), w.shape[1], N_PHONES), np.float32)
-    np.put_along_axis(out, w[:, :, None], 1.0, axis=2)
-    return out.reshape(len(w), -1)
-
-
+PHONE_TRAINING = ("recognised", "labels")  # mapping.config.PHONE_TRAINING_NAMES
 def hidden_units(n_frames: int, smallest: int, largest: int, lo: int = 15, hi: int = 25) -> int:
     """Hidden units of a subset's MLP: ``lo`` for the smallest subset, ``hi`` for the largest,
     in between linearly in log(size)."""
@@ -177,6 +169,9 @@ class GatedMLP:
     mlp_input : {"mfcc", "phones"}
         What the MLPs read: the MFCC context (the paper) or the recogniser's window of phones
         (needs the recogniser gate).
+    phone_training : {"recognised", "labels"}
+        With the recogniser gate, the phones training reads: those the recogniser heard in the
+        training audio, or the corpus's labels (see the module docstring).
     gate_components : int
         Mixture components per class; ``gate_covariance`` their covariance type.
     min_class_frames : int
@@ -202,6 +197,7 @@ class GatedMLP:
                  expression_model: str = "cascade", cascade_hidden: int = 30,
                  cmvn: str = "none", cmvn_warmup_frames: int = 30,
                  gate_front_end: str = "mfcc", mlp_input: str = "mfcc",
+                 phone_training: str = "recognised",
                  train: TrainSettings = TrainSettings(), random_state: int = 0):
         self.n_utterance = n_utterance
         self.context_back = context_back
@@ -218,6 +214,7 @@ class GatedMLP:
         self.cmvn_warmup_frames = cmvn_warmup_frames
         self.gate_front_end = gate_front_end
         self.mlp_input = mlp_input
+        self.phone_training = phone_training
         self.train = train
         self.random_state = random_state
 
@@ -239,6 +236,9 @@ class GatedMLP:
         if self.mlp_input not in MLP_INPUTS:
             raise ParameterError(f"mlp_input must be one of {MLP_INPUTS}, got "
                                  f"{self.mlp_input!r}")
+        if self.phone_training not in PHONE_TRAINING:
+            raise ParameterError(f"phone_training must be one of {PHONE_TRAINING}, got "
+                                 f"{self.phone_training!r}")
         if self.mlp_input == "phones" and self.gate_front_end != "recogniser":
             raise ParameterError("mlp_input 'phones' needs gate_front_end 'recogniser' (the "
                                  f"phones are the recogniser's), got {self.gate_front_end!r}")
@@ -297,24 +297,32 @@ class GatedMLP:
 
     def _stack(self, data, masks, group_of_phone):
         """Training rows: inputs, MUPs, labelled class, expression, and the class the
-        recogniser heard (−1 where the utterance carries no recognised phones)."""
+        recogniser heard (−1 where none was heard, or training reads the labels)."""
         xs, ys, ls, es, hs = [], [], [], [], []
         for d, mk in zip(data, masks):
-            windows = getattr(d, "recognised", None)
-            if windows is None and self.mlp_input == "phones":
-                raise ParameterError(f"utterance {d.utt_id} carries no recognised phones; the "
-                                     "phone-input MLPs need them (build_dataset with "
-                                     "recognise_context)")
-            if windows is not None:
-                windows = self._check_windows(windows, d.n_frames)
+            windows, heard = self._training_windows(d)
             xs.append(self._inputs(d.features, windows)[mk])
             ys.append(d.mups[mk])
             ls.append(group_of_phone[d.phones[mk]])
             es.append(np.full(int(mk.sum()), d.expression))
-            hs.append(np.full(int(mk.sum()), -1) if windows is None
-                      else group_of_phone[windows[mk, self.context_back]])
+            hs.append(group_of_phone[windows[mk, self.context_back]] if heard
+                      else np.full(int(mk.sum()), -1))
         return (np.concatenate(xs), np.concatenate(ys).astype(np.float32), np.concatenate(ls),
                 np.concatenate(es), np.concatenate(hs))
+
+    def _training_windows(self, d) -> tuple:
+        """``(windows, heard)`` of one training utterance: the recognised windows (heard), the
+        labelled windows (``phone_training="labels"``), or None when no window is read."""
+        if self.gate_front_end == "recogniser" and self.phone_training == "labels":
+            return label_windows(d.phones, self.context_back, self.context_forward), False
+        windows = getattr(d, "recognised", None)
+        if windows is None:
+            if self.mlp_input == "phones":
+                raise ParameterError(f"utterance {d.utt_id} carries no recognised phones; the "
+                                     "phone-input MLPs need them (build_dataset with "
+                                     "recognise_context)")
+            return None, False
+        return self._check_windows(windows, d.n_frames), True
 
     def _inputs(self, features: np.ndarray, windows) -> np.ndarray:
         """The MLPs' inputs of one utterance: its normalised MFCC context, or its one-hot

@@ -46,13 +46,14 @@ import soxr
 from pocketsphinx import Decoder, get_model_path
 
 from face_model.errors import ParameterError
-from face_model.phones import PHONE_INDEX
+from face_model.phones import PHONE_INDEX, PHONES
 
 RECOGNISER_RATE = 16000  # Hz, the acoustic model's rate
 RECOGNISER_FPS = 100  # the decoder's frames per second
 DECODER_SETTINGS = {"lw": 2.0, "beam": 1e-20, "pbeam": 1e-20, "bestpath": False}
 RECOGNISER_NAME = "pocketsphinx-5.1.1 allphone"
 SILENCE = PHONE_INDEX["sil"]
+N_PHONES = len(PHONES)  # the 44 classes
 MIN_UTTERANCE_S = 5.0  # an utterance may end at a pause once it is this long (s)
 PAUSE_S = 0.3  # silence at the end of the hypothesis that makes a pause (s)
 MAX_UTTERANCE_S = 30.0  # an utterance ends here without a pause (s)
@@ -225,6 +226,22 @@ class PhoneStream:
     def labels(self) -> np.ndarray:
         """Every phone decided so far, frame 0 first."""
         return self.windows[:, self.back]
+
+
+def label_windows(phones: np.ndarray, back: int, forward: int) -> np.ndarray:
+    """Windows (n_frames, back + 1 + forward) of a labelled phone sequence (n_frames,): frame k's
+    row holds the phones of frames k − back … k + forward, silence outside the utterance."""
+    padded = np.pad(np.asarray(phones, np.int64), (back, forward), constant_values=SILENCE)
+    return np.lib.stride_tricks.sliding_window_view(padded, back + 1 + forward).copy()
+
+
+def phone_inputs(windows: np.ndarray) -> np.ndarray:
+    """The one-hot code (n_frames, window · 44) of windows of phone indices (n_frames, window),
+    frame-major: the phone-input MLPs' features."""
+    w = np.asarray(windows)
+    out = np.zeros((len(w), w.shape[1], N_PHONES), np.float32)
+    np.put_along_axis(out, w[:, :, None], 1.0, axis=2)
+    return out.reshape(len(w), -1)
 
 
 def fit_length(labels: np.ndarray, n: int) -> np.ndarray:

@@ -17,6 +17,7 @@ from analysis.speech_eval import (Contact, closed_threshold, correlation, frame_
                                   training_speakers,
                                   viseme_index)
 from analysis.speech_recogniser import PhoneRecogniser
+from analysis.speech_report import DEV_RULE, dev_choice
 from analysis.speech_set import (SET_DIR, load_speech_set, phone_class, read_manifest)
 from data_synth.config import SynthConfig
 from face_model.corpus import PhoneSegment
@@ -82,6 +83,9 @@ def test_every_source_licence_sits_beside_its_files():
     (lambda d: (d / "manifest.csv").write_text(
         (d / "manifest.csv").read_text().replace(",hts,", ",guess,")),
      r"manifest\.csv, line 2: label_source 'guess'"),
+    (lambda d: (d / "manifest.csv").write_text(
+        (d / "manifest.csv").read_text().replace(",test,", ",train,", 1)),
+     r"manifest\.csv, line 2: part 'train'; allowed: dev, test \(or empty: test\)"),
 ])
 def test_a_damaged_set_is_refused_naming_the_file(set_copy, damage, message):
     damage(set_copy)
@@ -186,3 +190,27 @@ def test_seen_speakers_are_the_real_sources_of_the_training_voices(tmp_path):
     assert training_speakers(corpus) == frozenset()
     (corpus / "corpus.json").write_text(json.dumps({"settings": {"backend": "flite"}}))
     assert training_speakers(corpus) == {"arctic_slt"}
+
+
+def test_the_set_is_split_by_speaker_into_development_and_test_parts(speech_set):
+    parts = {}
+    for it in speech_set:
+        parts.setdefault(it.speaker_source, set()).add(it.part)
+    assert all(len(p) == 1 for p in parts.values())  # no speaker on both sides
+    test = {s for s, p in parts.items() if p == {"test"}}
+    assert {"dev"} in parts.values() and {"arctic_slt", "praatio_bobby"} <= test
+
+
+def test_the_development_rule_picks_the_best_mean_on_dev_rows_only():
+    def row(model, split, *v):
+        return {"model": model, "split": split, **dict(zip(DEV_RULE, map(str, v)))}
+
+    results = [row("voices-a", "unseen-dev", 0.7, 0.5, 0.5, 0.5),  # mean 0.55
+               row("voices-b", "unseen-dev", 0.6, 0.6, 0.6, 0.6),  # mean 0.60
+               row("voices-a", "unseen-test", 1, 1, 1, 1),  # test rows never count
+               row("voices-c", "unseen-dev", 0.9, "nan", 0.9, 0.9),  # incomplete: skipped
+               row("gated_mlp_utterance", "unseen-dev", 1, 1, 1, 1)]  # not a voices model
+    best, scores = dev_choice(results)
+    assert best == "voices-b" and set(scores) == {"voices-a", "voices-b"}
+    assert scores["voices-a"] == pytest.approx(0.55)
+    assert dev_choice([]) == (None, {})

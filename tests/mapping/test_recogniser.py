@@ -12,15 +12,14 @@ from analysis.speech_set import SET_DIR, load_speech_set
 from face_model.audio import resample
 from face_model.errors import ParameterError
 from face_model.phones import PHONE_INDEX
+from face_model.settings import SettingError
 from mapping import build_dataset, make_mapper, split_masks
 from mapping.animator import FaceAnimator, StreamingAnimator
 from mapping.checkpoint import AudioMapping, rest_mups
-from face_model.settings import SettingError
 from mapping.config import MappingConfig
 from mapping.experiment import augmented_copies, recognise_context
-from mapping.gated import phone_inputs
-from mapping.recogniser import (MIN_UTTERANCE_S, PhoneStream, fit_length, recognise,
-                                recognise_windows)
+from mapping.recogniser import (MIN_UTTERANCE_S, PhoneStream, fit_length, label_windows,
+                                phone_inputs, recognise, recognise_windows)
 from talkingface.config import Config
 
 SR = 22050  # a model rate (an integer hop at 30 fps)
@@ -317,3 +316,36 @@ def test_a_long_stream_is_cut_into_utterances_at_pauses_alike_offline_and_live()
     offline = recognise_windows(y, SR, delay_frames=3, back=3)
     np.testing.assert_array_equal(np.array(got), offline)
     assert np.mean(offline[:, 3] != PHONE_INDEX["sil"]) > 0.3  # speech is still heard
+
+
+def test_label_windows_hold_the_labelled_phones_around_each_frame():
+    sil = PHONE_INDEX["sil"]
+    np.testing.assert_array_equal(label_windows(np.array([1, 2, 3]), 1, 2),
+                                  [[sil, 1, 2, 3], [1, 2, 3, sil], [2, 3, sil, sil]])
+
+
+def test_phone_input_trained_on_labels_needs_no_recognition_and_learns_the_labelled_mouths(
+        small_corpus):
+    """``phone_training="labels"``: the MLPs learn from the labelled windows (no recogniser run
+    on the training audio); fed the labelled windows of the training utterances, they draw the
+    mouths they were trained on better than from the mean."""
+    from face_model.motion_units import fit_corpus_units
+
+    cfg = Config()
+    mcfg = dataclasses.replace(cfg.mapping, gate_front_end="recogniser", mlp_input="phones",
+                               phone_training="labels", min_class_frames=5,
+                               train=dataclasses.replace(cfg.mapping.train, max_epochs=60))
+    units, _ = fit_corpus_units(small_corpus)
+    data = build_dataset(small_corpus, units)  # no recognised phones at all
+    assert all(d.recognised is None for d in data)
+    masks = [np.ones(d.n_frames, bool) for d in data]
+    m = make_mapper("gated_mlp", mcfg, n_utterance=units.n_utterance,
+                    random_state=cfg.seed).fit(data, masks)
+    neutral = [d for d in data if d.expression == "neutral"]
+    err, base = 0.0, 0.0
+    mean = np.concatenate([d.mups for d in neutral]).mean(0)
+    for d in neutral:
+        pred = m.predict(d.features, "neutral", label_windows(d.phones, 3, 3))
+        err += float(((pred - d.mups) ** 2).sum())
+        base += float(((mean - d.mups) ** 2).sum())
+    assert err < 0.5 * base, (err, base)

@@ -23,15 +23,17 @@ def test_the_project_grid_holds_the_issue_configurations():
     assert list(children) == ["one-voice", "many-voices", "many-cmvn", "many-cmvn-warp",
                               "many-cmvn-warp-augment", "many-cmvn-warp-augment-recogniser",
                               "one-voice-recogniser", "one-voice-phones", "many-phones",
-                              "many-augment-phones"]
-    assert model == "many-augment-phones"
+                              "many-augment-phones", "one-voice-phones-labels",
+                              "many-phones-labels"]
+    assert model == "one-voice-phones"
     full = children["many-cmvn-warp-augment"].mapping
     assert full.cmvn == "meanvar" and full.vtlp_range == (0.9, 1.1) and full.augment.copies >= 1
     default = children[model].mapping
     assert (default.gate_front_end, default.mlp_input) == ("recogniser", "phones")
-    assert default.augment.copies >= 1
-    assert children["many-phones"].synth == children[model].synth  # the same many voices
-    for name in ("one-voice", "one-voice-recogniser", "one-voice-phones"):
+    assert children["many-phones"].synth == children["many-augment-phones"].synth
+    assert children["many-phones-labels"].mapping.phone_training == "labels"
+    for name in ("one-voice", "one-voice-recogniser", "one-voice-phones",
+                 "one-voice-phones-labels"):
         assert children[name].synth == Config().synth  # the paper's single voice
     # no evaluation speaker is a training voice of the default model: a0009 stays unseen
     from data_synth.backends import voice_speaker
