@@ -232,6 +232,7 @@ def test_constructor_stores_its_arguments_verbatim():
                   gate_components=3, gate_covariance="full", min_class_frames=11, hidden_min=4,
                   hidden_max=9, expression_model="bank", cascade_hidden=12, cmvn="meanvar",
                   cmvn_warmup_frames=12, gate_front_end="recogniser", mlp_input="phones",
+                  phone_training="labels",
                   train=TrainSettings(max_epochs=7, patience=3), random_state=42)
     m = GatedMLP(**params)
     for name, value in params.items():
@@ -250,6 +251,8 @@ BAD_VALUES = [
     (dict(min_class_frames=-3), r"min_class_frames must be a positive integer, got -3"),
     (dict(n_classes=7), r"n_classes must be one of \(1, 8, 44\), got 7"),
     (dict(mlp_input="lpc"), r"mlp_input must be one of \('mfcc', 'phones'\), got 'lpc'"),
+    (dict(phone_training="guess"),
+     r"phone_training must be one of \('recognised', 'labels'\), got 'guess'"),
     (dict(mlp_input="phones"),
      r"mlp_input 'phones' needs gate_front_end 'recogniser' \(the phones are the recogniser's\), "
      r"got 'mfcc'"),
