@@ -7,29 +7,15 @@ import json
 import numpy as np
 import pytest
 
-from mapping import build_dataset, split_masks
 from mapping.animator import FaceAnimator, StreamingAnimator
-from mapping.checkpoint import AudioMapping, rest_mups
-from mapping.experiment import train_method
-from talkingface.config import Config
+from mapping.checkpoint import AudioMapping
+from tests.mapping.small_mapping import train_small
 
 
 @pytest.fixture(scope="module")
 def trained(small_corpus):
-    from face_model.motion_units import fit_corpus_units
-
-    cfg = Config()
-    mcfg = dataclasses.replace(cfg.mapping, cmvn="meanvar", cmvn_warmup_frames=20,
-                               train=dataclasses.replace(cfg.mapping.train, max_epochs=30))
-    units, _ = fit_corpus_units(small_corpus)
-    data = build_dataset(small_corpus, units)
-    masks = split_masks(data, "utterance", seed=cfg.seed)
-    r = train_method("gated_mlp", data, masks, mcfg, n_utterance=units.n_utterance,
-                     split="utterance", seed=cfg.seed)
-    sr = small_corpus.utterances[0].sample_rate
-    mapping = AudioMapping(r.mapper, sample_rate=sr, n_utterance=units.n_utterance,
-                           rest_mups=rest_mups(units))
-    return mapping, units, data, r
+    t = train_small(small_corpus, cmvn="meanvar", cmvn_warmup_frames=20)
+    return t.mapping, t.units, t.data, t.result
 
 
 def test_the_experiment_trains_with_the_configured_cmvn(trained):
@@ -94,16 +80,7 @@ def test_the_model_file_keeps_cmvn_and_an_old_file_loads_without_it(trained, sma
 
 def test_a_model_saved_before_cmvn_loads_as_none(small_corpus, tmp_path):
     """Strip the CMVN keys from a model without CMVN, as an older version wrote it."""
-    from face_model.motion_units import fit_corpus_units
-
-    cfg = Config()
-    units, _ = fit_corpus_units(small_corpus)
-    data = build_dataset(small_corpus, units)
-    masks = split_masks(data, "utterance", seed=cfg.seed)
-    r = train_method("linear", data, masks, cfg.mapping, n_utterance=units.n_utterance,
-                     split="utterance", seed=cfg.seed)
-    m = AudioMapping(r.mapper, sample_rate=small_corpus.utterances[0].sample_rate,
-                     n_utterance=units.n_utterance, rest_mups=rest_mups(units))
+    m = train_small(small_corpus, method="linear", epochs=600).mapping
     path = m.save(tmp_path / "old.tfmap")
 
     with np.load(path, allow_pickle=False) as z:

@@ -13,14 +13,14 @@ from face_model.audio import resample
 from face_model.errors import ParameterError
 from face_model.phones import PHONE_INDEX
 from face_model.settings import SettingError
-from mapping import build_dataset, make_mapper, split_masks
+from mapping import build_dataset, make_mapper
 from mapping.animator import FaceAnimator, StreamingAnimator
-from mapping.checkpoint import AudioMapping, rest_mups
+from mapping.checkpoint import AudioMapping
 from mapping.config import MappingConfig
-from mapping.experiment import augmented_copies, recognise_context
 from mapping.recogniser import (MIN_UTTERANCE_S, PhoneStream, fit_length, label_windows,
                                 phone_inputs, recognise, recognise_windows)
 from talkingface.config import Config
+from tests.mapping.small_mapping import train_small
 
 SR = 22050  # a model rate (an integer hop at 30 fps)
 
@@ -34,14 +34,17 @@ def a0009():
     return y, phone_frames(item.phones, np.arange(n) / 30)
 
 
-def _stream(y, chunks, delay):
-    s = PhoneStream(SR, 30, delay)
+def _stream(y, chunks, delay, back=None, stream=None):
+    """Feed ``y`` in ``chunks`` (then the rest) to a PhoneStream; its phones, or its windows
+    when ``back`` is given."""
+    s = stream or PhoneStream(SR, 30, delay, back or 0)
+    push, flush = (s.push, s.flush) if back is None else (s.push_windows, s.flush_windows)
     out, i = [], 0
     for n in chunks:
-        out += s.push(y[i:i + n])
+        out += push(y[i:i + n])
         i += n
-    out += s.push(y[i:])
-    return np.array(out + s.flush())
+    out += push(y[i:])
+    return np.array(out + flush())
 
 
 @pytest.mark.parametrize("delay", [0, 3])
@@ -111,21 +114,9 @@ def test_fit_length_cuts_or_repeats_the_last_label():
 
 @pytest.fixture(scope="module")
 def recogniser_mapping(small_corpus):
-    from face_model.motion_units import fit_corpus_units
-
-    cfg = Config()
-    mcfg = dataclasses.replace(cfg.mapping, gate_front_end="recogniser", min_class_frames=5,
-                               train=dataclasses.replace(cfg.mapping.train, max_epochs=30))
-    units, _ = fit_corpus_units(small_corpus)
-    data = build_dataset(small_corpus, units,
-                         recognise_context=(mcfg.context_back, mcfg.context_forward))
-    masks = split_masks(data, "random_frames", seed=cfg.seed)
-    mapper = make_mapper("gated_mlp", mcfg, n_utterance=units.n_utterance,
-                         random_state=cfg.seed).fit(data, masks)
-    sr = small_corpus.utterances[0].sample_rate
-    mapping = AudioMapping(mapper, sample_rate=sr, n_utterance=units.n_utterance,
-                           rest_mups=rest_mups(units))
-    return mapping, units, data
+    t = train_small(small_corpus, split="random_frames", gate_front_end="recogniser",
+                    min_class_frames=5)
+    return t.mapping, t.units, t.data
 
 
 def test_the_recogniser_gate_uses_the_recognised_phones(recogniser_mapping):
@@ -186,23 +177,13 @@ def test_streaming_with_the_recogniser_gate_equals_offline(recogniser_mapping, s
 
 # -- windows of phones and the phone-input MLPs ------------------------------------------------
 
-def _stream_windows(y, chunks, back, delay):
-    s = PhoneStream(SR, 30, delay, back)
-    out, i = [], 0
-    for n in chunks:
-        out += s.push_windows(y[i:i + n])
-        i += n
-    out += s.push_windows(y[i:])
-    return np.array(out + s.flush_windows())
-
-
 def test_windows_live_equal_windows_offline_and_hold_the_frames_phone(a0009):
     y, _ = a0009
     back, delay = 3, 3
     offline = recognise_windows(y, SR, delay_frames=delay, back=back)
     assert offline.shape == (int(np.ceil(len(y) / (SR // 30))), back + 1 + delay)
     chunks = np.random.default_rng(7).integers(1, 4000, size=40)
-    np.testing.assert_array_equal(_stream_windows(y, chunks, back, delay), offline)
+    np.testing.assert_array_equal(_stream(y, chunks, delay, back), offline)
     # the frame's own column is the phone decided alone; frames before 0 are silence
     np.testing.assert_array_equal(offline[:, back], recognise(y, SR, delay_frames=delay))
     assert np.all(offline[0, :back] == PHONE_INDEX["sil"])
@@ -239,22 +220,9 @@ def test_phone_input_needs_the_recogniser_gate():
 
 @pytest.fixture(scope="module")
 def phone_input_mapping(small_corpus):
-    from face_model.motion_units import fit_corpus_units
-
-    cfg = Config()
-    mcfg = dataclasses.replace(cfg.mapping, gate_front_end="recogniser", mlp_input="phones",
-                               min_class_frames=5, vtlp_range=(0.9, 1.1),
-                               train=dataclasses.replace(cfg.mapping.train, max_epochs=30))
-    units, _ = fit_corpus_units(small_corpus)
-    data = build_dataset(small_corpus, units, recognise_context=recognise_context(mcfg))
-    masks = split_masks(data, "utterance", seed=cfg.seed)
-    copies = augmented_copies(data, masks, mcfg, seed=cfg.seed)
-    mapper = make_mapper("gated_mlp", mcfg, n_utterance=units.n_utterance,
-                         random_state=cfg.seed).fit([*data, *copies[0]], [*masks, *copies[1]])
-    sr = small_corpus.utterances[0].sample_rate
-    mapping = AudioMapping(mapper, sample_rate=sr, n_utterance=units.n_utterance,
-                           rest_mups=rest_mups(units))
-    return mapping, units, data, copies
+    t = train_small(small_corpus, gate_front_end="recogniser", mlp_input="phones",
+                    min_class_frames=5, vtlp_range=(0.9, 1.1))
+    return t.mapping, t.units, t.data, t.copies
 
 
 def test_warped_copies_are_recognised_for_the_phone_input(phone_input_mapping):
@@ -306,15 +274,10 @@ def test_a_long_stream_is_cut_into_utterances_at_pauses_alike_offline_and_live()
                                                  sr_out=SR), pause]) for i in items])
     assert len(y) / SR > 2 * MIN_UTTERANCE_S
     live = PhoneStream(SR, 30, 3, 3)
-    got, i = [], 0
-    for n in np.random.default_rng(11).integers(1, 5000, size=400):
-        got += live.push_windows(y[i:i + n])
-        i += n
-    got += live.push_windows(y[i:])
-    got += live.flush_windows()
+    got = _stream(y, np.random.default_rng(11).integers(1, 5000, size=400), 3, 3, live)
     assert live.utterances >= 2
     offline = recognise_windows(y, SR, delay_frames=3, back=3)
-    np.testing.assert_array_equal(np.array(got), offline)
+    np.testing.assert_array_equal(got, offline)
     assert np.mean(offline[:, 3] != PHONE_INDEX["sil"]) > 0.3  # speech is still heard
 
 
