@@ -6,7 +6,9 @@ For every utterance, the true MUPs (the tracked MUP sequence) and the estimated 
 turned back into marker displacements with the Motion Units (Eq. 2). Each displacement value is
 divided by the maximum absolute ground-truth displacement of that marker coordinate over the whole
 database (every expression), then R (Eq. 6), ν (Eq. 7) and MSE (Eq. 8) are computed per expression
-on the training frames (Table I) and on the test frames (Table II) of a split.
+on the training frames (Table I) and on the test frames (Table II) of a split. Beside them, the
+lip and face metrics of :mod:`analysis.lip_metrics` (LVE, FDD, per-region R, closure on /p b m/)
+on the same frames.
 """
 from __future__ import annotations
 
@@ -14,12 +16,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from analysis.lip_metrics import LIP_METRIC_NAMES, lip_metrics
 from analysis.metrics import METRIC_NAMES, PAPER_TABLES, normalization_scale, paper_metrics
 from face_model.corpus import EXPRESSIONS
 from face_model.errors import ParameterError
 from mapping.experiment import TrainedMethod
 
 PARTS = ("train", "test")
+# the figures of a table row that are logged: the paper's, then the lips' and face's
+ROW_METRIC_NAMES = METRIC_NAMES + LIP_METRIC_NAMES
 
 
 def displacements(units, mups: np.ndarray, expression: str) -> np.ndarray:
@@ -58,6 +63,22 @@ def evaluate_predictions(data: list, masks: list, predictions: list, units,
     return out
 
 
+def evaluate_lips(data: list, masks: list, predictions: list, units, scale: np.ndarray) -> dict:
+    """``{expression: {"train": LipMetrics, "test": LipMetrics}}`` for one split (the frames
+    of :func:`evaluate_predictions`)."""
+    out: dict = {}
+    for e in sorted({d.expression for d in data}, key=_expr_order):
+        utts = [(d, m, p) for d, m, p in zip(data, masks, predictions) if d.expression == e]
+        truths = [displacements(units, d.mups, e) for d, _, _ in utts]
+        ests = [displacements(units, p, e) for _, _, p in utts]
+        phones = [d.phones for d, _, _ in utts]
+        for part in PARTS:
+            uses = [np.asarray(m) if part == "train" else ~np.asarray(m) for _, m, _ in utts]
+            if sum(int(u.sum()) for u in uses) >= 2:
+                out.setdefault(e, {})[part] = lip_metrics(truths, ests, phones, uses, scale)
+    return out
+
+
 def _expr_order(e: str) -> tuple:
     return (EXPRESSIONS.index(e) if e in EXPRESSIONS else len(EXPRESSIONS), e)
 
@@ -74,6 +95,7 @@ class MethodResult:
     reference: str
     tables: dict
     trained: TrainedMethod = field(repr=False)
+    lips: dict = field(default_factory=dict)  # [expression][part] -> LipMetrics
 
 
 def evaluate_experiment(trained: list, data: list, units) -> list[MethodResult]:
@@ -81,7 +103,8 @@ def evaluate_experiment(trained: list, data: list, units) -> list[MethodResult]:
     database's maximum displacement of its marker coordinate (:func:`database_scale`)."""
     scale = database_scale(data, units)
     return [MethodResult(t.method, t.split, t.fit_seconds, t.reference,
-                         evaluate_predictions(data, t.masks, t.predictions, units, scale), t)
+                         evaluate_predictions(data, t.masks, t.predictions, units, scale), t,
+                         evaluate_lips(data, t.masks, t.predictions, units, scale))
             for t in trained]
 
 
@@ -92,10 +115,26 @@ def table_rows(results: list[MethodResult]) -> list[dict]:
         for e, parts in r.tables.items():
             for part, m in parts.items():
                 paper = PAPER_TABLES[part].get(e, (np.nan,) * 4)
+                lips = r.lips.get(e, {}).get(part)
                 rows.append({"method": r.method, "split": r.split, "expression": e, "part": part,
                              **m.as_dict(),
-                             **{f"paper_{k}": v for k, v in zip(METRIC_NAMES, paper)}})
+                             **{f"paper_{k}": v for k, v in zip(METRIC_NAMES, paper)},
+                             **(lips.as_dict() if lips is not None else {})})
     return rows
+
+
+def _pooled_closure(lips: list) -> float:
+    """Closure over the bilabial segments of every expression's set together."""
+    n = sum(m.bilabial_segments for m in lips)
+    return (float(sum(m.closure * m.bilabial_segments for m in lips if m.bilabial_segments) / n)
+            if n else float("nan"))
+
+
+def row_metrics(row: dict, prefix: str = "") -> dict:
+    """The logged figures of one :func:`table_rows` row, named
+    ``<prefix><split>.<expression>.<part>.<metric>``."""
+    where = f"{prefix}{row['split']}.{row['expression']}.{row['part']}"
+    return {f"{where}.{k}": row[k] for k in ROW_METRIC_NAMES if k in row}
 
 
 def ranking(results: list[MethodResult], split: str = "utterance") -> list[dict]:
@@ -105,9 +144,14 @@ def ranking(results: list[MethodResult], split: str = "utterance") -> list[dict]
         if r.split != split:
             continue
         test = [p["test"] for p in r.tables.values() if "test" in p]
+        lips = [p["test"] for p in r.lips.values() if "test" in p]
         rows.append({"method": r.method, "reference": r.reference,
                      "R": float(np.mean([m.R for m in test])),
                      "MSE": float(np.mean([m.MSE for m in test])),
+                     "LVE": float(np.mean([m.LVE for m in lips])) if lips else float("nan"),
+                     "R_lips": float(np.mean([m.R_lips for m in lips])) if lips
+                     else float("nan"),
+                     "closure": _pooled_closure(lips),
                      "fit_seconds": r.fit_seconds})
     rows.sort(key=lambda x: (-x["R"], x["MSE"]))
     for i, x in enumerate(rows, 1):

@@ -36,6 +36,22 @@ def paper_table_rows(rows: list[dict], method: str, part: str) -> list[list]:
     return out
 
 
+def lip_table_rows(rows: list[dict], method: str, part: str = "test") -> list[list]:
+    """Rows of the Tables I–II companion (:mod:`analysis.lip_metrics`): per split and expression,
+    LVE, FDD, R per region and closure on /p b m/ (of the estimate and of the truth); empty for
+    a summary made before these metrics existed."""
+    out = []
+    for r in rows:
+        if r["method"] != method or r["part"] != part or "LVE" not in r:
+            continue
+        n = r.get("bilabial_segments") or 0
+        out.append([r["split"], r["expression"], _f(r["LVE"], 2), _f(r["FDD"], 2),
+                    _f(r["R_lips"]), _f(r["R_cheeks"]), _f(r["R_forehead"]),
+                    f"{_f(r['closure'], 2)} of {n}" if n else "–",
+                    _f(r["closure_true"], 2) if n else "–"])
+    return out
+
+
 def split_gap(rows: list[dict], method: str) -> float | None:
     """Mean test R on the frame split minus the utterance split (None if one is missing)."""
     def mean_r(split):
@@ -92,6 +108,18 @@ def mapping_section(report, summary: dict, mapping_dir: Path, ablations_csv: Pat
                      "paper's", header, paper_table_rows(rows, method, part),
                      note="Paper: Hong, Wen &amp; Huang (2002), Tables I and II (their split "
                           "draws frames at random).")
+    lip_rows = lip_table_rows(rows, method)
+    if lip_rows:
+        report.table(f"Lips and face beside Table II: {method} on the testing set",
+                     ["split", "expression", "LVE (px)", "FDD (px)", "R lips", "R cheeks",
+                      "R forehead", "/p b m/ closed", "closed (truth)"], lip_rows,
+                     note="LVE: per frame the largest error over the 30 lip markers, averaged "
+                          "(VOCA, FaceFormer). FDD: true minus estimated standard deviation "
+                          "over time of each forehead marker's displacement length, averaged "
+                          "(CodeTalker); positive means too still. R per region: Eq. 6 on that "
+                          "region's normalised coordinates. /p b m/ closed: the fraction of "
+                          "bilabial segments whose inner lips meet in the estimate (the truth's "
+                          "own fraction beside it).")
     gap = split_gap(rows, method)
     if gap is not None:
         report.paragraph(
@@ -113,9 +141,11 @@ def mapping_section(report, summary: dict, mapping_dir: Path, ablations_csv: Pat
                       width=0.8)
     for split, rk in summary["ranking"].items():
         report.table(f"Methods ranked by mean test R ({split} split)",
-                     ["rank", "method", "related work", "R", "MSE", "fit (s)"],
+                     ["rank", "method", "related work", "R", "MSE", "LVE (px)", "R lips",
+                      "/p b m/ closed", "fit (s)"],
                      [[x["rank"], x["method"], escape(x["reference"]), _f(x["R"]),
-                       _f(x["MSE"], 4), f"{x['fit_seconds']:.1f}"] for x in rk],
+                       _f(x["MSE"], 4), _f(x.get("LVE"), 2), _f(x.get("R_lips")),
+                       _f(x.get("closure"), 2), f"{x['fit_seconds']:.1f}"] for x in rk],
                      note="Mean over expressions of the test-set figures. Baselines are trained "
                           "per expression on the same frames and evaluated the same way.")
     if ablations_csv is not None:

@@ -12,6 +12,7 @@ import os
 from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
+from analysis.evaluation import row_metrics
 from talkingface.config import flatten, to_dict
 from talkingface.paths import RunPaths
 from talkingface.provenance import git_commit
@@ -76,8 +77,7 @@ def train_metrics(summary: dict, primary: str) -> dict:
     out = {}
     for r in summary["rows"]:
         prefix = "" if r["method"] == primary else f"baseline.{r['method']}."
-        for k in ("R", "nu_d", "nu_d_est", "MSE"):
-            out[f"{prefix}{r['split']}.{r['expression']}.{r['part']}.{k}"] = r[k]
+        out.update(row_metrics(r, prefix))
     for key, g in summary["gate"].items():
         split = key.split("/")[1]
         out.update({f"gate.{split}.{k}": v for k, v in g.items() if isinstance(v, float)})

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from analysis.evaluation import row_metrics
 from face_model.errors import ParameterError
 from talkingface.config import apply_overrides, parse_set, read_yaml
 from talkingface.paths import RunPaths
@@ -101,13 +102,15 @@ def child_metrics(summary: dict, method: str) -> dict:
     for r in summary["rows"]:
         if r["method"] != method:
             continue
-        for k in ("R", "nu_d", "nu_d_est", "MSE"):
-            out[f"{r['split']}.{r['expression']}.{r['part']}.{k}"] = r[k]
+        out.update(row_metrics(r))
     for split, rk in summary["ranking"].items():
         for x in rk:
             if x["method"] == method:
                 out[f"{split}.mean_test_R"] = x["R"]
                 out[f"{split}.mean_test_MSE"] = x["MSE"]
+                for k in ("LVE", "R_lips", "closure"):
+                    if k in x:
+                        out[f"{split}.mean_test_{k}"] = x[k]
                 out[f"{split}.fit_seconds"] = x["fit_seconds"]
     for key, g in summary["gate"].items():
         split = key.split("/")[1]

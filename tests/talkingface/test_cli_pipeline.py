@@ -51,6 +51,7 @@ def test_replicate_writes_runs_report_and_mlflow(workdir, capsys):
     assert ours in text  # our figure, as text, in the table
     # the mapping: Tables I and II with our figures beside the paper's, and the ranking
     assert "TABLE I:" in text and "TABLE II:" in text
+    assert "Lips and face beside Table II" in text and "LVE (px)" in text
     with open(run / "mapping" / "tables.csv", newline="") as f:
         rows = list(csv.DictReader(f))
     for part, paper_r in (("train", "0.980"), ("test", "0.968")):
