@@ -12,7 +12,8 @@ per-frame cost of each and their ratio (target: <= 1.25). ``--front-end phones``
 phone-input model (the recogniser gate and MLPs reading its phones, issue 12 part 6: the
 default voice-robust model's front end); ``--front-end compare`` streams it beside the paper's
 MFCC model in the same way and reports the ratio (target: <= 1.25). ``--sentences N`` shrinks
-the corpus.
+the corpus. ``--look-ahead N`` and ``--window-align right`` set the models' context look-ahead
+(frames) and analysis-window alignment; the algorithmic latency printed follows from them exactly.
 """
 from __future__ import annotations
 
@@ -49,6 +50,10 @@ def parse_args() -> argparse.Namespace:
     p.add_argument("--front-end", choices=("mfcc", "phones", "compare"), default="mfcc",
                    help="the MLPs' input: the MFCC (the paper), the recogniser's phones, or "
                         "'compare' (mfcc vs phones)")
+    p.add_argument("--look-ahead", type=int, default=None,
+                   help="context look-ahead in frames (mapping.context_forward; default 3)")
+    p.add_argument("--window-align", choices=("centre", "right"), default="centre",
+                   help="the analysis window centred on the frame instant or ending there")
     p.add_argument("--sentences", type=int, default=0,
                    help="corpus sentences (default: the paper's config)")
     return p.parse_args()
@@ -78,6 +83,10 @@ def main() -> None:
     if args.sentences:
         cfg = dataclasses.replace(cfg, synth=dataclasses.replace(cfg.synth,
                                                                  n_sentences=args.sentences))
+    timing = {"window_align": args.window_align}
+    if args.look_ahead is not None:
+        timing["context_forward"] = args.look_ahead
+    cfg = dataclasses.replace(cfg, mapping=dataclasses.replace(cfg.mapping, **timing))
     phones = dataclasses.replace(cfg.mapping, gate_front_end="recogniser", mlp_input="phones")
     if args.cmvn == "compare":
         what = "cmvn"
@@ -95,7 +104,8 @@ def main() -> None:
         units, _ = fit_corpus_units(corpus)
         context = (phones.context_back, phones.context_forward)
         data = build_dataset(corpus, units, recognise_context=(
-            context if any(c.mlp_input == "phones" for c in configs.values()) else None))
+            context if any(c.mlp_input == "phones" for c in configs.values()) else None),
+            window_align=cfg.mapping.window_align)
         masks = split_masks(data, "utterance", seed=cfg.seed)
         sr = corpus.utterances[0].sample_rate
         anims = {}
@@ -104,7 +114,8 @@ def main() -> None:
                                  random_state=cfg.seed).fit(data, masks)
             anims[mode] = FaceAnimator(AudioMapping(mapper, sample_rate=sr,
                                                     n_utterance=units.n_utterance,
-                                                    rest_mups=rest_mups(units)), units)
+                                                    rest_mups=rest_mups(units),
+                                                    window_align=mcfg.window_align), units)
         test = [u for u, m in zip(corpus.utterances, masks) if not m.any()][:20]
         costs = stream_costs(anims, test, args.repeat)
         anim = anims[next(iter(configs))]

@@ -30,7 +30,8 @@ from face_model.alignment import unflatten
 from face_model.errors import ParameterError
 from face_model.layout import default_layout
 from mapping.checkpoint import rest_mups
-from mapping.features import MFCC_SETTINGS, hop_samples, mfcc, window_dbfs
+from mapping.features import (MFCC_SETTINGS, algorithmic_latency_s, hop_samples, mfcc,
+                               window_dbfs, window_future)
 from mapping.recogniser import PhoneStream
 
 
@@ -117,6 +118,8 @@ class StreamingAnimator:
         self.sr, self.fps = m.sample_rate, m.fps
         self.hop = hop_samples(self.sr, self.fps)
         self.half = int(round(MFCC_SETTINGS["window_s"] * self.sr)) // 2
+        # a right-aligned window reads the stream delayed by this many samples of silence
+        self.delay = window_future(self.sr) if m.window_align == "right" else 0
         ctx = m.mapper.context_
         self.back, self.forward = ctx.back, ctx.forward
         self.context = ctx
@@ -125,9 +128,9 @@ class StreamingAnimator:
         self.reset()
 
     def reset(self) -> None:
-        self._audio = np.zeros(0, np.float32)  # samples from self._a0 on
+        self._audio = np.zeros(self.delay, np.float32)  # samples from self._a0 on
         self._a0 = 0
-        self._n_samples = 0
+        self._n_samples = self.delay  # of the (delayed) signal the frames are read from
         self._feats: dict[int, np.ndarray] = {}  # normalised MFCC of the frames still needed
         self._n_feats = 0
         self._next_out = 0
@@ -147,8 +150,10 @@ class StreamingAnimator:
 
     @property
     def latency_s(self) -> float:
-        """Algorithmic latency: the look-ahead plus half an analysis window."""
-        return self.forward / self.fps + self.half / self.sr
+        """Algorithmic latency: the look-ahead plus the part of the analysis window after the
+        frame instant (none when the window is right-aligned)."""
+        return algorithmic_latency_s(self.forward, self.sr, self.fps,
+                                     self.animator.mapping.window_align)
 
     def _samples(self, start: int, end: int) -> np.ndarray:
         return self._audio[max(start, self._a0) - self._a0:max(end, self._a0) - self._a0]
@@ -230,7 +235,7 @@ class StreamingAnimator:
         if self._done:
             return []
         self._done = True
-        n_total = int(np.ceil(self._n_samples / self.hop))
+        n_total = int(np.ceil((self._n_samples - self.delay) / self.hop))
         if self._phones is not None:
             self._hear(self._phones.flush_windows())
         if n_total == 0:

@@ -33,7 +33,7 @@ import numpy as np
 from face_model.audio import read_wav, resample
 from face_model.errors import ParameterError
 from mapping.baselines import BASELINES, Baseline
-from mapping.features import audio_features, frame_rms_dbfs
+from mapping.features import audio_features, check_align, frame_rms_dbfs
 from mapping.gated import GatedMLP
 from mapping.recogniser import fit_length, recognise_windows
 from mapping.state import NUMERIC_KINDS, ArrayGroup
@@ -55,7 +55,9 @@ class AudioMapping:
     mapper : fitted mapping method
     sample_rate : int
         The rate of the training audio (Hz).
-    fps, n_mfcc, deltas : the feature settings the method was trained with.
+    fps, n_mfcc, deltas, window_align : the feature settings the method was trained with
+        (``window_align``: :func:`mapping.features.aligned`; a model saved before it existed
+        is "centre").
     rest_mups : array_like (n_utterance,)
         Utterance MUPs of the neutral face (:func:`rest_mups` of the Motion Units).
     silence_dbfs : float
@@ -66,12 +68,14 @@ class AudioMapping:
 
     def __init__(self, mapper, *, sample_rate: int, rest_mups, fps: int = 30, n_mfcc: int = 10,
                  deltas: bool = False, n_utterance: int = 7, silence_dbfs: float = -60.0,
-                 metadata: dict | None = None):
+                 metadata: dict | None = None, window_align: str = "centre"):
         self.mapper = mapper
         self.sample_rate = int(sample_rate)
         self.fps = int(fps)
         self.n_mfcc = int(n_mfcc)
         self.deltas = bool(deltas)
+        check_align(window_align)
+        self.window_align = window_align
         self.n_utterance = int(n_utterance)
         self.rest_mups = np.asarray(rest_mups, dtype=np.float64)
         if self.rest_mups.shape != (self.n_utterance,):
@@ -103,8 +107,12 @@ class AudioMapping:
 
     def features(self, y: np.ndarray, sr: int) -> np.ndarray:
         """Raw per-frame features of mono audio ``y`` at ``sr`` Hz (resampled if needed)."""
-        return audio_features(self.at_model_rate(y, sr), sr=self.sample_rate, fps=self.fps,
-                              n_mfcc=self.n_mfcc, deltas=self.deltas)
+        return self._features(self.at_model_rate(y, sr))
+
+    def _features(self, y_m: np.ndarray) -> np.ndarray:
+        """Raw per-frame features of audio already at the model's rate."""
+        return audio_features(y_m, sr=self.sample_rate, fps=self.fps, n_mfcc=self.n_mfcc,
+                              deltas=self.deltas, align=self.window_align)
 
     @property
     def cmvn(self) -> str:
@@ -151,21 +159,21 @@ class AudioMapping:
     def gate_classes(self, y: np.ndarray, sr: int) -> np.ndarray:
         """The gate's class of every frame of mono audio (a gated mapping only)."""
         y_m = self.at_model_rate(y, sr)
-        feats = audio_features(y_m, sr=self.sample_rate, fps=self.fps, n_mfcc=self.n_mfcc,
-                               deltas=self.deltas)
+        feats = self._features(y_m)
         return self.mapper.gate_classes(feats, self.recognised_phones(y_m, len(feats)))
 
     def predict_audio(self, y: np.ndarray, sr: int, expression: str = "neutral") -> np.ndarray:
-        """MUPs (n_frames, A0 + Ak) with the silence rule; frame k is centred at k / fps s."""
+        """MUPs (n_frames, A0 + Ak) with the silence rule; frame k is at k / fps s (its window
+        centred there, or ending there: ``window_align``)."""
         self.check_expression(expression)
         y_m = self.at_model_rate(y, sr)  # checked and resampled once
-        feats = audio_features(y_m, sr=self.sample_rate, fps=self.fps, n_mfcc=self.n_mfcc,
-                               deltas=self.deltas)
+        feats = self._features(y_m)
         if self.needs_phones:
             est = self.mapper.predict(feats, expression, self.recognised_phones(y_m, len(feats)))
         else:
             est = self.mapper.predict(feats, expression)
-        levels = frame_rms_dbfs(y_m, sr=self.sample_rate, fps=self.fps, n_frames=len(est))
+        levels = frame_rms_dbfs(y_m, sr=self.sample_rate, fps=self.fps, n_frames=len(est),
+                                align=self.window_align)
         return self.silence_fix(est, levels)
 
     def predict_wav(self, path, expression: str = "neutral") -> np.ndarray:
@@ -198,6 +206,7 @@ class AudioMapping:
                                  "holds numbers only")
         header = {"format": FORMAT, "sample_rate": self.sample_rate, "fps": self.fps,
                   "n_mfcc": self.n_mfcc, "deltas": self.deltas, "n_utterance": self.n_utterance,
+                  "window_align": self.window_align,
                   "rest_mups": self.rest_mups.tolist(), "silence_dbfs": self.silence_dbfs,
                   "method": getattr(self.mapper, "name", type(self.mapper).__name__),
                   "expressions": list(self.expressions), "metadata": self.metadata,
@@ -251,7 +260,8 @@ class AudioMapping:
             model = cls(mapper, sample_rate=header["sample_rate"], fps=header["fps"],
                         n_mfcc=header["n_mfcc"], deltas=header["deltas"],
                         n_utterance=header["n_utterance"], rest_mups=header["rest_mups"],
-                        silence_dbfs=header["silence_dbfs"], metadata=header["metadata"])
+                        silence_dbfs=header["silence_dbfs"], metadata=header["metadata"],
+                        window_align=header.get("window_align", "centre"))
             if list(model.expressions) != header["expressions"]:
                 raise ParameterError(f"the header lists expressions {header['expressions']} "
                                      f"but the method was trained on {list(model.expressions)}")

@@ -50,6 +50,7 @@ CMVN_NAMES = ("none", "mean", "meanvar")  # mapping.normalize.CMVN_MODES
 NOISE_COLOURS = ("white", "pink", "brown")  # mapping.augment.NOISE_BETA
 GATE_FRONT_END_NAMES = ("mfcc", "recogniser")  # mapping.gated.GATE_FRONT_ENDS
 MLP_INPUT_NAMES = ("mfcc", "phones")  # mapping.gated.MLP_INPUTS
+WINDOW_ALIGN_NAMES = ("centre", "right")  # mapping.features.WINDOW_ALIGNS
 PHONE_TRAINING_NAMES = ("recognised", "labels")  # mapping.gated.PHONE_TRAINING
 
 
@@ -126,7 +127,10 @@ class MappingConfig:
     n_mfcc: int = integer(10, ge=1, le=MAX_MFCC)
     deltas: bool = False
     context_back: int = integer(3, ge=0)
-    context_forward: int = integer(3, ge=0)
+    context_forward: int = integer(3, ge=0)  # the look-ahead, frames
+    # the analysis window centred on the frame instant (the paper; 12.5 ms of audio after it) or
+    # ending there (no sample after the instant: the look-ahead is the only latency)
+    window_align: str = choice(*WINDOW_ALIGN_NAMES)
     # speaker and channel normalisation (issue 12; see the module docstring)
     cmvn: str = choice(*CMVN_NAMES)
     cmvn_warmup_frames: int = integer(30, ge=1)

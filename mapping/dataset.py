@@ -68,7 +68,7 @@ class UttData:
 
 def build_dataset(corpus, units, *, n_mfcc: int = 10, deltas: bool = False,
                   alignment: str | None = None, recognise_context: tuple | None = None,
-                  progress: bool = False) -> list[UttData]:
+                  window_align: str = "centre", progress: bool = False) -> list[UttData]:
     """Features, true MUPs and phone labels of every utterance of ``corpus``.
 
     The MUPs are the Motion Units' projection of the aligned deformations (the alignment model
@@ -76,7 +76,8 @@ def build_dataset(corpus, units, *, n_mfcc: int = 10, deltas: bool = False,
     also the phones the recogniser hears, per frame the window of ``back`` past to ``forward``
     future frames decided with ``forward`` frames of look-ahead
     (:func:`mapping.recogniser.recognise_windows`; the recogniser gate's input), fitted to the
-    utterance's frames.
+    utterance's frames. ``window_align``: the MFCC window's alignment
+    (:func:`mapping.features.aligned`).
     """
     alignment = alignment or units.metadata_.get("alignment", "similarity")
     defs = corpus_deformations(corpus, model=alignment)
@@ -84,7 +85,7 @@ def build_dataset(corpus, units, *, n_mfcc: int = 10, deltas: bool = False,
     for u in tqdm(corpus.utterances, desc="recognising phones", unit="utt",
                   disable=not progress or recognise_context is None):
         feats = audio_features(u.audio, sr=u.sample_rate, fps=u.fps, n_mfcc=n_mfcc,
-                               deltas=deltas, n_frames=u.n_frames)
+                               deltas=deltas, n_frames=u.n_frames, align=window_align)
         heard = None
         if recognise_context is not None:
             heard = recognised_windows(u.audio, u.sample_rate, u.fps, recognise_context,
@@ -119,8 +120,8 @@ def utterance_key(utt_id: str) -> int:
 
 def training_copies(data: list[UttData], masks: list, *, settings: AugmentSettings,
                     vtlp_range=(1.0, 1.0), n_mfcc: int = 10, deltas: bool = False,
-                    seed: int = 0, recognise_context: tuple | None = None
-                    ) -> tuple[list[UttData], list[np.ndarray]]:
+                    seed: int = 0, recognise_context: tuple | None = None,
+                    window_align: str = "centre") -> tuple[list[UttData], list[np.ndarray]]:
     """Augmented copies of the training utterances and their training-frame masks.
 
     Copy c of an utterance with training frames (:func:`copies_per_utterance` of them) is drawn
@@ -160,7 +161,7 @@ def training_copies(data: list[UttData], masks: list, *, settings: AugmentSettin
             n = (d.n_frames if scale == 1.0
                  else int(np.ceil(len(y) / hop_samples(d.sample_rate, d.fps))))
             feats = audio_features(y, sr=d.sample_rate, fps=d.fps, n_mfcc=n_mfcc, deltas=deltas,
-                                   n_frames=n, vtlp_alpha=alpha)
+                                   n_frames=n, vtlp_alpha=alpha, align=window_align)
             if scale == 1.0:
                 mups, phones, mask = d.mups, d.phones, np.asarray(masks[i])
             else:

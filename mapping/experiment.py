@@ -73,7 +73,7 @@ def augmented_copies(data: list, masks: list, mcfg: MappingConfig, *, seed: int
     """The training copies of a split (none unless ``mcfg`` asks for the warp or augmentation)."""
     return training_copies(data, masks, settings=mcfg.augment, vtlp_range=mcfg.vtlp_range,
                            n_mfcc=mcfg.n_mfcc, deltas=mcfg.deltas,
-                           seed=seed + AUGMENT_SEED_OFFSET,
+                           seed=seed + AUGMENT_SEED_OFFSET, window_align=mcfg.window_align,
                            recognise_context=(recognise_context(mcfg)
                                               if mcfg.mlp_input == "phones"
                                               and mcfg.phone_training == "recognised" else None))

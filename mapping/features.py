@@ -9,6 +9,12 @@ written down here and in :data:`MFCC_SETTINGS`:
 * natural log with a floor of 1e-10 (digital silence stays finite);
 * DCT-II (orthonormal); c0 dropped, c1…c_n kept; sinusoidal lifter L = 22.
 
+Window alignment (issue 13): ``align="centre"`` (the paper's, above) reads
+:func:`window_future` samples after the frame instant, 12.5 ms at 22050 Hz; ``align="right"``
+delays the signal by exactly that many samples (zeros in front), so frame k's MFCC window and its
+level window end at sample k·hop: a frame reads no sample after its instant, and the mapping's
+look-ahead is its only latency (:func:`algorithmic_latency_s`).
+
 Speaker warp for training (issue 12): ``vtlp_alpha`` ≠ 1 warps the mel filterbank by vocal-tract
 length perturbation (Jaitly & Hinton 2013, :func:`vtlp_warp`); α = 1 is exactly the filterbank
 above. Causal cepstral normalisation (:mod:`mapping.normalize`) is part of
@@ -30,6 +36,41 @@ MFCC_SETTINGS = {"window_s": 0.025, "window": "hamming", "n_mels": 26, "fmin": 0
                  "c0": "dropped", "lifter": 22}
 
 
+WINDOW_ALIGNS = ("centre", "right")
+
+
+def window_future(sr: int) -> int:
+    """Samples after the frame instant that a centred frame reads: the last non-zero sample of
+    its MFCC window (the ``win``-sample window centred in the ``n_fft`` frame) or the end of
+    its level window (:func:`window_dbfs`), whichever is later."""
+    win = int(round(MFCC_SETTINGS["window_s"] * sr))
+    n_fft = 1 << (win - 1).bit_length()
+    mfcc_last = (n_fft - win) // 2 + win - 1 - n_fft // 2
+    return max(mfcc_last, win // 2)
+
+
+def check_align(align: str) -> None:
+    if align not in WINDOW_ALIGNS:
+        raise ParameterError(f"window alignment must be one of {WINDOW_ALIGNS}, got {align!r}")
+
+
+def aligned(y: np.ndarray, sr: int, align: str) -> np.ndarray:
+    """The signal the frames are read from: ``y`` itself (centre), or ``y`` delayed by
+    :func:`window_future` samples of silence (right)."""
+    check_align(align)
+    if align == "centre":
+        return y
+    return np.concatenate([np.zeros(window_future(sr), dtype=np.asarray(y).dtype), y])
+
+
+def algorithmic_latency_s(forward: int, sr: int, fps: int = 30, align: str = "centre"
+                          ) -> float:
+    """Seconds of audio after frame k's instant that frame k waits for: ``forward`` frames of
+    context, plus the centred window's :func:`window_future` samples (none when right-aligned)."""
+    check_align(align)
+    return forward / fps + (window_future(sr) / sr if align == "centre" else 0.0)
+
+
 def hop_samples(sr: int, fps: int = 30) -> int:
     """The exact hop in samples, or a ParameterError naming the rate."""
     if sr <= 0 or fps <= 0 or sr % fps:
@@ -39,7 +80,8 @@ def hop_samples(sr: int, fps: int = 30) -> int:
 
 
 def mfcc(y: np.ndarray, *, sr: int, fps: int = 30, n_mfcc: int = 10,
-         n_frames: int | None = None, vtlp_alpha: float = 1.0) -> np.ndarray:
+         n_frames: int | None = None, vtlp_alpha: float = 1.0, align: str = "centre"
+         ) -> np.ndarray:
     """MFCC per video frame.
 
     Parameters
@@ -58,6 +100,8 @@ def mfcc(y: np.ndarray, *, sr: int, fps: int = 30, n_mfcc: int = 10,
     vtlp_alpha : float
         VTLP warp factor of the mel filterbank (training-time speaker warp, :func:`vtlp_warp`);
         1.0 (the default, and always at inference) is the unwarped filterbank.
+    align : {"centre", "right"}
+        The analysis window centred on the frame instant, or ending at it (:func:`aligned`).
 
     Returns
     -------
@@ -72,6 +116,7 @@ def mfcc(y: np.ndarray, *, sr: int, fps: int = 30, n_mfcc: int = 10,
         raise ParameterError(f"n_mfcc must be in 1..{MFCC_SETTINGS['n_mels'] - 1}, got {n_mfcc}")
     hop = hop_samples(sr, fps)
     n_out = int(np.ceil(len(y) / hop)) if n_frames is None else int(n_frames)
+    y = aligned(y, sr, align)
     win = int(round(MFCC_SETTINGS["window_s"] * sr))
     n_fft = 1 << (win - 1).bit_length()
     power = np.abs(librosa.stft(y, n_fft=n_fft, hop_length=hop, win_length=win,
@@ -197,11 +242,13 @@ class FeatureNormalizer:
 
 def audio_features(y: np.ndarray, *, sr: int, fps: int = 30, n_mfcc: int = 10,
                    deltas: bool = False, n_frames: int | None = None,
-                   vtlp_alpha: float = 1.0) -> np.ndarray:
+                   vtlp_alpha: float = 1.0, align: str = "centre") -> np.ndarray:
     """MFCC per frame, optionally followed by their first differences (librosa ``delta``,
     9-frame regression window, edges interpolated). Shape (n_frames, n_mfcc · (1 + deltas)).
-    ``vtlp_alpha``: the training-time speaker warp of :func:`mfcc` (1.0: none)."""
-    feats = mfcc(y, sr=sr, fps=fps, n_mfcc=n_mfcc, n_frames=n_frames, vtlp_alpha=vtlp_alpha)
+    ``vtlp_alpha``: the training-time speaker warp of :func:`mfcc` (1.0: none); ``align``: the
+    window's alignment (:func:`aligned`)."""
+    feats = mfcc(y, sr=sr, fps=fps, n_mfcc=n_mfcc, n_frames=n_frames, vtlp_alpha=vtlp_alpha,
+                 align=align)
     if not deltas:
         return feats
     width = min(9, len(feats) if len(feats) % 2 else len(feats) - 1)
@@ -320,9 +367,12 @@ def window_dbfs(y: np.ndarray, centre: int, half: int) -> float:
     return float(10 * np.log10(np.mean(seg**2) + 1e-20)) if len(seg) else -200.0
 
 
-def frame_rms_dbfs(y: np.ndarray, *, sr: int, fps: int = 30, n_frames: int) -> np.ndarray:
-    """Level (dBFS) of each frame's 25 ms analysis window, centred at k / fps (n_frames,)."""
+def frame_rms_dbfs(y: np.ndarray, *, sr: int, fps: int = 30, n_frames: int,
+                   align: str = "centre") -> np.ndarray:
+    """Level (dBFS) of each frame's 25 ms analysis window, centred at k / fps or ending there
+    (``align``, :func:`aligned`), shape (n_frames,)."""
     hop = hop_samples(sr, fps)
+    y = aligned(y, sr, align)
     half = int(round(MFCC_SETTINGS["window_s"] * sr)) // 2
     return np.array([window_dbfs(y, k * hop, half) for k in range(n_frames)])
 

@@ -57,7 +57,8 @@ def train_and_evaluate(corpus_dir: Path, units_path: Path, out_dir: Path, cfg, *
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     data = build_dataset(corpus, units, n_mfcc=m.n_mfcc, deltas=m.deltas,
-                         recognise_context=recognise_context(m), progress=progress)
+                         recognise_context=recognise_context(m), window_align=m.window_align,
+                         progress=progress)
     feature_seconds = time.perf_counter() - t0
     trained = run_experiment(data, m, n_utterance=units.n_utterance, seed=cfg.seed,
                              methods=methods, splits=splits, progress=progress)
@@ -78,7 +79,8 @@ def train_and_evaluate(corpus_dir: Path, units_path: Path, out_dir: Path, cfg, *
             path = out_dir / f"{r.method}_{r.split}.tfmap"
             AudioMapping(r.trained.mapper, sample_rate=first.sample_rate, fps=first.fps,
                          n_mfcc=m.n_mfcc, deltas=m.deltas, n_utterance=units.n_utterance,
-                         rest_mups=rest_mups(units), metadata={**meta, "split": r.split}).save(path)
+                         rest_mups=rest_mups(units), metadata={**meta, "split": r.split},
+                         window_align=m.window_align).save(path)
             models[r.split] = str(path.name)
     (out_dir / "gate.json").write_text(json.dumps(gate, indent=1))
     traj = mup_trajectories(_trajectory_items(data, results, m.method, units.n_utterance),

@@ -146,10 +146,10 @@ def train_voices(paths: RunPaths, cfg) -> dict:
         if not tfmap.is_file():
             raise ParameterError(f"{WHAT} child {name!r} trained no utterance-split model; keep "
                                  "'utterance' in its mapping.splits")
-        key = (m.n_mfcc, m.deltas, recognise_context(m))
+        key = (m.n_mfcc, m.deltas, recognise_context(m), m.window_align)
         if key not in own:
             data = build_dataset(own_corpus, units, n_mfcc=m.n_mfcc, deltas=m.deltas,
-                                 recognise_context=key[2])
+                                 recognise_context=key[2], window_align=m.window_align)
             own[key] = (data, split_masks(
                 data, "utterance", train_fraction=cfg.mapping.train_fraction,
                 seed=cfg.seed + SPLIT_SEED_OFFSET), database_scale(data, units))
