@@ -15,6 +15,12 @@ baseline) on the run's corpus and Motion Units and writes ``runs/<name>/ablation
 (its tables and ``summary.json``). ``results.csv`` gathers the children's test figures. The
 stage's grid is ``ablations.grid`` of the config; MLflow logs the children afterwards
 (:func:`talkingface.experiment_log.log_ablations`).
+
+The look-ahead curve (issue 13): the children named ``lookahead-*`` vary only the look-ahead
+(``mapping.context_forward``) and the window alignment; each row of ``results.csv`` carries its
+algorithmic latency (:func:`mapping.features.algorithmic_latency_s` at the corpus's rate), and
+``lookahead.png`` plots test R and closure on /p b m/ against it, per method, with the paper's
+setting (``paper``, ``baseline-gru``: 3 frames, centred window) beside them.
 """
 from __future__ import annotations
 
@@ -31,6 +37,7 @@ from tqdm import tqdm
 
 from analysis.evaluation import row_metrics
 from face_model.errors import ParameterError
+from mapping.features import algorithmic_latency_s
 from talkingface.config import apply_overrides, parse_set, read_yaml
 from talkingface.paths import RunPaths
 from talkingface.stages.motion import training_corpus
@@ -121,7 +128,8 @@ def child_metrics(summary: dict, method: str) -> dict:
 def run_ablations(grid: dict, corpus_dir: Path, units_path: Path, out_dir: Path, *,
                   workers: int = 0, progress: bool = True) -> list[dict]:
     """Train every child of ``grid`` (from :func:`load_grid`) with ``workers`` processes (0: all
-    cores); write ``results.csv`` and return its rows."""
+    cores); write ``results.csv`` (and the look-ahead figure when the grid has a curve) and
+    return its rows."""
     out_dir.mkdir(parents=True, exist_ok=True)
     n = workers or os.cpu_count() or 1
     ctx = multiprocessing.get_context("spawn")  # torch is not fork-safe once its pools exist
@@ -134,28 +142,85 @@ def run_ablations(grid: dict, corpus_dir: Path, units_path: Path, out_dir: Path,
                         disable=not progress):
             res = fut.result()
             results[res["name"]] = res
-    rows = [_result_row(name, grid[name], results[name]) for name in grid]
+    sr = corpus_sample_rate(corpus_dir)
+    rows = [_result_row(name, grid[name], results[name], sr) for name in grid]
     fields = list(dict.fromkeys(k for r in rows for k in r))
     with open(out_dir / "results.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=fields, restval="")
         w.writeheader()
         w.writerows(rows)
+    curve = lookahead_rows(rows)
+    if curve:
+        lookahead_figure(curve, out_dir / "lookahead.png")
     return rows
 
 
-def _result_row(name: str, cfg, res: dict) -> dict:
+def corpus_sample_rate(corpus_dir) -> int:
+    """The sample rate of a corpus's first utterance (its manifest), Hz."""
+    with open(Path(corpus_dir) / "manifest.csv", newline="", encoding="utf-8-sig") as f:
+        return int(next(csv.DictReader(f))["sample_rate"])
+
+
+def _result_row(name: str, cfg, res: dict, sample_rate: int) -> dict:
     m = cfg.mapping
     metrics = child_metrics(res["summary"], m.method)
     row = {"setting": name, "method": m.method, "n_classes": m.n_classes,
            "context": f"{m.context_back}+1+{m.context_forward}", "n_mfcc": m.n_mfcc,
            "deltas": m.deltas, "hidden": f"{m.hidden_min}-{m.hidden_max}",
-           "expression_model": m.expression_model}
+           "expression_model": m.expression_model, "look_ahead": m.context_forward,
+           "window_align": m.window_align,
+           "latency_ms": 1000 * algorithmic_latency_s(m.context_forward, sample_rate,
+                                                      align=m.window_align)}
     for split in m.splits:
         row[f"{split}_R"] = metrics.get(f"{split}.mean_test_R", np.nan)
         row[f"{split}_MSE"] = metrics.get(f"{split}.mean_test_MSE", np.nan)
+        row[f"{split}_LVE"] = metrics.get(f"{split}.mean_test_LVE", np.nan)
+        row[f"{split}_closure"] = metrics.get(f"{split}.mean_test_closure", np.nan)
         row[f"{split}_gate_acc"] = metrics.get(f"{split}.gate.neutral_test", np.nan)
     row["seconds"] = res["seconds"]
     return row
+
+
+PAPER_POINTS = ("paper", "baseline-gru")  # the paper's 3 frames with a centred window
+
+
+def lookahead_rows(rows: list[dict]) -> list[dict]:
+    """The rows of the look-ahead curve: the ``lookahead-*`` children and, beside them, the
+    paper's setting of the same methods; none when the grid has no ``lookahead-*`` child."""
+    curve = [r for r in rows if str(r["setting"]).startswith("lookahead-")]
+    methods = {r["method"] for r in curve}
+    return curve + [r for r in rows if r["setting"] in PAPER_POINTS and r["method"] in methods]
+
+
+def lookahead_figure(curve: list[dict], path: Path, split: str = "utterance") -> Path:
+    """Test R and /p b m/ closure against algorithmic latency (ms), one line per method (the
+    ``lookahead-*`` children, right-aligned window) and the paper's setting as a marker."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
+    for ax, key, label in ((axes[0], f"{split}_R", "test R (Eq. 6)"),
+                           (axes[1], f"{split}_closure", "/p b m/ closed (test)")):
+        for method in sorted({r["method"] for r in curve}):
+            pts = sorted((float(r["latency_ms"]), float(r[key])) for r in curve
+                         if r["method"] == method and str(r["setting"]).startswith("lookahead-"))
+            line, = ax.plot(*zip(*pts), marker="o", label=method) if pts else (None,)
+            for r in curve:
+                if r["method"] == method and r["setting"] in PAPER_POINTS:
+                    ax.plot(float(r["latency_ms"]), float(r[key]), marker="*", markersize=12,
+                            color=line.get_color() if line else None, linestyle="none",
+                            label=f"{method}, paper's window")
+        ax.set_xlabel("algorithmic latency (ms)")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.suptitle(f"Accuracy against look-ahead ({split} split)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+    return path
 
 
 def resolve_grid(grid: str, default: Path) -> Path | None:

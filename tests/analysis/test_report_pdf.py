@@ -121,3 +121,39 @@ def test_a_table_wider_than_the_page_is_set_smaller_to_fit(tmp_path):
     pdf = rep.build(tmp_path / "wide.pdf")
     assert "baseline-gmm-regression" in PdfReader(pdf).pages[0].extract_text()
     assert not list(tmp_path.glob(".*"))  # no temporary file left beside it
+
+
+def test_the_look_ahead_curve_is_a_table_and_a_figure_titled_look_ahead(tmp_path):
+    """The ablation rows of the curve (``lookahead-*``) and the paper's setting beside them, with
+    a 0 ms row, from the stage's results.csv and figure."""
+    import csv
+
+    from talkingface.stages.ablations import lookahead_figure
+
+    def row(setting, method, f, align, latency, r, closure):
+        return {"setting": setting, "method": method, "n_classes": 44, "context": f"3+1+{f}",
+                "n_mfcc": 10, "deltas": False, "hidden": "15-25", "expression_model": "cascade",
+                "look_ahead": f, "window_align": align, "latency_ms": latency,
+                "utterance_R": r, "utterance_MSE": 0.01, "utterance_LVE": 3.0,
+                "utterance_closure": closure, "utterance_gate_acc": 0.5}
+
+    rows = [row("paper", "gated_mlp", 3, "centre", 112.47, 0.675, 0.4),
+            row("classes-1", "gated_mlp", 3, "centre", 112.47, 0.6, 0.3),
+            row("lookahead-gated-0", "gated_mlp", 0, "right", 0.0, 0.601, 0.25),
+            row("lookahead-gated-3", "gated_mlp", 3, "right", 100.0, 0.671, 0.35)]
+    ab_dir = tmp_path / "ablations"
+    ab_dir.mkdir()
+    with open(ab_dir / "results.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    lookahead_figure(rows[2:] + rows[:1], ab_dir / "lookahead.png")
+    rep = Report("T")
+    mapping_section(rep, _mapping_summary(), tmp_path, ab_dir / "results.csv")
+    out = rep.build(tmp_path / "la.pdf")
+    text = pdf_text(out)
+    assert "Accuracy against look-ahead" in text
+    assert "lookahead-gated-0 gated_mlp 0 right 0.0 0.601" in text
+    assert "paper gated_mlp 3 centre 112.5 0.675" in text
+    assert "classes-1 gated_mlp 3 centre" not in text.split("Accuracy against look-ahead")[1]
+    assert sum(len(p.images) for p in PdfReader(out).pages) >= 1

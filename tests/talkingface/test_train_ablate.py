@@ -111,7 +111,9 @@ def test_ablate_leaves_a_parent_run_with_one_child_per_setting(workdir, capsys):
     grid = workdir / "grid.yaml"
     grid.write_text("base:\n  mapping.splits: [utterance]\nchildren:\n  paper: {}\n"
                     "  classes-1: {mapping.n_classes: 1}\n"
-                    "  baseline-linear: {mapping.method: linear}\n")
+                    "  baseline-linear: {mapping.method: linear}\n"
+                    "  lookahead-gated-0: {mapping.context_forward: 0, "
+                    "mapping.window_align: right}\n")
     assert main(["ablate", "--grid", str(grid), "--name", "a", *TINY, "--workers", "2"]) == 0
     runs = mlflow.search_runs(experiment_names=["talkingface"], output_format="list")
     parents = [r for r in runs if r.data.tags.get("stage") == "ablate"]
@@ -119,20 +121,27 @@ def test_ablate_leaves_a_parent_run_with_one_child_per_setting(workdir, capsys):
     children = [r for r in runs if r.data.tags.get("mlflow.parentRunId") ==
                 parents[0].info.run_id]
     assert sorted(r.data.tags["ablation.setting"] for r in children) == \
-        ["baseline-linear", "classes-1", "paper"]
+        ["baseline-linear", "classes-1", "lookahead-gated-0", "paper"]
     for r in children:
         assert "utterance.mean_test_R" in r.data.metrics
+        assert "utterance.mean_test_LVE" in r.data.metrics
     by = {r.data.tags["ablation.setting"]: r for r in children}
     assert by["classes-1"].data.params["mapping.n_classes"] == "1"
     assert by["baseline-linear"].data.params["mapping.method"] == "linear"
     with open(workdir / "runs" / "a" / "ablations" / "results.csv", newline="") as f:
         rows = list(csv.DictReader(f))
-    assert [r["setting"] for r in rows] == ["paper", "classes-1", "baseline-linear"]
+    assert [r["setting"] for r in rows] == ["paper", "classes-1", "baseline-linear",
+                                            "lookahead-gated-0"]
     for r in rows:
         assert float(r["utterance_R"]) == pytest.approx(
             by[r["setting"]].data.metrics["utterance.mean_test_R"])
     # one class means one MLP, so the gate is always right
     assert float(rows[1]["utterance_gate_acc"]) == 1.0
+    # the look-ahead curve: the paper's 3 frames + the centred window's 275 samples at 22050 Hz,
+    # and 0 ms for no look-ahead with the window ending at the frame instant
+    assert float(rows[0]["latency_ms"]) == pytest.approx(100 + 1000 * 275 / 22050)
+    assert float(rows[3]["latency_ms"]) == 0.0 and rows[3]["window_align"] == "right"
+    assert (workdir / "runs" / "a" / "ablations" / "lookahead.png").is_file()
 
 
 @pytest.mark.parametrize("grid_text, message", [
