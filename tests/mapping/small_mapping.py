@@ -5,6 +5,7 @@ from types import SimpleNamespace
 
 from face_model.motion_units import fit_corpus_units
 from mapping import build_dataset, split_masks
+from mapping.animator import StreamingAnimator
 from mapping.checkpoint import AudioMapping, rest_mups
 from mapping.experiment import augmented_copies, recognise_context, train_method
 from talkingface.config import Config
@@ -30,3 +31,13 @@ def train_small(corpus, *, method: str = "gated_mlp", split: str = "utterance",
                            window_align=mcfg.window_align)
     return SimpleNamespace(mapping=mapping, units=units, data=data, masks=masks, copies=copies,
                            result=result)
+
+
+def stream_frames(animator, y, chunk: int, expression: str = "neutral") -> list:
+    """Every frame of ``y`` streamed through a new StreamingAnimator in chunks of ``chunk``
+    samples, then flushed."""
+    s = StreamingAnimator(animator, expression)
+    frames = []
+    for i in range(0, len(y), chunk):
+        frames += s.push(y[i:i + chunk])
+    return frames + s.flush()

@@ -9,7 +9,7 @@ import pytest
 
 from mapping.animator import FaceAnimator, StreamingAnimator
 from mapping.checkpoint import AudioMapping
-from tests.mapping.small_mapping import train_small
+from tests.mapping.small_mapping import stream_frames, train_small
 
 
 @pytest.fixture(scope="module")
@@ -28,14 +28,6 @@ def test_the_experiment_trains_with_the_configured_cmvn(trained):
                                                          u.expression))
 
 
-def _stream(animator, y, chunk, expression):
-    s = StreamingAnimator(animator, expression)
-    frames = []
-    for i in range(0, len(y), chunk):
-        frames += s.push(y[i:i + chunk])
-    return frames + s.flush()
-
-
 @pytest.mark.parametrize("chunk", [1, 333, 735, 4096, 10**7])
 def test_streaming_equals_offline_exactly_with_cmvn(trained, small_corpus, chunk):
     mapping, units, _, _ = trained
@@ -44,7 +36,7 @@ def test_streaming_equals_offline_exactly_with_cmvn(trained, small_corpus, chunk
     for expression in ("neutral", "smile") if chunk != 1 else ("smile",):
         offline_feats = mapping.normalized_features(u.audio, u.sample_rate)
         offline = mapping.predict_audio(u.audio, u.sample_rate, expression)
-        frames = _stream(animator, u.audio, chunk, expression)
+        frames = stream_frames(animator, u.audio, chunk, expression)
         assert [f.index for f in frames] == list(range(len(offline)))
         assert np.array_equal(np.stack([f.features for f in frames]), offline_feats)
         assert np.array_equal(np.stack([f.mups for f in frames]), offline)

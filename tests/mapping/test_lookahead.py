@@ -11,7 +11,7 @@ from mapping.animator import FaceAnimator, StreamingAnimator
 from mapping.checkpoint import AudioMapping
 from mapping.features import (algorithmic_latency_s, aligned, frame_rms_dbfs, mfcc,
                               window_future)
-from tests.mapping.small_mapping import train_small
+from tests.mapping.small_mapping import stream_frames, train_small
 
 SR = 22050
 HOP = SR // 30
@@ -78,14 +78,10 @@ def test_streaming_equals_offline_for_every_look_ahead(causal, small_corpus):
     u = small_corpus.utterances[1]
     mups, _ = animator.animate(u.audio, u.sample_rate, "sad")
     for chunk in (1, 733, 10**7):
-        s = StreamingAnimator(animator, "sad")
-        frames = []
-        for i in range(0, len(u.audio), chunk):
-            frames += s.push(u.audio[i:i + chunk])
-        frames += s.flush()
+        frames = stream_frames(animator, u.audio, chunk, "sad")
         assert [f.index for f in frames] == list(range(len(mups)))
         np.testing.assert_allclose(np.stack([f.mups for f in frames]), mups, rtol=0, atol=1e-3)
-    assert s.latency_s == pytest.approx(forward / 30)  # the look-ahead alone
+    assert StreamingAnimator(animator).latency_s == pytest.approx(forward / 30)  # look-ahead
 
 
 def test_a_frame_leaves_the_stream_once_its_look_ahead_has_arrived(causal, small_corpus):

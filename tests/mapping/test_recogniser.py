@@ -14,13 +14,13 @@ from face_model.errors import ParameterError
 from face_model.phones import PHONE_INDEX
 from face_model.settings import SettingError
 from mapping import build_dataset, make_mapper
-from mapping.animator import FaceAnimator, StreamingAnimator
+from mapping.animator import FaceAnimator
 from mapping.checkpoint import AudioMapping
 from mapping.config import MappingConfig
 from mapping.recogniser import (MIN_UTTERANCE_S, PhoneStream, fit_length, label_windows,
                                 phone_inputs, recognise, recognise_windows)
 from talkingface.config import Config
-from tests.mapping.small_mapping import train_small
+from tests.mapping.small_mapping import stream_frames, train_small
 
 SR = 22050  # a model rate (an integer hop at 30 fps)
 
@@ -165,11 +165,7 @@ def test_streaming_with_the_recogniser_gate_equals_offline(recogniser_mapping, s
     animator = FaceAnimator(mapping, units)
     u = small_corpus.utterances[2]
     mups, _ = animator.animate(u.audio, u.sample_rate, "smile")
-    s = StreamingAnimator(animator, "smile")
-    frames = []
-    for i in range(0, len(u.audio), chunk):
-        frames += s.push(u.audio[i:i + chunk])
-    frames += s.flush()
+    frames = stream_frames(animator, u.audio, chunk, "smile")
     assert [f.index for f in frames] == list(range(len(mups)))
     # the same rows as offline (to float32 rounding of (1, d) against (n, d) products)
     np.testing.assert_allclose(np.stack([f.mups for f in frames]), mups, rtol=0, atol=1e-3)
@@ -255,11 +251,7 @@ def test_a_phone_input_model_round_trips_and_streams_as_offline(phone_input_mapp
                                   mapping.predict_audio(u.audio, u.sample_rate, "sad"))
     animator = FaceAnimator(back, units)
     mups, _ = animator.animate(u.audio, u.sample_rate, "sad")
-    s = StreamingAnimator(animator, "sad")
-    frames = []
-    for i in range(0, len(u.audio), 1000):
-        frames += s.push(u.audio[i:i + 1000])
-    frames += s.flush()
+    frames = stream_frames(animator, u.audio, 1000, "sad")
     assert [f.index for f in frames] == list(range(len(mups)))
     np.testing.assert_allclose(np.stack([f.mups for f in frames]), mups, rtol=0, atol=1e-3)
     assert all(f.features is None for f in frames)  # no MFCC computed: no network reads them
