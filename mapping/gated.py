@@ -25,11 +25,11 @@ place of the mixtures on our MFCC; no mixture is fitted. As the paper divides th
 frames by the gate's decision, each training frame goes to the MLP of the phone the recogniser
 heard (an augmented copy that was not recognised, to the MLP of its label) — or, with
 ``phone_training="labels"``, to the MLP of its labelled phone, the training windows then being
-the labelled phones around it (:func:`label_windows`: what a perfect recogniser would hear). The recognised
-phones are not a function of the features, so every estimate takes them beside the features
-(``phones``: per frame the recogniser's window of phones, ``context_back + 1 +
-context_forward`` of them, :func:`mapping.recogniser.recognise_windows`; column
-``context_back`` is the frame's own).
+the labelled phones around it (:func:`mapping.recogniser.label_windows`: what a perfect
+recogniser would hear). The recognised phones are not a function of the features, so every
+estimate takes them beside the features (``phones``: per frame the recogniser's window of
+phones, ``context_back + 1 + context_forward`` of them,
+:func:`mapping.recogniser.recognise_windows`; column ``context_back`` is the frame's own).
 
 The phone input (``mlp_input="phones"``, with the recogniser gate): the MLPs read that window of
 phones, one-hot (:func:`phone_inputs`), in place of the MFCC context — the phone-posterior front
@@ -62,6 +62,8 @@ _LATER_HYPER_PARAMETERS = {"cmvn": "none", "cmvn_warmup_frames": 30,
 GATE_FRONT_ENDS = ("mfcc", "recogniser")  # mapping.config.GATE_FRONT_END_NAMES
 MLP_INPUTS = ("mfcc", "phones")  # mapping.config.MLP_INPUT_NAMES
 PHONE_TRAINING = ("recognised", "labels")  # mapping.config.PHONE_TRAINING_NAMES
+
+
 def hidden_units(n_frames: int, smallest: int, largest: int, lo: int = 15, hi: int = 25) -> int:
     """Hidden units of a subset's MLP: ``lo`` for the smallest subset, ``hi`` for the largest,
     in between linearly in log(size)."""
