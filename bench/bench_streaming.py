@@ -12,7 +12,11 @@ per-frame cost of each and their ratio (target: <= 1.25). ``--front-end phones``
 phone-input model (the recogniser gate and MLPs reading its phones, issue 12 part 6: the
 default voice-robust model's front end); ``--front-end compare`` streams it beside the paper's
 MFCC model in the same way and reports the ratio (target: <= 1.25). ``--sentences N`` shrinks
-the corpus. ``--look-ahead N`` and ``--window-align right`` set the models' context look-ahead
+the corpus. Every run also breaks the first model's per-frame compute into its parts (issue 13):
+the MFCC of the new hop with its normalisation (the floor), the gate, the MLP bank, the
+expression cascade and the reconstruction of the markers (Eq. 2), the rest being the stream's
+bookkeeping and the silence rule, and prints the whole as a multiple of the floor (target: <= 3).
+``--look-ahead N`` and ``--window-align right`` set the models' context look-ahead
 (frames) and analysis-window alignment; the algorithmic latency printed follows from them exactly.
 """
 from __future__ import annotations
@@ -74,6 +78,54 @@ def stream_costs(anims: dict, test, repeat: int) -> dict:
     return {k: np.array(v) * 1000 for k, v in per_frame.items()}
 
 
+PARTS = (("mfcc", "_feature"), ("gate", "gate_"), ("mlp", "bank_"), ("cascade", "experts_"),
+         ("reconstruction", "markers"))
+
+
+def part_costs(anim, test, repeat: int) -> dict:
+    """Mean milliseconds per frame of each part of :data:`PARTS` and of the whole push, from
+    one streaming run: each part's method is wrapped with a timer on its instance while the
+    test utterances stream one hop per push, then unwrapped."""
+    spent = {name: 0.0 for name, _ in PARTS}
+    total, frames = 0.0, 0
+
+    def wrap(obj, attr, name):
+        inner = getattr(obj, attr)
+
+        def timed(*args, **kwargs):
+            t0 = time.perf_counter()
+            out = inner(*args, **kwargs)
+            spent[name] += time.perf_counter() - t0
+            return out
+        setattr(obj, attr, timed)
+        return obj, attr
+
+    mapper = anim.mapping.mapper
+    wrapped = [wrap(anim, "markers", "reconstruction"), wrap(mapper.bank_, "predict", "mlp")]
+    if getattr(mapper, "gate_", None) is not None:
+        wrapped.append(wrap(mapper.gate_, "predict", "gate"))
+    wrapped += [wrap(net, "predict", "cascade") for net in mapper.experts_.values()]
+    try:
+        for _ in range(repeat):
+            for u in test:
+                s = StreamingAnimator(anim, u.expression)
+                wrap(s, "_feature", "mfcc")
+                for i in range(0, len(u.audio), s.hop):
+                    t0 = time.perf_counter()
+                    out = s.push(u.audio[i:i + s.hop])
+                    total += time.perf_counter() - t0
+                    frames += len(out)
+    finally:
+        for obj, attr in wrapped:
+            delattr(obj, attr)  # the class's own method again
+    out = {f"part_{name}_ms": 1000 * v / frames for name, v in spent.items()}
+    out["part_other_ms"] = 1000 * total / frames - sum(out.values())
+    out["part_total_ms"] = 1000 * total / frames
+    out["total_over_mfcc_floor"] = total / spent["mfcc"] if spent["mfcc"] else float("nan")
+    out["target_total_over_mfcc_floor"] = 3.0
+    return out
+
+
 def main() -> None:
     import torch
 
@@ -119,6 +171,7 @@ def main() -> None:
         test = [u for u, m in zip(corpus.utterances, masks) if not m.any()][:20]
         costs = stream_costs(anims, test, args.repeat)
         anim = anims[next(iter(configs))]
+        parts = part_costs(anim, test, args.repeat)
         s = StreamingAnimator(anim)
         u = test[0]
         renderer = FaceRenderer()
@@ -145,7 +198,8 @@ def main() -> None:
                                                         / np.percentile(a, 50)),
                         f"{what}_cost_ratio_mean": float(np.mean(b) / np.mean(a)),
                         f"target_{what}_cost_ratio": 1.25})
-    report({"cmvn": args.cmvn, "front_end": args.front_end, **figures, "target_p99_ms": 1.0,
+    report({"cmvn": args.cmvn, "front_end": args.front_end, **figures, **parts,
+            "target_p99_ms": 1.0,
             "frames_measured": sum(len(v) for v in costs.values()),
             "algorithmic_latency_ms": 1000 * s.latency_s,
             "animate_markers_render_x_realtime": audio_s / render_s,
