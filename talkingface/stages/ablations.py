@@ -125,23 +125,33 @@ def child_metrics(summary: dict, method: str) -> dict:
     return out
 
 
+def run_children(jobs: dict, out_dir: Path, *, workers: int = 0, desc: str = "runs",
+                 progress: bool = True) -> dict:
+    """Train every job ``name → (corpus folder, motion_units.npz, Config)`` into
+    ``out_dir/<name>`` with ``workers`` processes (0: all cores), one torch thread each;
+    returns ``{name: run_child's result}``."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    n = workers or os.cpu_count() or 1
+    ctx = multiprocessing.get_context("spawn")  # torch is not fork-safe once its pools exist
+    results = {}
+    with ProcessPoolExecutor(max_workers=min(n, len(jobs)), mp_context=ctx,
+                             initializer=init_worker) as pool:
+        futs = [pool.submit(run_child, name, str(corpus), str(units), str(out_dir / name), c)
+                for name, (corpus, units, c) in jobs.items()]
+        for fut in tqdm(as_completed(futs), total=len(futs), desc=desc, unit="run",
+                        disable=not progress):
+            res = fut.result()
+            results[res["name"]] = res
+    return results
+
+
 def run_ablations(grid: dict, corpus_dir: Path, units_path: Path, out_dir: Path, *,
                   workers: int = 0, progress: bool = True) -> list[dict]:
     """Train every child of ``grid`` (from :func:`load_grid`) with ``workers`` processes (0: all
     cores); write ``results.csv`` (and the look-ahead figure when the grid has a curve) and
     return its rows."""
-    out_dir.mkdir(parents=True, exist_ok=True)
-    n = workers or os.cpu_count() or 1
-    ctx = multiprocessing.get_context("spawn")  # torch is not fork-safe once its pools exist
-    results = {}
-    with ProcessPoolExecutor(max_workers=min(n, len(grid)), mp_context=ctx,
-                             initializer=init_worker) as pool:
-        futs = [pool.submit(run_child, name, str(corpus_dir), str(units_path),
-                            str(out_dir / name), c) for name, c in grid.items()]
-        for fut in tqdm(as_completed(futs), total=len(futs), desc="ablations", unit="run",
-                        disable=not progress):
-            res = fut.result()
-            results[res["name"]] = res
+    results = run_children({name: (corpus_dir, units_path, c) for name, c in grid.items()},
+                           out_dir, workers=workers, desc="ablations", progress=progress)
     sr = corpus_sample_rate(corpus_dir)
     rows = [_result_row(name, grid[name], results[name], sr) for name in grid]
     fields = list(dict.fromkeys(k for r in rows for k in r))

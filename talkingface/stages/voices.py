@@ -24,14 +24,10 @@ drawn by sentence with the run's seed), measured as :mod:`analysis.evaluation` m
 from __future__ import annotations
 
 import csv
-import multiprocessing
-import os
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from analysis.evaluation import database_scale, evaluate_predictions
 from data_synth.generate import synthesize_corpus
@@ -43,7 +39,7 @@ from mapping.dataset import build_dataset, split_masks
 from mapping.experiment import SPLIT_SEED_OFFSET, predict_utterance, recognise_context
 from talkingface.config import read_yaml
 from talkingface.paths import RunPaths
-from talkingface.stages.ablations import init_worker, load_grid, resolve_grid, run_child
+from talkingface.stages.ablations import load_grid, resolve_grid, run_children
 from talkingface.stages.base import read_done, write_csv
 from talkingface.stages.motion import training_corpus
 
@@ -125,17 +121,9 @@ def train_voices(paths: RunPaths, cfg) -> dict:
     out = paths.stage("voices")
     out.mkdir(parents=True, exist_ok=True)
     corpora = _corpora(children, cfg, paths, out / "corpora")
-    n = cfg.voices.workers or os.cpu_count() or 1
-    ctx = multiprocessing.get_context("spawn")  # torch is not fork-safe once its pools exist
-    summaries = {}
-    with ProcessPoolExecutor(max_workers=min(n, len(children)), mp_context=ctx,
-                             initializer=init_worker) as pool:
-        futs = [pool.submit(run_child, name, str(corpora[name]), str(paths.units_model),
-                            str(out / name), child) for name, child in children.items()]
-        for fut in tqdm(as_completed(futs), total=len(futs), desc="voice-robust models",
-                        unit="model"):
-            res = fut.result()
-            summaries[res["name"]] = res
+    summaries = run_children({name: (corpora[name], paths.units_model, child)
+                              for name, child in children.items()}, out,
+                             workers=cfg.voices.workers, desc="voice-robust models")
     units = MotionUnits.load(paths.units_model)
     own_corpus = load_corpus(training_corpus(paths, cfg))
     own: dict = {}  # (n_mfcc, deltas) -> (data, masks, scale) of the run's corpus
