@@ -152,6 +152,9 @@ class AudioMapping:
         if not self.needs_phones:
             return None
         m = self.mapper
+        if m.gate_front_end == "labels":
+            raise ParameterError("this mapping is an oracle (gate_front_end 'labels'): it reads "
+                                 "a corpus's true phone labels and cannot animate audio")
         return fit_length(recognise_windows(y_m, self.sample_rate, fps=self.fps,
                                             delay_frames=m.context_forward,
                                             back=m.context_back), n_frames)

@@ -15,7 +15,9 @@ are unchanged:
 * ``augment.copies`` — augmented copies of every training utterance (:mod:`mapping.augment`);
 * ``gate_front_end`` — "mfcc", the paper's mixtures on the MFCC, or "recogniser", the phones that
   pocketsphinx's en-US model (trained on real speech) hears, decided with the context look-ahead
-  (:mod:`mapping.recogniser`): the recogniser front end;
+  (:mod:`mapping.recogniser`): the recogniser front end; or "labels", the corpus's own phone
+  labels — an oracle for the ceiling of any audio model on the corpus, which cannot animate
+  audio;
 * ``mlp_input`` — what the MLP bank reads: "mfcc", the paper's MFCC context, or "phones", the
   recogniser's window of phones around the frame (one-hot; the phone-posterior front end, the
   route Rhubarb Lip Sync takes), which needs the recogniser gate;
@@ -48,7 +50,7 @@ SPLIT_NAMES = ("random_frames", "utterance")
 MAX_MFCC = 25  # MFCCs of 26 mel bands
 CMVN_NAMES = ("none", "mean", "meanvar")  # mapping.normalize.CMVN_MODES
 NOISE_COLOURS = ("white", "pink", "brown")  # mapping.augment.NOISE_BETA
-GATE_FRONT_END_NAMES = ("mfcc", "recogniser")  # mapping.gated.GATE_FRONT_ENDS
+GATE_FRONT_END_NAMES = ("mfcc", "recogniser", "labels")  # mapping.gated.GATE_FRONT_ENDS
 MLP_INPUT_NAMES = ("mfcc", "phones")  # mapping.gated.MLP_INPUTS
 WINDOW_ALIGN_NAMES = ("centre", "right")  # mapping.features.WINDOW_ALIGNS
 PHONE_TRAINING_NAMES = ("recognised", "labels")  # mapping.gated.PHONE_TRAINING
@@ -165,6 +167,6 @@ class MappingConfig:
     def __post_init__(self):
         check_fields(self)
         check_order(self, "hidden_min", "hidden_max")
-        require(self, "mlp_input", self.mlp_input == "mfcc" or self.gate_front_end == "recogniser",
+        require(self, "mlp_input", self.mlp_input == "mfcc" or self.gate_front_end != "mfcc",
                 "'mfcc' unless gate_front_end is 'recogniser' (the phones are the recogniser's)",
                 ("gate_front_end",))

@@ -108,7 +108,7 @@ def predict_utterance(mapper, d):
     """A trained method's MUPs of one :class:`~mapping.dataset.UttData` (with its recognised
     phones when the method's gate is the recogniser)."""
     if getattr(mapper, "needs_phones", False):
-        return mapper.predict(d.features, d.expression, phones=d.recognised)
+        return mapper.predict(d.features, d.expression, phones=mapper.utterance_phones(d))
     return mapper.predict(d.features, d.expression)
 
 

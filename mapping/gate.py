@@ -226,7 +226,8 @@ def gate_accuracy(mapper, data: list, masks: list) -> dict:
     training and test frames and on all test frames, with the confusion matrix of the neutral
     test frames.
 
-    ``mapper`` has ``gate_classes(features, phones)``, ``group_of_phone_``, ``class_names_`` and
+    ``mapper`` has ``gate_classes(features, phones)``, ``utterance_phones(d)``,
+    ``group_of_phone_``, ``class_names_`` and
     ``merges_`` (:class:`mapping.gated.GatedMLP`); ``data`` are :class:`mapping.dataset.UttData`
     with their training-frame ``masks``.
     """
@@ -235,7 +236,7 @@ def gate_accuracy(mapper, data: list, masks: list) -> dict:
     hits = {f"{s}_{p}": [0, 0] for p in parts for s in ("neutral", "all")}
     conf = np.zeros((n, n), int)
     for d, m in zip(data, masks):
-        pred = mapper.gate_classes(d.features, d.recognised)  # once per utterance
+        pred = mapper.gate_classes(d.features, mapper.utterance_phones(d))  # once per utt.
         true = mapper.group_of_phone_[d.phones]
         for part, sel in (("train", m), ("test", ~m)):
             scopes = ("neutral", "all") if d.expression == "neutral" else ("all",)

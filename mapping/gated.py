@@ -31,7 +31,11 @@ estimate takes them beside the features (``phones``: per frame the recogniser's 
 phones, ``context_back + 1 + context_forward`` of them,
 :func:`mapping.recogniser.recognise_windows`; column ``context_back`` is the frame's own).
 
-The phone input (``mlp_input="phones"``, with the recogniser gate): the MLPs read that window of
+The oracle (``gate_front_end="labels"``, issue 13's ceiling): the gate and the phone-input MLPs
+read the corpus's own phone labels, in training and in estimation — what any audio model of
+this corpus could at best know. It cannot animate audio; it measures the ceiling.
+
+The phone input (``mlp_input="phones"``, with the recogniser gate or the oracle): the MLPs read that window of
 phones, one-hot (:func:`phone_inputs`), in place of the MFCC context — the phone-posterior front
 end. The MFCC are then not used by any network.
 """
@@ -59,7 +63,7 @@ _HYPER_PARAMETERS = ("n_utterance", "context_back", "context_forward", "n_classe
 _LATER_HYPER_PARAMETERS = {"cmvn": "none", "cmvn_warmup_frames": 30,
                            "gate_front_end": "mfcc", "mlp_input": "mfcc",
                            "phone_training": "recognised"}
-GATE_FRONT_ENDS = ("mfcc", "recogniser")  # mapping.config.GATE_FRONT_END_NAMES
+GATE_FRONT_ENDS = ("mfcc", "recogniser", "labels")  # mapping.config.GATE_FRONT_END_NAMES
 MLP_INPUTS = ("mfcc", "phones")  # mapping.config.MLP_INPUT_NAMES
 PHONE_TRAINING = ("recognised", "labels")  # mapping.config.PHONE_TRAINING_NAMES
 
@@ -241,7 +245,7 @@ class GatedMLP:
         if self.phone_training not in PHONE_TRAINING:
             raise ParameterError(f"phone_training must be one of {PHONE_TRAINING}, got "
                                  f"{self.phone_training!r}")
-        if self.mlp_input == "phones" and self.gate_front_end != "recogniser":
+        if self.mlp_input == "phones" and self.gate_front_end == "mfcc":
             raise ParameterError("mlp_input 'phones' needs gate_front_end 'recogniser' (the "
                                  f"phones are the recogniser's), got {self.gate_front_end!r}")
         if self.gate_covariance not in GATE_COVARIANCES:
@@ -315,7 +319,8 @@ class GatedMLP:
     def _training_windows(self, d) -> tuple:
         """``(windows, heard)`` of one training utterance: the recognised windows (heard), the
         labelled windows (``phone_training="labels"``), or None when no window is read."""
-        if self.gate_front_end == "recogniser" and self.phone_training == "labels":
+        if self.gate_front_end == "labels" or (self.gate_front_end == "recogniser"
+                                               and self.phone_training == "labels"):
             return label_windows(d.phones, self.context_back, self.context_forward), False
         windows = getattr(d, "recognised", None)
         if windows is None:
@@ -349,8 +354,16 @@ class GatedMLP:
 
     @property
     def needs_phones(self) -> bool:
-        """True when every estimate needs the recognised phones (the recogniser gate)."""
-        return self.gate_front_end == "recogniser"
+        """True when every estimate needs windows of phones (the recogniser gate, the oracle)."""
+        return self.gate_front_end != "mfcc"
+
+    def utterance_phones(self, d):
+        """The windows of phones an estimate of the corpus utterance ``d`` (a
+        :class:`mapping.dataset.UttData`) reads: the recognised ones, the labelled ones for the
+        oracle, or None for the paper's gate."""
+        if self.gate_front_end == "labels":
+            return label_windows(d.phones, self.context_back, self.context_forward)
+        return d.recognised if self.gate_front_end == "recogniser" else None
 
     @property
     def window(self) -> int:

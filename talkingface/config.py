@@ -62,6 +62,18 @@ class AblationConfig:
 
 
 @dataclass(frozen=True)
+class CeilingConfig:
+    """The steps from our Table II toward the ceiling of any audio model on the corpus that
+    ``replicate`` measures (stage ``ceiling``: each nuisance off, all off, the oracle)."""
+
+    grid: str = "default"  # default: configs/ceiling.yaml of the project | none | a file
+    workers: int = integer(0, ge=0)  # processes (0: all cores)
+
+    def __post_init__(self):
+        check_fields(self)
+
+
+@dataclass(frozen=True)
 class VoicesConfig:
     """The voice-robust models ``replicate`` trains and scores on real speech (the grid's
     children; its ``model`` is what ``animate``, ``stream`` and the study's synthetic face use)."""
@@ -87,6 +99,7 @@ class Config:
     mlflow: MlflowConfig = field(default_factory=MlflowConfig)
     ablations: AblationConfig = field(default_factory=AblationConfig)
     voices: VoicesConfig = field(default_factory=VoicesConfig)
+    ceiling: CeilingConfig = field(default_factory=CeilingConfig)
 
     def __post_init__(self):
         check_fields(self)

@@ -105,13 +105,15 @@ def log_train(mlf, summary: dict, out_dir: Path, cfg) -> None:
         log_mapping_model(mlf, out_dir / models[split], name="mapping")
 
 
-def log_ablations(mlf, done: dict, out_dir: Path, grid: dict, *, nested: bool = True) -> None:
-    """The ablation stage as MLflow runs: one child run per setting (``grid``: name → config)
-    under a parent, a new nested run of the active run (``nested``) or the active run itself."""
-    parent = (mlf.start_run(run_name=f"ablations:{Path(done['grid']).stem}", nested=True)
+def log_ablations(mlf, done: dict, out_dir: Path, grid: dict, *, nested: bool = True,
+                  stage: str = "ablate", folder: str = "ablations") -> None:
+    """A grid stage (the ablations, or the ceiling steps: ``stage`` tag, ``folder`` of its
+    results.csv) as MLflow runs: one child run per setting (``grid``: name → config) under a
+    parent, a new nested run of the active run (``nested``) or the active run itself."""
+    parent = (mlf.start_run(run_name=f"{folder}:{Path(done['grid']).stem}", nested=True)
               if nested else nullcontext())
     with parent:
-        mlf.set_tags({"stage": "ablate", "grid": done["grid"]})
+        mlf.set_tags({"stage": stage, "grid": done["grid"]})
         for name, cfg in grid.items():
             child = json.loads((out_dir / name / "summary.json").read_text())
             with mlf.start_run(run_name=name, nested=True):
@@ -121,7 +123,7 @@ def log_ablations(mlf, done: dict, out_dir: Path, grid: dict, *, nested: bool = 
                                  "seconds": child["seconds"]})
                 mlf.log_artifact(str(out_dir / name / "tables.csv"))
                 mlf.log_dict(to_dict(cfg), "config.json")
-        mlf.log_artifact(str(out_dir / "results.csv"), "ablations")
+        mlf.log_artifact(str(out_dir / "results.csv"), folder)
 
 
 def log_replication(mlf, paths: RunPaths, done: dict) -> None:

@@ -12,6 +12,7 @@ from talkingface.experiment_log import log_ablations, log_replication, log_train
 from talkingface.paths import RunPaths
 from talkingface.stages import REPLICATION, preflight, prepare_run, run
 from talkingface.stages.ablations import grid_path, load_grid
+from talkingface.stages.ceiling import grid_path as ceiling_grid_path, load_ceiling_grid
 
 
 def open_run(name: str, cfg, stages, *, overwrite: bool = False, runs_dir="runs",
@@ -37,6 +38,10 @@ def replicate(name: str, cfg, *, overwrite: bool = False, runs_dir="runs",
             if "ablations" in done:
                 log_ablations(mlf, done["ablations"], paths.ablations,
                               load_grid(grid_path(cfg), cfg))
+            if "ceiling" in done:
+                log_ablations(mlf, done["ceiling"], paths.stage("ceiling"),
+                              load_ceiling_grid(ceiling_grid_path(cfg), cfg), stage="ceiling",
+                              folder="ceiling")
             log_replication(mlf, paths, done)
     return paths.pdf
 

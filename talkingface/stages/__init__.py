@@ -18,6 +18,8 @@ from talkingface.stages.speech_eval import evaluate_speech, set_files
 from talkingface.stages.study import (analyze, keep_real_participants, make_stimuli,
                                       simulate_participants)
 from talkingface.stages.ablations import ablate, grid_file, has_grid
+from talkingface.stages.ceiling import decompose, grid_file as ceiling_grid
+from talkingface.stages.ceiling import has_grid as has_ceiling
 from talkingface.stages.training import train
 from talkingface.stages.voices import grid_file as voices_grid, has_grid as has_voices
 from talkingface.stages.voices import train_voices
@@ -47,12 +49,15 @@ STAGES = {s.name: s for s in (
     Stage("analysis", analyze, config=("seed",), upstream=("study_data",)),
     Stage("ablations", ablate, config=("seed", "mapping", "ablations.grid"),
           upstream=_TRAINING_INPUTS, enabled=has_grid, files=grid_file),
+    Stage("ceiling", decompose, config=("seed", "synth", "units", "mapping", "ceiling.grid"),
+          speed_only=("synth.workers",), upstream=_TRAINING_INPUTS, enabled=has_ceiling,
+          files=ceiling_grid),
     Stage("report", build_report, always=True),
 )}
 
 REPLICATION = ("corpus", "units", "keyframes", "tracking", "tracked", "mapping", "voices",
                "speech_eval", "render", "stimuli", "study_data", "analysis", "ablations",
-               "report")
+               "ceiling", "report")
 
 
 def run(names, paths: RunPaths, cfg) -> dict:

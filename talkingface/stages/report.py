@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 
 from analysis.corpus_report import corpus_section, make_figures, summarize_corpus, units_section
-from analysis.mapping_report import mapping_section
+from analysis.mapping_report import ceiling_section, mapping_section
 from analysis.motion_report import motion_section
 from analysis.perception_report import perception_section
 from analysis.report import Report
@@ -37,6 +37,7 @@ def build_report(paths: RunPaths, cfg) -> dict:
     if mapping:
         ablations = paths.ablations / "results.csv"
         mapping_section(rep, mapping, paths.mapping, ablations if ablations.is_file() else None)
+        ceiling_section(rep, paths.stage("ceiling"))
     voices = read_done(paths.stage("voices"))
     speech_section(rep, paths.stage("speech_eval"), read_results(paths),
                    table_ii_R=_table_ii_R(mapping, cfg.mapping.method), default_model=(voices or {}).get("model"))

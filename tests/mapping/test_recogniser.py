@@ -304,3 +304,19 @@ def test_phone_input_trained_on_labels_needs_no_recognition_and_learns_the_label
         err += float(((pred - d.mups) ** 2).sum())
         base += float(((mean - d.mups) ** 2).sum())
     assert err < 0.5 * base, (err, base)
+
+
+def test_the_oracle_reads_the_labelled_phones_and_refuses_audio(small_corpus):
+    """``gate_front_end="labels"`` (the ceiling's oracle): training and estimation read the
+    corpus's phone labels; animating audio is refused with the reason."""
+    t = train_small(small_corpus, gate_front_end="labels", mlp_input="phones",
+                    min_class_frames=5)
+    m, d = t.mapping.mapper, t.data[0]
+    assert d.recognised is None  # no recogniser ran
+    np.testing.assert_array_equal(m.utterance_phones(d), label_windows(d.phones, 3, 3))
+    np.testing.assert_array_equal(m.gate_classes(d.features, m.utterance_phones(d)),
+                                  m.group_of_phone_[d.phones])
+    assert t.result.gate["neutral_test"] == 1.0  # the gate is the labels themselves
+    with pytest.raises(ParameterError, match="this mapping is an oracle .* cannot animate "
+                                             "audio"):
+        t.mapping.predict_audio(small_corpus.utterances[0].audio, SR)

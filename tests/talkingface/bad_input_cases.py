@@ -23,7 +23,8 @@ import numpy as np
 
 TINY = ["--set", "synth.n_sentences=3", "--set", "synth.workers=2", "--set", "mlflow.enabled=false"]
 QUICK = [*TINY, "--set", "mapping.baselines=[linear]", "--set", "mapping.train.max_epochs=20",
-         "--set", "study.n_participants=4", "--set", "voices.grid=none", "--ablations", "none"]
+         "--set", "study.n_participants=4", "--set", "voices.grid=none",
+         "--set", "ceiling.grid=none", "--ablations", "none"]
 RUN = QUICK[:-2]  # the run's settings, for the commands without --ablations
 
 TFMAP = "runs/R/mapping/gated_mlp_utterance.tfmap"  # the run's own model (never damaged)

@@ -10,7 +10,18 @@ from talkingface.cli import main
 TINY = ["--set", "synth.n_sentences=3", "--set", "synth.workers=2"]
 # for the tests of the pipeline's bookkeeping, not of its figures: less training
 QUICK = ["--set", "mapping.baselines=[linear]", "--set", "mapping.train.max_epochs=20"]
-SOLO = ["--ablations", "none", "--voices", "none"]  # no ablations, no voice-robust models
+# no ablations, no voice-robust models, no ceiling decomposition
+# three ceiling steps, small: the run's, one nuisance off (its own corpus), the oracle
+CEILING_GRID = """base:
+  mapping.splits: [random_frames, utterance]
+  mapping.baselines: []
+  mapping.train.max_epochs: 40
+children:
+  ours: {}
+  no-brow-motion: {synth.brow_px: 0}
+  oracle: {mapping.gate_front_end: labels, mapping.mlp_input: phones}
+"""
+SOLO = ["--ablations", "none", "--voices", "none", "--set", "ceiling.grid=none"]
 # two voice-robust configurations, small: the run's voice, and three engines with CMVN
 VOICES_GRID = """model: many
 base:
@@ -37,8 +48,9 @@ def pdf_text(path) -> str:
 
 def test_replicate_writes_runs_report_and_mlflow(workdir, capsys):
     (workdir / "voices.yaml").write_text(VOICES_GRID)
+    (workdir / "ceiling.yaml").write_text(CEILING_GRID)
     assert main(["replicate", "--name", "tiny", *TINY, "--ablations", "none",
-                 "--voices", "voices.yaml"]) == 0
+                 "--voices", "voices.yaml", "--set", "ceiling.grid=ceiling.yaml"]) == 0
     run = workdir / "runs" / "tiny"
     for p in ("config.yaml", "corpus/manifest.csv", "corpus/done.json", "units/motion_units.npz",
               "units/variance.csv", "report/summary.json", "report/mu_variance.png"):
@@ -76,6 +88,19 @@ def test_replicate_writes_runs_report_and_mlflow(workdir, capsys):
     # the UI opens the experiment on its training runs, not on its GenAI pages
     tags = mlflow.get_experiment_by_name("talkingface").tags
     assert tags["mlflow.experimentKind"] == "custom_model_development"
+    # the ceiling steps: a parent run with one child per step; a step that changes synth has
+    # its own corpus; the report's section has every step and the paper's value
+    parent = next(c for c in runs if c.data.tags.get("stage") == "ceiling")
+    steps = {c.data.tags.get("ablation.setting") for c in runs
+             if c.data.tags.get("mlflow.parentRunId") == parent.info.run_id}
+    assert steps == {"ours", "no-brow-motion", "oracle"}
+    with open(run / "ceiling" / "results.csv", newline="") as f:
+        ceiling = {row["step"]: row for row in csv.DictReader(f)}
+    assert ceiling["ours"]["corpus"] == ceiling["oracle"]["corpus"] == "the run's"
+    own = run / "ceiling" / ceiling["no-brow-motion"]["corpus"]
+    assert json.loads((own / "corpus.json").read_text())["settings"]["brow_px"] == 0
+    assert "synth.brow_px=0" in ceiling["no-brow-motion"]["changes"]
+    assert "Where Table II stands" in text and "no-brow-motion" in text and "0.968" in text
     assert r.data.params["synth.n_sentences"] == "3"
     assert r.data.metrics["corpus.n_utterances"] == 9
     assert abs(r.data.metrics["units.explained.neutral"]

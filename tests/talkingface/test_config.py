@@ -194,6 +194,7 @@ BAD_VALUES = [
     ("study.audio_backend=pulse", "'pulse'"),
     ("ablations.workers=-1", "-1"),
     ("voices.workers=-1", "-1"),
+    ("ceiling.workers=-2", "-2"),
 ]
 
 

@@ -1,0 +1,151 @@
+"""Where Table II stands (issue 13, part 4): the ``ceiling`` stage.
+
+Our test R on the utterance split is far below the paper's 0.968. This stage measures why, one
+step at a time, each a child of the grid ``ceiling.grid`` (by default ``configs/ceiling.yaml``,
+the form of the ablation grid, :func:`talkingface.stages.ablations.load_grid`): the run's own
+setting, then each nuisance of the corpus switched off in turn (brow motion, marker noise, head
+motion, the randomness of the expressions' onset and intensity), all of them together, and
+the oracle that reads the true phones and their timing instead of the audio
+(``mapping.gate_front_end: labels``): the ceiling of any audio model on that corpus.
+
+A child that changes ``synth`` gets a corpus of its own (the run's seed and sentences, its
+nuisances) and Motion Units fitted on it, as a replication would; the others train on the run's
+corpus and Motion Units. Each child trains only ``mapping.method`` on the paper's frame split and
+the utterance split (:func:`talkingface.stages.ablations.run_child`).
+
+Files (``runs/<name>/ceiling/``)::
+
+    <child>/          its tables.csv, summary.json, model
+    corpora/<k>/      the corpora and Motion Units of the children that change synth
+    results.csv       per child: what it changes, test R on both splits, MSE, LVE, closure
+    ceiling.png       the steps as bars from our R to the oracle, the paper's value beside them
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from analysis.metrics import PAPER_TABLES
+from data_synth.generate import synthesize_corpus
+from face_model.errors import ParameterError
+from talkingface.config import flatten
+from talkingface.paths import RunPaths
+from talkingface.stages.ablations import child_metrics, load_grid, resolve_grid, run_children
+from talkingface.stages.base import write_csv
+from talkingface.stages.foundation import fit_units_folder
+from talkingface.stages.motion import training_corpus
+
+DEFAULT_GRID = Path(__file__).resolve().parents[2] / "configs" / "ceiling.yaml"
+WHAT = "ceiling grid"
+PAPER_TEST_R = sum(v[0] for v in PAPER_TABLES["test"].values()) / len(PAPER_TABLES["test"])
+
+
+def grid_path(cfg) -> Path | None:
+    """The grid file of ``ceiling.grid`` (None: no decomposition)."""
+    return resolve_grid(cfg.ceiling.grid, DEFAULT_GRID)
+
+
+def has_grid(cfg) -> bool:
+    return grid_path(cfg) is not None
+
+
+def load_ceiling_grid(path, cfg) -> dict:
+    """``{child: Config}``; a child may not change the seed or the Motion Units' settings (every
+    step is the run's replication with its own corpus)."""
+    children = load_grid(path, cfg, what=WHAT)
+    for name, child in children.items():
+        if child.seed != cfg.seed or child.units != cfg.units:
+            raise ParameterError(f"{path}: child {name!r} changes the seed or the Motion Units' "
+                                 "settings; set these for the whole run")
+    return children
+
+
+def grid_file(paths: RunPaths, cfg) -> list:
+    """The grid file (its contents join the stage's key); refused here when malformed."""
+    if not has_grid(cfg):
+        return []
+    if not grid_path(cfg).is_file():
+        raise ParameterError(f"{WHAT} {grid_path(cfg)} not found (ceiling.grid: default, none "
+                             "or a grid file)")
+    load_ceiling_grid(grid_path(cfg), cfg)
+    return [grid_path(cfg)]
+
+
+def _changes(child, cfg) -> str:
+    """The settings a child changes from the run's, as ``key=value`` text."""
+    ours, theirs = flatten(cfg), flatten(child)
+    return "; ".join(f"{k}={theirs[k]}" for k in theirs
+                     if theirs[k] != ours.get(k) and not k.startswith("mapping.splits")
+                     and not k.startswith("mapping.baselines")) or "(the run's setting)"
+
+
+def _inputs(children: dict, cfg, paths: RunPaths, out: Path) -> dict:
+    """Child → (corpus folder, Motion Units file): the run's, or a corpus and units of its own
+    built under ``out`` (once for every child with the same synth settings)."""
+    built: list = []  # [(synth, corpus folder, units file)]
+    where = {}
+    for name, child in children.items():
+        if child.synth == cfg.synth:
+            where[name] = (training_corpus(paths, cfg), paths.units_model)
+            continue
+        hit = next(((c, u) for s, c, u in built if s == child.synth), None)
+        if hit is None:
+            folder = out / str(len(built))
+            synthesize_corpus(folder / "corpus", child.synth, cfg.seed)
+            fit_units_folder(folder / "corpus", folder / "units", child)
+            hit = (folder / "corpus", folder / "units" / "motion_units.npz")
+            built.append((child.synth, *hit))
+        where[name] = hit
+    return where
+
+
+def decompose(paths: RunPaths, cfg) -> dict:
+    """Every step of the ceiling grid trained and measured (stage ``ceiling``)."""
+    children = load_ceiling_grid(grid_path(cfg), cfg)
+    out = paths.stage("ceiling")
+    out.mkdir(parents=True, exist_ok=True)
+    inputs = _inputs(children, cfg, paths, out / "corpora")
+    results = run_children({n: (*inputs[n], c) for n, c in children.items()}, out,
+                           workers=cfg.ceiling.workers, desc="ceiling steps")
+    rows = []
+    for name, child in children.items():
+        m = child.mapping
+        metrics = child_metrics(results[name]["summary"], m.method)
+        row = {"step": name, "changes": _changes(child, cfg), "method": m.method,
+               "gate_front_end": m.gate_front_end,
+               "corpus": ("the run's" if child.synth == cfg.synth
+                          else str(Path(inputs[name][0]).relative_to(out)))}
+        for split in ("utterance", "random_frames"):
+            for k in ("R", "MSE", "LVE", "closure"):
+                row[f"{split}_{k}"] = metrics.get(f"{split}.mean_test_{k}", float("nan"))
+        row["seconds"] = round(results[name]["seconds"], 1)
+        rows.append(row)
+    write_csv(out / "results.csv", rows)
+    ceiling_figure(rows, out / "ceiling.png")
+    return {"grid": str(grid_path(cfg)), "children": list(children), "rows": rows}
+
+
+def ceiling_figure(rows: list[dict], path: Path) -> Path:
+    """Test R of every step on both splits as bars, the paper's mean test R as a line."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    x = np.arange(len(rows))
+    fig, ax = plt.subplots(figsize=(10, 3.8))
+    for dx, split, label in ((-0.2, "utterance", "utterance split"),
+                             (0.2, "random_frames", "frame split (the paper's)")):
+        ax.bar(x + dx, [float(r[f"{split}_R"]) for r in rows], width=0.4, label=label)
+    ax.axhline(PAPER_TEST_R, color="k", linestyle="--",
+               label=f"paper, Table II ({PAPER_TEST_R:.3f})")
+    ax.set_xticks(x, [r["step"] for r in rows], rotation=20, ha="right", fontsize=8)
+    ax.set_ylabel("mean test R (Eq. 6)")
+    ax.set_ylim(0, 1.05)
+    ax.legend(fontsize=8, loc="lower right")
+    ax.set_title("From our Table II toward the ceiling: one measured step per bar")
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+    return path
