@@ -17,7 +17,7 @@ SR = 22050
 HOP = SR // 30
 
 
-@pytest.fixture(scope="module", params=[0, 1, 3])
+@pytest.fixture(scope="module", params=[0, 1, 2, 3, 4, 5])
 def causal(request, small_corpus):
     """A gated MLP with a right-aligned window and ``forward`` frames of look-ahead."""
     t = train_small(small_corpus, context_forward=request.param, window_align="right")
