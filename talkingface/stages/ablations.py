@@ -249,15 +249,22 @@ def has_grid(cfg) -> bool:
     return grid_path(cfg) is not None
 
 
-def grid_file(paths: RunPaths, cfg) -> list:
-    """The grid file (its contents join the stage's key)."""
-    if not has_grid(cfg):
+def checked_grid(path: Path | None, cfg, *, what: str, setting: str, load=load_grid) -> list:
+    """``[path]`` of a grid stage's grid file (its contents join the stage's key), ``[]`` for no
+    grid; a missing or malformed grid (``load`` refuses it) is refused here, before the run is
+    touched."""
+    if path is None:
         return []
-    if not grid_path(cfg).is_file():
-        raise ParameterError(f"ablation grid {grid_path(cfg)} not found (ablations.grid: "
-                             "default, none or a grid file)")
-    load_grid(grid_path(cfg), cfg)  # a malformed grid is refused before the run is touched
-    return [grid_path(cfg)]
+    if not path.is_file():
+        raise ParameterError(f"{what} {path} not found ({setting}: default, none or a grid "
+                             "file)")
+    load(path, cfg)
+    return [path]
+
+
+def grid_file(paths: RunPaths, cfg) -> list:
+    """The ablation grid file (its contents join the stage's key)."""
+    return checked_grid(grid_path(cfg), cfg, what="ablation grid", setting="ablations.grid")
 
 
 def ablate(paths: RunPaths, cfg) -> dict:

@@ -31,7 +31,8 @@ from data_synth.generate import synthesize_corpus
 from face_model.errors import ParameterError
 from talkingface.config import flatten
 from talkingface.paths import RunPaths
-from talkingface.stages.ablations import child_metrics, load_grid, resolve_grid, run_children
+from talkingface.stages.ablations import (checked_grid, child_metrics, load_grid, resolve_grid,
+                                          run_children)
 from talkingface.stages.base import write_csv
 from talkingface.stages.foundation import fit_units_folder
 from talkingface.stages.motion import training_corpus
@@ -63,13 +64,8 @@ def load_ceiling_grid(path, cfg) -> dict:
 
 def grid_file(paths: RunPaths, cfg) -> list:
     """The grid file (its contents join the stage's key); refused here when malformed."""
-    if not has_grid(cfg):
-        return []
-    if not grid_path(cfg).is_file():
-        raise ParameterError(f"{WHAT} {grid_path(cfg)} not found (ceiling.grid: default, none "
-                             "or a grid file)")
-    load_ceiling_grid(grid_path(cfg), cfg)
-    return [grid_path(cfg)]
+    return checked_grid(grid_path(cfg), cfg, what=WHAT, setting="ceiling.grid",
+                        load=load_ceiling_grid)
 
 
 def _changes(child, cfg) -> str:
