@@ -401,7 +401,10 @@ class GatedMLP:
         """MUPs (n_frames, A0 + Ak) of one utterance from its raw features (n_frames, n_feat)
         (``phones``: the recognised phones, for the recogniser gate)."""
         self._check_fitted()
-        return self.predict_stacked(self.context_.transform(features), expression, phones)
+        # the phone-input MLPs read no MFCC: their context is not built
+        X = (np.zeros((len(features), 0), np.float32) if self.mlp_input == "phones"
+             else self.context_.transform(features))
+        return self.predict_stacked(X, expression, phones)
 
     def predict_stacked(self, X: np.ndarray, expression: str = "neutral",
                         phones=None) -> np.ndarray:
