@@ -47,9 +47,12 @@ DEFAULT_GRID = Path(__file__).resolve().parents[2] / "configs" / "ablations.yaml
 _CHILD_NAME = "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_.-"
 
 
-def load_grid(path, cfg, *, what: str = "ablation grid", extra_keys: tuple = ()) -> dict:
+def load_grid(path, cfg, *, what: str = "ablation grid", extra_keys: tuple = (),
+              shared_corpus: bool = True) -> dict:
     """``{child name: resolved Config}`` from a grid file, in file order. ``extra_keys``: other
-    top-level keys the caller reads itself (the voices grid's ``model``)."""
+    top-level keys the caller reads itself (the voices grid's ``model``). ``shared_corpus``: the
+    children train on the run's training corpus, so none may change the visual source or the
+    tracker (False: the caller builds each child's corpus, as the ceiling does)."""
     path = Path(path)
     if not path.is_file():
         raise ParameterError(f"{what} {path} not found")
@@ -80,7 +83,8 @@ def load_grid(path, cfg, *, what: str = "ablation grid", extra_keys: tuple = ())
             child = apply_overrides(apply_overrides(cfg, base), settings(name, d))
         except ParameterError as e:
             raise ParameterError(f"{path}: child {name!r}: {e}") from None
-        if child.mapping.visual_source != cfg.mapping.visual_source or child.tracker != cfg.tracker:
+        if shared_corpus and (child.mapping.visual_source != cfg.mapping.visual_source
+                              or child.tracker != cfg.tracker):
             raise ParameterError(f"{path}: child {name!r} changes the visual source or the "
                                  "tracker; the children share the run's training corpus, so set "
                                  "these for the whole run (--visual-source, --set tracker.…)")

@@ -6,17 +6,22 @@ the form of the ablation grid, :func:`talkingface.stages.ablations.load_grid`): 
 setting, then each nuisance of the corpus switched off in turn (brow motion, marker noise, head
 motion, the randomness of the expressions' onset and intensity), all of them together, and
 the oracle that reads the true phones and their timing instead of the audio
-(``mapping.gate_front_end: labels``): the ceiling of any audio model on that corpus.
+(``mapping.gate_front_end: labels``): the ceiling of any audio model on that corpus. One step
+goes the other way, toward the paper's data: ``tracked`` learns from the MUPs the MU-constrained
+tracker recovers from rendered video of the corpus (``mapping.visual_source: tracked``), as the
+paper's did, and is measured against them, as the paper's was.
 
 A child that changes ``synth`` gets a corpus of its own (the run's seed and sentences, its
-nuisances) and Motion Units fitted on it, as a replication would; the others train on the run's
-corpus and Motion Units. Each child trains only ``mapping.method`` on the paper's frame split and
+nuisances) and Motion Units fitted on it, as a replication would; a child that reads tracked MUPs
+gets a tracked copy of its corpus; the others train on the run's training corpus and Motion
+Units. Each child trains only ``mapping.method`` on the paper's frame split and
 the utterance split (:func:`talkingface.stages.ablations.run_child`).
 
 Files (``runs/<name>/ceiling/``)::
 
     <child>/          its tables.csv, summary.json, model
-    corpora/<k>/      the corpora and Motion Units of the children that change synth
+    corpora/<k>/      the corpora and Motion Units of the children that change synth, and the
+                      tracked copies (``tracked/``) of those that read tracked MUPs
     results.csv       per child: what it changes, test R on both splits, MSE, LVE, closure
     ceiling.png       the steps as bars from our R to the oracle, the paper's value beside them
 """
@@ -35,7 +40,7 @@ from talkingface.stages.ablations import (checked_grid, child_metrics, load_grid
                                           run_children)
 from talkingface.stages.base import write_csv
 from talkingface.stages.foundation import fit_units_folder
-from talkingface.stages.motion import training_corpus
+from talkingface.stages.motion import track_folder, training_corpus, uses_tracked_corpus
 
 DEFAULT_GRID = Path(__file__).resolve().parents[2] / "configs" / "ceiling.yaml"
 WHAT = "ceiling grid"
@@ -54,7 +59,7 @@ def has_grid(cfg) -> bool:
 def load_ceiling_grid(path, cfg) -> dict:
     """``{child: Config}``; a child may not change the seed or the Motion Units' settings (every
     step is the run's replication with its own corpus)."""
-    children = load_grid(path, cfg, what=WHAT)
+    children = load_grid(path, cfg, what=WHAT, shared_corpus=False)
     for name, child in children.items():
         if child.seed != cfg.seed or child.units != cfg.units:
             raise ParameterError(f"{path}: child {name!r} changes the seed or the Motion Units' "
@@ -77,22 +82,36 @@ def _changes(child, cfg) -> str:
 
 
 def _inputs(children: dict, cfg, paths: RunPaths, out: Path) -> dict:
-    """Child → (corpus folder, Motion Units file): the run's, or a corpus and units of its own
-    built under ``out`` (once for every child with the same synth settings)."""
-    built: list = []  # [(synth, corpus folder, units file)]
+    """Child → (corpus folder, Motion Units file): the run's training corpus, or one built under
+    ``out`` (once for every child with the same synth settings, visual source and tracker): the
+    corpus of the child's synth settings with Motion Units fitted on it, and when the child reads
+    tracked MUPs (``mapping.visual_source: tracked``) that corpus rendered as video and tracked."""
+    built: dict = {}  # synth → (corpus folder, units file); (synth, tracker) → tracked folder
     where = {}
     for name, child in children.items():
-        if child.synth == cfg.synth:
+        same_source = (child.mapping.visual_source == cfg.mapping.visual_source
+                       and child.tracker == cfg.tracker)
+        if child.synth == cfg.synth and same_source:
             where[name] = (training_corpus(paths, cfg), paths.units_model)
             continue
-        hit = next(((c, u) for s, c, u in built if s == child.synth), None)
-        if hit is None:
+        if child.synth == cfg.synth:
+            base = (paths.corpus, paths.units_model)
+        elif child.synth not in built:
             folder = out / str(len(built))
             synthesize_corpus(folder / "corpus", child.synth, cfg.seed)
             fit_units_folder(folder / "corpus", folder / "units", child)
-            hit = (folder / "corpus", folder / "units" / "motion_units.npz")
-            built.append((child.synth, *hit))
-        where[name] = hit
+            base = built[child.synth] = (folder / "corpus",
+                                         folder / "units" / "motion_units.npz")
+        else:
+            base = built[child.synth]
+        if not uses_tracked_corpus(child):
+            where[name] = base
+            continue
+        key = (child.synth, child.tracker)
+        if key not in built:
+            built[key] = out / str(len(built))
+            track_folder(base[0], base[1], built[key] / "tracked", child)
+        where[name] = (built[key] / "tracked", base[1])
     return where
 
 
@@ -110,7 +129,7 @@ def decompose(paths: RunPaths, cfg) -> dict:
         metrics = child_metrics(results[name]["summary"], m.method)
         row = {"step": name, "changes": _changes(child, cfg), "method": m.method,
                "gate_front_end": m.gate_front_end,
-               "corpus": ("the run's" if child.synth == cfg.synth
+               "corpus": ("the run's" if inputs[name][0] == training_corpus(paths, cfg)
                           else str(Path(inputs[name][0]).relative_to(out)))}
         for split in ("utterance", "random_frames"):
             for k in ("R", "MSE", "LVE", "closure"):

@@ -74,12 +74,18 @@ def uses_tracked_corpus(cfg) -> bool:
     return cfg.mapping.visual_source == "tracked"
 
 
+def track_folder(corpus_dir: Path, units_path: Path, out_dir: Path, cfg) -> dict:
+    """The corpus in ``corpus_dir`` rendered as marker video and tracked into ``out_dir`` with
+    the Motion Units of ``units_path``, under ``cfg.tracker``'s settings and ``cfg.seed``."""
+    t = cfg.tracker
+    return track_corpus(load_corpus(corpus_dir), MotionUnits.load(units_path), out_dir,
+                        noise_sd=t.corpus_noise_sd, init=t.init, seed=cfg.seed,
+                        workers=t.workers, progress=True, overwrite=True)
+
+
 def make_tracked_corpus(paths: RunPaths, cfg) -> dict:
     """The whole corpus rendered as marker video and tracked."""
-    t = cfg.tracker
-    return track_corpus(load_corpus(paths.corpus), MotionUnits.load(paths.units_model),
-                        paths.tracked, noise_sd=t.corpus_noise_sd, init=t.init, seed=cfg.seed,
-                        workers=t.workers, progress=True, overwrite=True)
+    return track_folder(paths.corpus, paths.units_model, paths.tracked, cfg)
 
 
 def training_corpus(paths: RunPaths, cfg) -> Path:

@@ -11,7 +11,8 @@ TINY = ["--set", "synth.n_sentences=3", "--set", "synth.workers=2"]
 # for the tests of the pipeline's bookkeeping, not of its figures: less training
 QUICK = ["--set", "mapping.baselines=[linear]", "--set", "mapping.train.max_epochs=20"]
 # no ablations, no voice-robust models, no ceiling decomposition
-# three ceiling steps, small: the run's, one nuisance off (its own corpus), the oracle
+# four ceiling steps, small: the run's, one nuisance off (its own corpus), the tracked MUPs
+# (a tracked copy of the run's corpus), the oracle
 CEILING_GRID = """base:
   mapping.splits: [random_frames, utterance]
   mapping.baselines: []
@@ -19,6 +20,7 @@ CEILING_GRID = """base:
 children:
   ours: {}
   no-brow-motion: {synth.brow_px: 0}
+  tracked: {mapping.visual_source: tracked}
   oracle: {mapping.gate_front_end: labels, mapping.mlp_input: phones}
 """
 SOLO = ["--ablations", "none", "--voices", "none", "--set", "ceiling.grid=none"]
@@ -93,13 +95,19 @@ def test_replicate_writes_runs_report_and_mlflow(workdir, capsys):
     parent = next(c for c in runs if c.data.tags.get("stage") == "ceiling")
     steps = {c.data.tags.get("ablation.setting") for c in runs
              if c.data.tags.get("mlflow.parentRunId") == parent.info.run_id}
-    assert steps == {"ours", "no-brow-motion", "oracle"}
+    assert steps == {"ours", "no-brow-motion", "tracked", "oracle"}
     with open(run / "ceiling" / "results.csv", newline="") as f:
         ceiling = {row["step"]: row for row in csv.DictReader(f)}
     assert ceiling["ours"]["corpus"] == ceiling["oracle"]["corpus"] == "the run's"
     own = run / "ceiling" / ceiling["no-brow-motion"]["corpus"]
     assert json.loads((own / "corpus.json").read_text())["settings"]["brow_px"] == 0
     assert "synth.brow_px=0" in ceiling["no-brow-motion"]["changes"]
+    tracked = run / "ceiling" / ceiling["tracked"]["corpus"]
+    assert tracked.name == "tracked" and "mapping.visual_source=tracked" in \
+        ceiling["tracked"]["changes"]
+    assert json.loads((tracked / "corpus.json").read_text())["source"] == "tracked"
+    with open(tracked / "tracking.csv", newline="") as f:
+        assert len(list(csv.DictReader(f))) == 9  # every utterance of the run's corpus tracked
     assert "Where Table II stands" in text and "no-brow-motion" in text and "0.968" in text
     assert r.data.params["synth.n_sentences"] == "3"
     assert r.data.metrics["corpus.n_utterances"] == 9
