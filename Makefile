@@ -1,10 +1,11 @@
-# talkingface: `make replicate` and `make test` do all set-up themselves (tools/setup.sh).
+# talkingface: `make replicate`, `make server` and `make test` do all set-up themselves
+# (tools/setup.sh: base mode; `server` adds PostgreSQL, `test` adds it and a headless browser).
 VENV ?= .venv
 PY := $(VENV)/bin/python
 NAME ?= paper
 JOBS ?= 2
 
-.PHONY: setup replicate test bench lock ui clean
+.PHONY: setup replicate test bench lock ui server clean
 
 setup:
 	@VENV=$(VENV) bash tools/setup.sh
@@ -13,7 +14,8 @@ replicate: setup
 	$(PY) -m talkingface replicate --name $(NAME) --config configs/paper.yaml $(ARGS)
 
 # pytest exits 5 when it collected no test: that is a failure here, with a message.
-test: setup
+test:
+	@VENV=$(VENV) bash tools/setup.sh test
 	@$(PY) -m pytest -n $(JOBS) -q $(ARGS); rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "make test: pytest collected no tests" >&2; exit 1; fi; exit $$rc
 
@@ -26,6 +28,11 @@ bench: setup
 
 ui: setup
 	$(PY) -m talkingface ui
+
+# The lab's tracking server (PostgreSQL + MLflow, data in ./mlflow-server); ARGS="--host ..." etc.
+server:
+	@VENV=$(VENV) bash tools/setup.sh server
+	$(PY) -m talkingface server $(ARGS)
 
 # Refresh the pinned lock file from requirements/base.in (maintainers only).
 lock:

@@ -20,7 +20,7 @@ from data_synth.generate import synthesize_corpus
 from face_model.atomic import check_output_file
 from face_model.corpus import load_corpus
 from face_model.errors import TalkingFaceError
-from talkingface import runs, study_cli
+from talkingface import runs, server_cli, study_cli
 from talkingface.animate import animate_file, stream_file, stream_microphone
 from talkingface.cli_args import config_args, resolve_config, run_args, visual_source_arg
 from talkingface.config import apply_overrides, dump_config, load_config
@@ -82,7 +82,21 @@ def _ablation_overrides(args) -> list[str]:
         out.append(f"ablations.workers={args.workers}")
     if getattr(args, "voices", None) is not None:
         out.append(f"voices.grid={args.voices}")
+    if getattr(args, "seeds", None) is not None:
+        out.append(f"ablations.seeds={args.seeds}")
+    if getattr(args, "scheduler", None) is not None:
+        out.append(f"cluster.scheduler={args.scheduler}")
     return out
+
+
+def _grid_args(s, workers_help: str) -> None:
+    """The options of the commands that train a grid: workers, seeds, the scheduler."""
+    s.add_argument("--workers", type=int, help=workers_help)
+    s.add_argument("--seeds", type=int, help="training seeds per ablation setting (default 3; "
+                   "same as --set ablations.seeds=N)")
+    s.add_argument("--scheduler", metavar="WHERE", help="where grid tasks run: local (a Dask "
+                   "LocalCluster, the default), processes (a process pool), or a running Dask "
+                   "scheduler tcp://HOST:8786 (same as --set cluster.scheduler=...)")
 
 
 def cmd_replicate(args) -> int:
@@ -284,7 +298,7 @@ def _run_commands(sub) -> None:
                    help="voice-robust models trained and scored on real speech ('none' to "
                         "skip; default: the project's configs/voices.yaml; same as --set "
                         "voices.grid=GRID)")
-    s.add_argument("--workers", type=int, help="processes for ablations (0: all cores)")
+    _grid_args(s, "worker processes for ablations (0: all cores)")
     s.set_defaults(func=cmd_replicate)
 
     s = sub.add_parser("train", help="train and evaluate the mapping and the baselines "
@@ -302,7 +316,7 @@ def _run_commands(sub) -> None:
     s = sub.add_parser("ablate", help="one MLflow child run per setting of an ablation grid")
     s.add_argument("--grid", required=True, type=Path, help="grid file, e.g. "
                    "configs/ablations.yaml")
-    s.add_argument("--workers", type=int, help="processes (0: all cores)")
+    _grid_args(s, "worker processes (0: all cores)")
     run_args(s, "run whose corpus and MUs are used")
     visual_source_arg(s)
     s.set_defaults(func=cmd_ablate)
@@ -383,6 +397,7 @@ def build_parser() -> argparse.ArgumentParser:
     _run_commands(sub)
     _face_commands(sub)
     study_cli.add_parser(sub)
+    server_cli.add_parser(sub)
     return p
 
 

@@ -4,7 +4,8 @@ Each package owns the dataclass of its settings — ``synth`` (:mod:`data_synth.
 ``units`` and ``tracker`` (:mod:`face_model.config`), ``mapping`` with its nested ``train``
 settings (:mod:`mapping.config`), ``study`` (:mod:`study.config`) — and this module adds the two
 that belong to the command line: ``mlflow`` (where runs are logged), ``ablations`` (the grid
-``replicate`` trains as child runs) and ``voices`` (the grid of voice-robust models). It composes, loads, validates and dumps them.
+``replicate`` trains as child runs, and its seeds), ``cluster`` (where grid tasks run),
+``ceiling`` (the steps toward the ceiling) and ``voices`` (the grid of voice-robust models). It composes, loads, validates and dumps them.
 
 ``configs/paper.yaml`` mirrors the defaults. A YAML file may set any subset of keys;
 ``--set section.key=value`` (or ``section.sub.key=value`` for a nested section) overrides single
@@ -56,9 +57,28 @@ class AblationConfig:
 
     grid: str = "default"  # default: configs/ablations.yaml of the project | none | a file
     workers: int = integer(0, ge=0)  # processes (0: all cores)
+    # training seeds per setting: replicate k trains with seed + 1000 k (its split, its model's
+    # initialisation and batches, its augmentation); the corpus stays the run's
+    seeds: int = integer(3, ge=1, le=100)
 
     def __post_init__(self):
         check_fields(self)
+
+
+@dataclass(frozen=True)
+class ClusterConfig:
+    """Where the grid stages' tasks run (:mod:`talkingface.executor`)."""
+
+    # local: a Dask LocalCluster on this machine | processes: a process pool (no Dask) |
+    # tcp://HOST:PORT: a running Dask scheduler
+    scheduler: str = "local"
+
+    def __post_init__(self):
+        check_fields(self)
+        require(self, "scheduler", self.scheduler in ("local", "processes")
+                or re.fullmatch(r"tcp://[^\s:/]+:\d{1,5}", self.scheduler) is not None,
+                "local (a Dask LocalCluster on this machine), processes (a process pool) or a "
+                "running Dask scheduler's address tcp://HOST:PORT")
 
 
 @dataclass(frozen=True)
@@ -68,6 +88,7 @@ class CeilingConfig:
 
     grid: str = "default"  # default: configs/ceiling.yaml of the project | none | a file
     workers: int = integer(0, ge=0)  # processes (0: all cores)
+    seeds: int = integer(1, ge=1, le=100)  # training seeds per step, as ablations.seeds
 
     def __post_init__(self):
         check_fields(self)
@@ -98,6 +119,7 @@ class Config:
     study: StudyConfig = field(default_factory=StudyConfig)
     mlflow: MlflowConfig = field(default_factory=MlflowConfig)
     ablations: AblationConfig = field(default_factory=AblationConfig)
+    cluster: ClusterConfig = field(default_factory=ClusterConfig)
     voices: VoicesConfig = field(default_factory=VoicesConfig)
     ceiling: CeilingConfig = field(default_factory=CeilingConfig)
 

@@ -9,14 +9,16 @@ from __future__ import annotations
 import json
 import logging
 import os
-from contextlib import contextmanager, nullcontext
+from contextlib import contextmanager
+from dataclasses import replace
 from pathlib import Path
 
 from analysis.evaluation import row_metrics
-from talkingface.config import flatten, to_dict
+from talkingface.config import flatten
 from talkingface.paths import RunPaths
 from talkingface.provenance import git_commit
-from talkingface.stages.ablations import child_metrics
+from talkingface.child_runs import ChildLog, logging_to
+from talkingface.stages.grid import log_child, replicate_folder, replicate_seed
 
 
 # The UI opens an experiment on its GenAI pages (traces, tokens) unless it is tagged as model
@@ -105,25 +107,62 @@ def log_train(mlf, summary: dict, out_dir: Path, cfg) -> None:
         log_mapping_model(mlf, out_dir / models[split], name="mapping")
 
 
-def log_ablations(mlf, done: dict, out_dir: Path, grid: dict, *, nested: bool = True,
-                  stage: str = "ablate", folder: str = "ablations") -> None:
+def _grid_parent(mlf, cfg, stage: str, folder: str, grid: Path, nested: bool) -> ChildLog:
+    """The parent run of a grid stage: a new child of the active run (``nested``) or the active
+    run itself, as a :class:`ChildLog` the stage's tasks log their child runs under."""
+    active = mlf.active_run()
+    exp = active.info.experiment_id
+    if nested:
+        client = mlf.tracking.MlflowClient()
+        pid = client.create_run(exp, run_name=f"{folder}:{grid.stem}", tags={
+            "mlflow.parentRunId": active.info.run_id, "stage": stage,
+            "grid": str(grid)}).info.run_id
+    else:
+        mlf.set_tags({"stage": stage, "grid": str(grid)})
+        pid = active.info.run_id
+    return ChildLog(tracking_uri(cfg), exp, pid)
+
+
+@contextmanager
+def grid_runs(mlf, cfg, grids: dict, *, nested: bool = True):
+    """Within the block the grid stages of ``grids`` (stage → (stage tag, results folder name,
+    grid file)) log their child runs under a parent run each (:mod:`talkingface.child_runs`);
+    yields ``{stage: ChildLog}`` (empty without MLflow). A nested parent of a stage that
+    failed is marked FAILED."""
+    if mlf is None:
+        yield {}
+        return
+    logs = {name: _grid_parent(mlf, cfg, tag, folder, grid, nested)
+            for name, (tag, folder, grid) in grids.items() if grid is not None}
+    try:
+        with logging_to(logs):
+            yield logs
+    except BaseException:
+        if nested:
+            client = mlf.tracking.MlflowClient()
+            for log in logs.values():
+                client.set_terminated(log.parent_run_id, "FAILED")
+        raise
+
+
+def log_ablations(mlf, log: ChildLog, out_dir: Path, grid: dict, *, seeds: int = 1,
+                  stage: str = "ablate", folder: str = "ablations", nested: bool = True) -> None:
     """A grid stage (the ablations, or the ceiling steps: ``stage`` tag, ``folder`` of its
-    results.csv) as MLflow runs: one child run per setting (``grid``: name → config) under a
-    parent, a new nested run of the active run (``nested``) or the active run itself."""
-    parent = (mlf.start_run(run_name=f"{folder}:{Path(done['grid']).stem}", nested=True)
-              if nested else nullcontext())
-    with parent:
-        mlf.set_tags({"stage": stage, "grid": done["grid"]})
-        for name, cfg in grid.items():
-            child = json.loads((out_dir / name / "summary.json").read_text())
-            with mlf.start_run(run_name=name, nested=True):
-                mlf.set_tags({"ablation.setting": name, "mapping.method": cfg.mapping.method})
-                mlf.log_params({k: str(v)[:500] for k, v in flatten(cfg).items()})
-                mlf.log_metrics({**child_metrics(child, cfg.mapping.method),
-                                 "seconds": child["seconds"]})
-                mlf.log_artifact(str(out_dir / name / "tables.csv"))
-                mlf.log_dict(to_dict(cfg), "config.json")
-        mlf.log_artifact(str(out_dir / "results.csv"), folder)
+    results.csv) under its parent run ``log``: every child and seed (``grid``: name → config)
+    that its task did not log yet (a reused stage, a task without MLflow) logged from its
+    folder, exactly once; the stage's tables on the parent, which is then finished."""
+    for name, cfg in grid.items():
+        for k in range(seeds):
+            ck = replace(cfg, seed=replicate_seed(cfg.seed, k))
+            where = replicate_folder(out_dir, name, ck.seed, k)
+            summary = json.loads((where / "summary.json").read_text())
+            log_child(log, stage, name, k, where, ck, summary)
+    client = mlf.tracking.MlflowClient()
+    for table in ("results.csv", "replicates.csv"):
+        if (out_dir / table).is_file():
+            client.log_artifact(log.parent_run_id, str(out_dir / table), folder)
+    if nested:
+        client.set_terminated(log.parent_run_id, "FINISHED")
 
 
 def log_replication(mlf, paths: RunPaths, done: dict) -> None:

@@ -8,10 +8,12 @@ written here and in :mod:`talkingface.experiment_log`, nowhere below.
 from __future__ import annotations
 
 from face_model.errors import ParameterError
-from talkingface.experiment_log import log_ablations, log_replication, log_train, mlflow_run
+from talkingface.experiment_log import (grid_runs, log_ablations, log_replication, log_train,
+                                        mlflow_run)
 from talkingface.paths import RunPaths
 from talkingface.stages import REPLICATION, preflight, prepare_run, run
-from talkingface.stages.ablations import grid_path, load_grid
+from talkingface.stages.ablations import grid_path
+from talkingface.stages.grid import load_grid
 from talkingface.stages.ceiling import grid_path as ceiling_grid_path, load_ceiling_grid
 
 
@@ -31,17 +33,20 @@ def replicate(name: str, cfg, *, overwrite: bool = False, runs_dir="runs",
     metrics and pyfunc model, the ablations as child runs). Returns the PDF's path."""
     paths = open_run(name, cfg, REPLICATION, overwrite=overwrite, runs_dir=runs_dir,
                      reports_dir=reports_dir)
+    grids = {"ablations": ("ablate", "ablations", grid_path(cfg)),
+             "ceiling": ("ceiling", "ceiling", ceiling_grid_path(cfg))}
     with mlflow_run(cfg, run_name=name, tags={"stage": "replicate"}) as mlf:
-        done = run(REPLICATION, paths, cfg)
+        with grid_runs(mlf, cfg, grids) as logs:
+            done = run(REPLICATION, paths, cfg)
         if mlf is not None:
             log_train(mlf, done["mapping"], paths.mapping, cfg)
             if "ablations" in done:
-                log_ablations(mlf, done["ablations"], paths.ablations,
-                              load_grid(grid_path(cfg), cfg))
+                log_ablations(mlf, logs["ablations"], paths.ablations,
+                              load_grid(grid_path(cfg), cfg), seeds=cfg.ablations.seeds)
             if "ceiling" in done:
-                log_ablations(mlf, done["ceiling"], paths.stage("ceiling"),
-                              load_ceiling_grid(ceiling_grid_path(cfg), cfg), stage="ceiling",
-                              folder="ceiling")
+                log_ablations(mlf, logs["ceiling"], paths.stage("ceiling"),
+                              load_ceiling_grid(ceiling_grid_path(cfg), cfg),
+                              seeds=cfg.ceiling.seeds, stage="ceiling", folder="ceiling")
             log_replication(mlf, paths, done)
     return paths.pdf
 
@@ -72,9 +77,12 @@ def ablate(name: str, cfg, *, overwrite: bool = False) -> dict:
     paths = open_run(name, cfg, ["ablations"], overwrite=overwrite)
     with mlflow_run(cfg, run_name=f"ablate:{grid.stem}",
                     tags={"stage": "ablate", "grid": str(grid)}) as mlf:
-        done = run(["ablations"], paths, cfg)["ablations"]
+        with grid_runs(mlf, cfg, {"ablations": ("ablate", "ablations", grid)},
+                       nested=False) as logs:
+            done = run(["ablations"], paths, cfg)["ablations"]
         if mlf is not None:
-            log_ablations(mlf, done, paths.ablations, load_grid(grid, cfg), nested=False)
+            log_ablations(mlf, logs["ablations"], paths.ablations, load_grid(grid, cfg),
+                          seeds=cfg.ablations.seeds, nested=False)
     return done
 
 

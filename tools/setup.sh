@@ -1,11 +1,26 @@
 #!/usr/bin/env bash
-# Everything `make replicate` and `make test` need, on a fresh Debian/Ubuntu machine:
-# missing Debian packages (apt-get, with sudo when not root), a .venv, and the pinned Python
-# packages (torch==2.13.0 through requirements/constraints.txt, the rest from requirements/lock.txt).
-# Re-running is cheap: the venv is rebuilt only when the lock file or pyproject changes.
+# Everything `make replicate`, `make server` and `make test` need, on a fresh Debian/Ubuntu
+# machine: missing Debian packages (apt-get, with sudo when not root), a .venv, and the pinned
+# Python packages (torch==2.13.0 through requirements/constraints.txt, the rest from
+# requirements/lock.txt).
+#
+#   bash tools/setup.sh          base: what the replication needs (`make replicate`)
+#   bash tools/setup.sh server   base + the lab's tracking server (`make server`): Debian
+#                                postgresql, and requirements/lab.txt (psycopg 3)
+#   bash tools/setup.sh test     base + server + what the tests need (`make test`): Debian chromium
+#                                and chromium-driver, and requirements/lab.txt (selenium)
+#
+# Re-running is cheap: the venv is rebuilt only when the lock file or pyproject changes, and the
+# lab's extras are reinstalled only when requirements/lab.txt (or what it is pinned against) does
+# (one stamp file each in the venv).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
+MODE=${1:-base}
+case "$MODE" in
+  base|server|test) ;;
+  *) echo "setup: unknown mode '$MODE'; allowed: base (the default), server, test" >&2; exit 2;;
+esac
 VENV=${VENV:-.venv}
 PY=${PYTHON:-python3}
 # Debian packages: Python with venv and pip; flite (the optional second speech backend and its
@@ -18,6 +33,10 @@ PY=${PYTHON:-python3}
 DEB_PKGS="python3 python3-venv python3-pip flite festival festlex-cmu festlex-poslex
   festvox-kallpc16k festvox-kdlpc16k festvox-us-slt-hts libgl1 ffmpeg libportaudio2
   libjack-jackd2-0 xvfb xauth"
+# server and test: postgresql (the lab's tracking server keeps its runs in it: `talkingface server`).
+# test: chromium and chromium-driver (the MLflow UI opened in a real, headless browser).
+if [ "$MODE" != base ]; then DEB_PKGS="$DEB_PKGS postgresql"; fi
+if [ "$MODE" = test ]; then DEB_PKGS="$DEB_PKGS chromium chromium-driver"; fi
 
 missing=()
 for p in $DEB_PKGS; do
@@ -43,14 +62,27 @@ PYV
 
 STAMP="$VENV/.talkingface-installed"
 want=$(cat requirements/lock.txt requirements/constraints.txt pyproject.toml | sha256sum | cut -d' ' -f1)
-if [ -f "$STAMP" ] && [ "$(cat "$STAMP")" = "$want" ]; then
-  exit 0
+if [ ! -f "$STAMP" ] || [ "$(cat "$STAMP")" != "$want" ]; then
+  [ -x "$VENV/bin/python" ] || "$PY" -m venv "$VENV"
+  "$VENV/bin/python" -m pip install -q --upgrade pip
+  # torch first, from its pin, so nothing can pull a CUDA build.
+  "$VENV/bin/python" -m pip install -q -c requirements/constraints.txt "torch==2.13.0"
+  "$VENV/bin/python" -m pip install -q -c requirements/constraints.txt -r requirements/lock.txt
+  "$VENV/bin/python" -m pip install -q --no-deps -e .
+  echo "$want" > "$STAMP"
+  echo "setup: $VENV ready"
 fi
-[ -x "$VENV/bin/python" ] || "$PY" -m venv "$VENV"
-"$VENV/bin/python" -m pip install -q --upgrade pip
-# torch first, from its pin, so nothing can pull a CUDA build.
-"$VENV/bin/python" -m pip install -q -c requirements/constraints.txt "torch==2.13.0"
-"$VENV/bin/python" -m pip install -q -c requirements/constraints.txt -r requirements/lock.txt
-"$VENV/bin/python" -m pip install -q --no-deps -e .
-echo "$want" > "$STAMP"
-echo "setup: $VENV ready"
+
+# The lab's extras (server and test modes), pinned against the lock file: what they share with
+# it stays at the lock's versions.
+if [ "$MODE" != base ]; then
+  LAB_STAMP="$VENV/.talkingface-lab-installed"
+  want_lab=$(cat requirements/lab.txt requirements/lock.txt requirements/constraints.txt \
+    | sha256sum | cut -d' ' -f1)
+  if [ ! -f "$LAB_STAMP" ] || [ "$(cat "$LAB_STAMP")" != "$want_lab" ]; then
+    "$VENV/bin/python" -m pip install -q -c requirements/constraints.txt \
+      -c requirements/lock.txt -r requirements/lab.txt
+    echo "$want_lab" > "$LAB_STAMP"
+    echo "setup: the lab's extras (requirements/lab.txt) ready in $VENV"
+  fi
+fi

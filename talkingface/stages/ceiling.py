@@ -2,7 +2,7 @@
 
 Our test R on the utterance split is far below the paper's 0.968. This stage measures why, one
 step at a time, each a child of the grid ``ceiling.grid`` (by default ``configs/ceiling.yaml``,
-the form of the ablation grid, :func:`talkingface.stages.ablations.load_grid`): the run's own
+the form of the ablation grid, :func:`talkingface.stages.grid.load_grid`): the run's own
 setting, then each nuisance of the corpus switched off in turn (brow motion, marker noise, head
 motion, the randomness of the expressions' onset and intensity), all of them together, and
 the oracle that reads the true phones and their timing instead of the audio
@@ -15,7 +15,10 @@ A child that changes ``synth`` gets a corpus of its own (the run's seed and sent
 nuisances) and Motion Units fitted on it, as a replication would; a child that reads tracked MUPs
 gets a tracked copy of its corpus; the others train on the run's training corpus and Motion
 Units. Each child trains only ``mapping.method`` on the paper's frame split and
-the utterance split (:func:`talkingface.stages.ablations.run_child`).
+the utterance split (:func:`talkingface.stages.grid.run_child`), with ``ceiling.seeds``
+seeds; ``results.csv`` has their means, the 95 % interval of R and the paired test against the
+first step (:func:`talkingface.stages.ablations.summarise_replicates`), ``replicates.csv`` each
+seed's figures.
 
 Files (``runs/<name>/ceiling/``)::
 
@@ -36,8 +39,10 @@ from data_synth.generate import synthesize_corpus
 from face_model.errors import ParameterError
 from talkingface.config import flatten
 from talkingface.paths import RunPaths
-from talkingface.stages.ablations import (checked_grid, child_metrics, load_grid, resolve_grid,
-                                          run_children)
+from talkingface.child_runs import log_for
+from talkingface.stages.ablations import summarise_replicates
+from talkingface.stages.grid import (checked_grid, child_metrics, load_grid, resolve_grid,
+                                     run_grid)
 from talkingface.stages.base import write_csv
 from talkingface.stages.foundation import fit_units_folder
 from talkingface.stages.motion import track_folder, training_corpus, uses_tracked_corpus
@@ -121,21 +126,27 @@ def decompose(paths: RunPaths, cfg) -> dict:
     out = paths.stage("ceiling")
     out.mkdir(parents=True, exist_ok=True)
     inputs = _inputs(children, cfg, paths, out / "corpora")
-    results = run_children({n: (*inputs[n], c) for n, c in children.items()}, out,
-                           workers=cfg.ceiling.workers, desc="ceiling steps")
-    rows = []
-    for name, child in children.items():
+    results = run_grid({n: (*inputs[n], c) for n, c in children.items()}, out,
+                       seeds=cfg.ceiling.seeds, scheduler=cfg.cluster.scheduler,
+                       workers=cfg.ceiling.workers, desc="ceiling steps",
+                       log=log_for("ceiling"), stage="ceiling")
+    run_corpus = training_corpus(paths, cfg)
+    reps = []
+    for (name, k), res in results.items():
+        child = children[name]
         m = child.mapping
-        metrics = child_metrics(results[name]["summary"], m.method)
+        metrics = child_metrics(res["summary"], m.method)
         row = {"step": name, "changes": _changes(child, cfg), "method": m.method,
                "gate_front_end": m.gate_front_end,
-               "corpus": ("the run's" if inputs[name][0] == training_corpus(paths, cfg)
+               "corpus": ("the run's" if inputs[name][0] == run_corpus
                           else str(Path(inputs[name][0]).relative_to(out)))}
         for split in ("utterance", "random_frames"):
-            for k in ("R", "MSE", "LVE", "closure"):
-                row[f"{split}_{k}"] = metrics.get(f"{split}.mean_test_{k}", float("nan"))
-        row["seconds"] = round(results[name]["seconds"], 1)
-        rows.append(row)
+            for key in ("R", "MSE", "LVE", "closure"):
+                row[f"{split}_{key}"] = metrics.get(f"{split}.mean_test_{key}", float("nan"))
+        row["seconds"] = round(res["seconds"], 1)
+        reps.append({**row, "replicate": k, "seed": res["seed"]})
+    write_csv(out / "replicates.csv", reps)
+    rows = summarise_replicates(reps, reference=next(iter(children)), key="step")
     write_csv(out / "results.csv", rows)
     ceiling_figure(rows, out / "ceiling.png")
     return {"grid": str(grid_path(cfg)), "children": list(children), "rows": rows}

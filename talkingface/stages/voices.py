@@ -1,7 +1,7 @@
 """The voice-robust models (issue 12): the ``voices`` stage.
 
 Its grid (``voices.grid``, by default ``configs/voices.yaml``) has the form of the ablation grid
-(:func:`talkingface.stages.ablations.load_grid`) plus ``model``, the child that ``animate``,
+(:func:`talkingface.stages.grid.load_grid`) plus ``model``, the child that ``animate``,
 ``stream`` and the study's synthetic face use by default. Every child trains the paper's mapping
 (its ``mapping.method``) on the run's Motion Units:
 
@@ -39,7 +39,7 @@ from mapping.dataset import build_dataset, split_masks
 from mapping.experiment import SPLIT_SEED_OFFSET, predict_utterance, recognise_context
 from talkingface.config import read_yaml
 from talkingface.paths import RunPaths
-from talkingface.stages.ablations import load_grid, resolve_grid, run_children
+from talkingface.stages.grid import load_grid, resolve_grid, run_children
 from talkingface.stages.base import read_done, write_csv
 from talkingface.stages.motion import training_corpus
 
@@ -123,7 +123,8 @@ def train_voices(paths: RunPaths, cfg) -> dict:
     corpora = _corpora(children, cfg, paths, out / "corpora")
     summaries = run_children({name: (corpora[name], paths.units_model, child)
                               for name, child in children.items()}, out,
-                             workers=cfg.voices.workers, desc="voice-robust models")
+                             scheduler=cfg.cluster.scheduler, workers=cfg.voices.workers,
+                             desc="voice-robust models")
     units = MotionUnits.load(paths.units_model)
     own_corpus = load_corpus(training_corpus(paths, cfg))
     own: dict = {}  # (n_mfcc, deltas) -> (data, masks, scale) of the run's corpus

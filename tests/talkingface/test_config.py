@@ -195,6 +195,11 @@ BAD_VALUES = [
     ("ablations.workers=-1", "-1"),
     ("voices.workers=-1", "-1"),
     ("ceiling.workers=-2", "-2"),
+    ("ablations.seeds=0", "0"),
+    ("ceiling.seeds=101", "101"),
+    ("cluster.scheduler=dask", "'dask'"),
+    ("cluster.scheduler=tcp://host", "'tcp://host'"),
+    ("cluster.scheduler=http://host:8786", "'http://host:8786'"),
 ]
 
 

@@ -114,27 +114,50 @@ def test_ablate_leaves_a_parent_run_with_one_child_per_setting(workdir, capsys):
                     "  baseline-linear: {mapping.method: linear}\n"
                     "  lookahead-gated-0: {mapping.context_forward: 0, "
                     "mapping.window_align: right}\n")
-    assert main(["ablate", "--grid", str(grid), "--name", "a", *TINY, "--workers", "2"]) == 0
+    assert main(["ablate", "--grid", str(grid), "--name", "a", *TINY, "--workers", "2",
+                 "--seeds", "2"]) == 0
     runs = mlflow.search_runs(experiment_names=["talkingface"], output_format="list")
     parents = [r for r in runs if r.data.tags.get("stage") == "ablate"]
     assert len(parents) == 1
     children = [r for r in runs if r.data.tags.get("mlflow.parentRunId") ==
                 parents[0].info.run_id]
-    assert sorted(r.data.tags["ablation.setting"] for r in children) == \
-        ["baseline-linear", "classes-1", "lookahead-gated-0", "paper"]
+    # one child run per setting and seed: replicate k trains with the run seed + 1000 k
+    assert sorted((r.data.tags["ablation.setting"], r.data.tags["ablation.seed"])
+                  for r in children) == sorted(
+        (s, str(seed)) for s in ("baseline-linear", "classes-1", "lookahead-gated-0", "paper")
+        for seed in (2002, 3002))
     for r in children:
+        assert r.info.status == "FINISHED" and r.data.params["seed"] == \
+            r.data.tags["ablation.seed"]
         assert "utterance.mean_test_R" in r.data.metrics
         assert "utterance.mean_test_LVE" in r.data.metrics
-    by = {r.data.tags["ablation.setting"]: r for r in children}
-    assert by["classes-1"].data.params["mapping.n_classes"] == "1"
-    assert by["baseline-linear"].data.params["mapping.method"] == "linear"
-    with open(workdir / "runs" / "a" / "ablations" / "results.csv", newline="") as f:
+    by = {(r.data.tags["ablation.setting"], int(r.data.tags["ablation.seed"])): r
+          for r in children}
+    assert by["classes-1", 2002].data.params["mapping.n_classes"] == "1"
+    assert by["baseline-linear", 3002].data.params["mapping.method"] == "linear"
+    ab = workdir / "runs" / "a" / "ablations"
+    with open(ab / "results.csv", newline="") as f:
         rows = list(csv.DictReader(f))
     assert [r["setting"] for r in rows] == ["paper", "classes-1", "baseline-linear",
                                             "lookahead-gated-0"]
+    from analysis.replicates import interval
+
     for r in rows:
+        seeds = [by[r["setting"], s].data.metrics["utterance.mean_test_R"] for s in (2002, 3002)]
+        mean, half = interval(seeds)
+        assert r["n_seeds"] == "2"
+        assert float(r["utterance_R"]) == pytest.approx(mean)
+        assert float(r["utterance_R_ci95"]) == pytest.approx(half)
+    assert rows[0]["utterance_R_differs"] == "reference"
+    assert {r["utterance_R_differs"] for r in rows[1:]} <= {"True", "False"}
+    # the seeds' own folders, and their figures row by row
+    assert (ab / "replicates" / "seed-3002" / "paper" / "summary.json").is_file()
+    with open(ab / "replicates.csv", newline="") as f:
+        reps = list(csv.DictReader(f))
+    assert len(reps) == 8
+    for r in reps:
         assert float(r["utterance_R"]) == pytest.approx(
-            by[r["setting"]].data.metrics["utterance.mean_test_R"])
+            by[r["setting"], int(r["seed"])].data.metrics["utterance.mean_test_R"])
     # one class means one MLP, so the gate is always right
     assert float(rows[1]["utterance_gate_acc"]) == 1.0
     # the look-ahead curve: the paper's 3 frames + the centred window's 275 samples at 22050 Hz,

@@ -1,0 +1,107 @@
+"""MLflow child runs of a grid stage, logged by the task that trained them, once each.
+
+A grid stage's tasks may run on other machines (:mod:`talkingface.executor`), so each task logs
+its own child run to the tracking server, under the stage's parent run. :class:`ChildLog` is all
+a task needs for that (the tracking URI, the experiment, the parent run), and it is picklable.
+
+A child run is keyed by its setting and seed (the tag ``ablation.key``). Logging is idempotent:
+a finished child run with the key is kept and not logged again (a task run twice, or a stage
+reused and logged from its files), and an unfinished one — left by a worker killed while it was
+logging — is deleted before the child is logged afresh. So a grid ends with exactly one child
+run per setting and seed, whatever died on the way.
+
+The stages learn their parent run from the entry point (:mod:`talkingface.runs`) through
+:func:`logging_to`; without one (MLflow disabled, or a stage run alone) :func:`log_for` gives
+``None`` and nothing is logged. This module imports MLflow only inside its functions.
+"""
+from __future__ import annotations
+
+import time
+from contextlib import contextmanager
+from contextvars import ContextVar
+from dataclasses import dataclass
+from pathlib import Path
+
+KEY_TAG = "ablation.key"
+_BATCH = 100  # MLflow takes at most 100 params or tags and 1000 metrics per batch
+_LOGS: ContextVar[dict] = ContextVar("child_logs", default={})
+
+
+def child_key(name: str, seed: int) -> str:
+    """The key of a grid child: its setting and its seed."""
+    return f"{name}/seed-{seed}"
+
+
+@dataclass(frozen=True)
+class ChildLog:
+    """Where a grid stage's tasks log their child runs: ``uri`` (the tracking URI every worker
+    reaches), ``experiment_id`` and ``parent_run_id``."""
+
+    uri: str
+    experiment_id: str
+    parent_run_id: str
+
+    def _client(self):
+        from mlflow.tracking import MlflowClient
+
+        return MlflowClient(self.uri)
+
+    def children(self) -> list:
+        """The parent's child runs that are not deleted (MLflow ``Run`` objects)."""
+        return self._client().search_runs(
+            [self.experiment_id], f"tags.mlflow.parentRunId = '{self.parent_run_id}'",
+            max_results=50000)
+
+    def log(self, name: str, seed: int, *, tags: dict, params: dict, metrics: dict,
+            files=(), config: dict | None = None) -> str:
+        """Log one child (setting ``name``, ``seed``) unless a finished child run with its key
+        is already there; returns the child's run id."""
+        from mlflow.entities import Metric, Param, RunTag
+
+        client, key = self._client(), child_key(name, seed)
+        found = client.search_runs(
+            [self.experiment_id], f"tags.mlflow.parentRunId = '{self.parent_run_id}' and "
+            f"tags.`{KEY_TAG}` = '{key}'")
+        keep = next((r.info.run_id for r in found if r.info.status == "FINISHED"), None)
+        for r in found:
+            if r.info.run_id != keep:
+                client.delete_run(r.info.run_id)  # half-logged (its worker died), or a twin
+        if keep is not None:
+            return keep
+        run = client.create_run(self.experiment_id, run_name=name, tags={
+            "mlflow.parentRunId": self.parent_run_id, KEY_TAG: key,
+            **{k: str(v) for k, v in tags.items()}})
+        rid, now = run.info.run_id, int(time.time() * 1000)
+        ps = [Param(k, str(v)[:500]) for k, v in params.items()]
+        ms = [Metric(k, float(v), now, 0) for k, v in metrics.items()]
+        for i in range(0, len(ps), _BATCH):
+            client.log_batch(rid, params=ps[i:i + _BATCH])
+        for i in range(0, len(ms), 10 * _BATCH):
+            client.log_batch(rid, metrics=ms[i:i + 10 * _BATCH])
+        for f in files:
+            client.log_artifact(rid, str(f))
+        if config is not None:
+            client.log_dict(rid, config, "config.json")
+        client.set_terminated(rid, "FINISHED")  # last: a run without it is half-logged
+        return rid
+
+
+@contextmanager
+def logging_to(logs: dict):
+    """Within the block, :func:`log_for` gives the stage's :class:`ChildLog` of ``logs``
+    (stage name → ChildLog)."""
+    token = _LOGS.set(dict(logs))
+    try:
+        yield
+    finally:
+        _LOGS.reset(token)
+
+
+def log_for(stage: str) -> ChildLog | None:
+    """The :class:`ChildLog` of ``stage`` set by the entry point, or None (nothing logged)."""
+    return _LOGS.get().get(stage)
+
+
+def artifact_files(folder: Path, names=("tables.csv",)) -> list[Path]:
+    """The files of a child's folder that its child run keeps as artifacts."""
+    return [folder / n for n in names if (folder / n).is_file()]

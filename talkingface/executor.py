@@ -1,0 +1,130 @@
+"""Where the grid stages' tasks run: Dask distributed, or a plain process pool.
+
+Every grid stage (the ablations, the ceiling steps, the voice-robust models, and each of their
+seed replicates) is a set of independent tasks. :func:`map_tasks` runs them on the scheduler
+named by ``cluster.scheduler``:
+
+``local`` (the default)
+    a Dask ``LocalCluster`` started for the stage on this machine: ``workers`` worker processes
+    (0: one per core), one thread each, no dashboard; closed when the stage ends.
+``tcp://HOST:PORT``
+    a running Dask scheduler (``dask scheduler`` and ``dask worker`` on a lab's machines, or a
+    dask-jobqueue cluster on SLURM/PBS: see the README). Its workers need the project installed,
+    the run folder on a shared file system, and a tracking server all of them reach
+    (``mlflow.uri``), since they log their child runs themselves.
+``processes``
+    a ``concurrent.futures`` process pool (spawned processes, one torch thread each): the
+    executor without Dask, whose results a test compares with Dask's.
+
+A task that dies with its worker is run again on another worker by the Dask scheduler (up to
+``distributed.scheduler.allowed-failures`` times); tasks are written to be run again safely
+(:func:`talkingface.stages.ablations.run_child` writes its folder under a temporary name and its
+MLflow child run is keyed by setting and seed). Every task runs with one torch and one BLAS
+thread: the parallelism is the workers'.
+"""
+from __future__ import annotations
+
+import multiprocessing
+import os
+import uuid
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from contextlib import contextmanager
+
+from tqdm import tqdm
+
+from face_model.errors import ParameterError
+
+SCHEDULERS = ("local", "processes")
+CONNECT_TIMEOUT_S = 10
+
+
+def check_scheduler(value: str) -> None:
+    """Refuse a ``cluster.scheduler`` that is neither a known name nor a ``tcp://`` address."""
+    if value in SCHEDULERS:
+        return
+    host, _, port = value.removeprefix("tcp://").rpartition(":")
+    if not value.startswith("tcp://") or not host or not port.isdigit() \
+            or not 1 <= int(port) <= 65535:
+        raise ParameterError(f"cluster.scheduler is {value!r}; allowed: local (a Dask "
+                             "LocalCluster on this machine), processes (a process pool), or a "
+                             "running Dask scheduler's address tcp://HOST:PORT")
+
+
+def limit_threads() -> None:
+    """One torch thread and one BLAS thread in this process (a grid task's worker)."""
+    import torch
+    from threadpoolctl import threadpool_limits
+
+    torch.set_num_threads(1)
+    threadpool_limits(1)
+
+
+def _call(fn, args):
+    limit_threads()
+    return fn(*args)
+
+
+@contextmanager
+def dask_client(scheduler: str, workers: int):
+    """A Dask client: of a ``LocalCluster`` started here (``scheduler == "local"``), closed
+    with it on exit, or of the running scheduler at ``tcp://HOST:PORT``."""
+    import logging
+
+    from distributed import Client, LocalCluster
+
+    if scheduler == "local":
+        n = workers or os.cpu_count() or 1
+        with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                          dashboard_address=None, silence_logs=logging.ERROR,
+                          env={"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
+                               "MKL_NUM_THREADS": "1"}) as cluster, Client(cluster) as client:
+            yield client
+        return
+    try:
+        client = Client(scheduler, timeout=f"{CONNECT_TIMEOUT_S}s")
+    except (OSError, TimeoutError) as exc:
+        raise ParameterError(f"cluster.scheduler {scheduler}: no Dask scheduler answered within "
+                             f"{CONNECT_TIMEOUT_S} s ({type(exc).__name__}); start one "
+                             "(`dask scheduler`) or use cluster.scheduler=local") from None
+    with client:
+        yield client
+
+
+def map_tasks(fn, tasks: dict, *, scheduler: str = "local", workers: int = 0,
+              desc: str = "tasks", progress: bool = True) -> dict:
+    """``{key: fn(*args)}`` for every ``key: args`` of ``tasks``, run on ``scheduler`` (see the
+    module text) with ``workers`` processes for ``local`` and ``processes`` (0: one per core).
+
+    ``fn`` must be importable by name (a module-level function) and its arguments picklable.
+    An exception raised by a task is raised here, after the other tasks have been cancelled.
+    """
+    check_scheduler(scheduler)
+    if not tasks:
+        return {}
+    bar = tqdm(total=len(tasks), desc=desc, unit="run", disable=not progress)
+    out = {}
+    try:
+        if scheduler == "processes":
+            n = min(workers or os.cpu_count() or 1, len(tasks))
+            ctx = multiprocessing.get_context("spawn")  # torch is not fork-safe
+            with ProcessPoolExecutor(max_workers=n, mp_context=ctx) as pool:
+                futs = {pool.submit(_call, fn, args): key for key, args in tasks.items()}
+                for fut in as_completed(futs):
+                    out[futs[fut]] = fut.result()
+                    bar.update()
+            return out
+        from distributed import as_completed as dask_completed
+
+        tag = uuid.uuid4().hex[:8]  # the keys of one call, unique on a shared scheduler
+        with dask_client(scheduler, min(workers or os.cpu_count() or 1, len(tasks))) as client:
+            futs = {client.submit(_call, fn, args, key=f"{desc}-{tag}-{i}", pure=False): key
+                    for i, (key, args) in enumerate(tasks.items())}
+            try:
+                for fut in dask_completed(futs):
+                    out[futs[fut]] = fut.result()
+                    bar.update()
+            finally:
+                client.cancel(list(futs))
+        return out
+    finally:
+        bar.close()

@@ -1,0 +1,218 @@
+"""A grid stage's machinery: its grid file, its tasks and their seed replicates.
+
+A grid file (``configs/ablations.yaml``, ``configs/ceiling.yaml``, ``configs/voices.yaml``)::
+
+    base:                  # settings applied to every child (optional)
+      mapping.splits: [utterance]
+    children:              # one child per entry: name → settings
+      paper: {}
+      classes-1: {mapping.n_classes: 1}
+
+Keys are ``section.key`` as for ``--set``; an unknown key is an error naming the grid file and the
+child (:func:`load_grid`).
+
+Each child is one task per seed (:func:`run_grid`), run where ``cluster.scheduler`` says
+(:mod:`talkingface.executor`). Replicate ``k`` of a child trains with the run seed plus
+``1000 k`` (:func:`replicate_seed`): its split (that seed + 17), its model's initialisation and
+batches, its augmentation (+ 31); the corpus is the run's. Replicate 0 is the run's own seed, so
+one seed gives exactly the single-run results. Folders::
+
+    <out>/<child>/                          replicate 0: tables.csv, summary.json, model
+    <out>/replicates/seed-<s>/<child>/      replicate k >= 1, trained with seed s
+
+A task writes its folder under ``<folder>.partial`` and renames it when complete, then logs its
+MLflow child run (keyed by setting and seed, :mod:`talkingface.child_runs`); a task run again
+after its worker died replaces the partial folder and finds or replaces its child run, so neither
+is ever doubled or left half-written.
+"""
+from __future__ import annotations
+
+import json
+import shutil
+import time
+import uuid
+from dataclasses import replace
+from pathlib import Path
+
+from analysis.evaluation import row_metrics
+from face_model.errors import ParameterError
+from talkingface.child_runs import artifact_files
+from talkingface.config import apply_overrides, flatten, parse_set, read_yaml, to_dict
+from talkingface.executor import map_tasks
+from talkingface.stages.training import train_and_evaluate
+
+_CHILD_NAME = "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_.-"
+RESERVED = ("corpora", "replicates")  # folders of a grid stage beside its children
+REPLICATE_SEED_STEP = 1000
+
+
+def load_grid(path, cfg, *, what: str = "ablation grid", extra_keys: tuple = (),
+              shared_corpus: bool = True) -> dict:
+    """``{child name: resolved Config}`` from a grid file, in file order. ``extra_keys``: other
+    top-level keys the caller reads itself (the voices grid's ``model``). ``shared_corpus``: the
+    children train on the run's training corpus, so none may change the visual source or the
+    tracker (False: the caller builds each child's corpus, as the ceiling does)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ParameterError(f"{what} {path} not found")
+    tree = read_yaml(path, what) or {}
+    if not isinstance(tree, dict) or not isinstance(tree.get("children"), dict) \
+            or not tree["children"]:
+        raise ParameterError(f"{path}: {what} needs a non-empty 'children' mapping "
+                             "(name → settings)")
+    unknown = set(tree) - {"base", "children", *extra_keys}
+    if unknown:
+        raise ParameterError(f"{path}: unknown top-level keys {sorted(unknown)}; allowed: "
+                             f"{', '.join(['base', 'children', *extra_keys])}")
+
+    def settings(where, d) -> dict:
+        if d is None:
+            return {}
+        if not isinstance(d, dict):
+            raise ParameterError(f"{path}: {where} must map section.key to a value, got {d!r}")
+        return parse_set([f"{k}={json.dumps(v)}" for k, v in d.items()])
+
+    base = settings("base", tree.get("base"))
+    out = {}
+    for name, d in tree["children"].items():
+        name = str(name)
+        if not name or any(ch not in _CHILD_NAME for ch in name) or name in RESERVED \
+                or name.endswith(".partial"):
+            raise ParameterError(f"{path}: child name {name!r} may use letters, digits, '_.-' "
+                                 f"(not {', '.join(RESERVED)}, nor ending in .partial)")
+        try:
+            child = apply_overrides(apply_overrides(cfg, base), settings(name, d))
+        except ParameterError as e:
+            raise ParameterError(f"{path}: child {name!r}: {e}") from None
+        if shared_corpus and (child.mapping.visual_source != cfg.mapping.visual_source
+                              or child.tracker != cfg.tracker):
+            raise ParameterError(f"{path}: child {name!r} changes the visual source or the "
+                                 "tracker; the children share the run's training corpus, so set "
+                                 "these for the whole run (--visual-source, --set tracker.…)")
+        out[name] = child
+    return out
+
+
+def child_metrics(summary: dict, method: str) -> dict:
+    """MLflow metrics of one child: ``<split>.<expression>.<part>.<metric>`` and means."""
+    out = {}
+    for r in summary["rows"]:
+        if r["method"] != method:
+            continue
+        out.update(row_metrics(r))
+    for split, rk in summary["ranking"].items():
+        for x in rk:
+            if x["method"] == method:
+                out[f"{split}.mean_test_R"] = x["R"]
+                out[f"{split}.mean_test_MSE"] = x["MSE"]
+                for k in ("LVE", "R_lips", "closure"):
+                    if k in x:
+                        out[f"{split}.mean_test_{k}"] = x[k]
+                out[f"{split}.fit_seconds"] = x["fit_seconds"]
+    for key, g in summary["gate"].items():
+        split = key.split("/")[1]
+        out.update({f"{split}.gate.{k}": v for k, v in g.items() if isinstance(v, float)})
+    return out
+
+
+def replicate_seed(seed: int, k: int) -> int:
+    """The training seed of replicate ``k`` of a run with seed ``seed``."""
+    return seed + REPLICATE_SEED_STEP * k
+
+
+def replicate_folder(out_dir: Path, name: str, seed: int, k: int) -> Path:
+    """The folder of replicate ``k`` (trained with ``seed``) of child ``name``."""
+    return out_dir / name if k == 0 else out_dir / "replicates" / f"seed-{seed}" / name
+
+
+def _replace_folder(src: Path, dst: Path) -> None:
+    """Put the complete folder ``src`` at ``dst`` (an older ``dst`` is removed)."""
+    old = None
+    if dst.exists():
+        old = dst.with_name(f"{dst.name}.old-{uuid.uuid4().hex[:8]}")
+        dst.rename(old)
+    src.rename(dst)
+    if old is not None:
+        shutil.rmtree(old)
+
+
+def log_child(log, stage: str, name: str, k: int, folder: Path, cfg, summary: dict) -> str:
+    """Log one replicate of a child as an MLflow child run (``log``: a
+    :class:`talkingface.child_runs.ChildLog`); idempotent."""
+    m = cfg.mapping
+    return log.log(name, cfg.seed,
+                   tags={"ablation.setting": name, "ablation.seed": cfg.seed,
+                         "ablation.replicate": k, "ablation.stage": stage,
+                         "mapping.method": m.method},
+                   params=flatten(cfg),
+                   metrics={**child_metrics(summary, m.method), "seconds": summary["seconds"]},
+                   files=artifact_files(folder), config=to_dict(cfg))
+
+
+def run_child(name: str, k: int, corpus_dir: str, units_path: str, out_dir: str, cfg,
+              log=None, stage: str = "") -> dict:
+    """One task: replicate ``k`` of child ``name`` (``cfg`` carries its seed) trained into
+    ``out_dir`` and, with ``log``, logged as its MLflow child run."""
+    out = Path(out_dir)
+    partial = out.with_name(out.name + ".partial")
+    shutil.rmtree(partial, ignore_errors=True)  # what a killed attempt left
+    t0 = time.perf_counter()
+    summary = train_and_evaluate(Path(corpus_dir), Path(units_path), partial, cfg,
+                                 methods=[cfg.mapping.method], progress=False)
+    summary["seconds"] = time.perf_counter() - t0
+    summary["seed"] = cfg.seed
+    (partial / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    _replace_folder(partial, out)
+    if log is not None:
+        log_child(log, stage, name, k, out, cfg, summary)
+    return {"name": name, "replicate": k, "seed": cfg.seed, "summary": summary,
+            "seconds": summary["seconds"]}
+
+
+def run_grid(jobs: dict, out_dir: Path, *, seeds: int = 1, scheduler: str = "local",
+             workers: int = 0, desc: str = "runs", progress: bool = True, log=None,
+             stage: str = "") -> dict:
+    """Train every job ``name → (corpus folder, motion_units.npz, Config)`` with ``seeds``
+    replicates each, on ``scheduler`` with ``workers`` processes (0: all cores); returns
+    ``{(name, k): run_child's result}``, in the order of ``jobs`` then replicates."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    tasks = {}
+    for name, (corpus, units, c) in jobs.items():
+        for k in range(seeds):
+            ck = replace(c, seed=replicate_seed(c.seed, k))
+            tasks[(name, k)] = (name, k, str(corpus), str(units),
+                                str(replicate_folder(out_dir, name, ck.seed, k)), ck, log, stage)
+    results = map_tasks(run_child, tasks, scheduler=scheduler, workers=workers, desc=desc,
+                        progress=progress)
+    return {key: results[key] for key in tasks}
+
+
+def run_children(jobs: dict, out_dir: Path, *, scheduler: str = "local", workers: int = 0,
+                 desc: str = "runs", progress: bool = True) -> dict:
+    """:func:`run_grid` with one seed: ``{name: run_child's result}``."""
+    res = run_grid(jobs, out_dir, scheduler=scheduler, workers=workers, desc=desc,
+                   progress=progress)
+    return {name: r for (name, _), r in res.items()}
+
+
+def resolve_grid(grid: str, default: Path) -> Path | None:
+    """A grid setting as a file: ``default`` → the project's grid, ``none`` or empty → None."""
+    if not grid or grid.lower() == "none":
+        return None
+    return default if grid == "default" else Path(grid)
+
+
+def checked_grid(path: Path | None, cfg, *, what: str, setting: str, load=load_grid) -> list:
+    """``[path]`` of a grid stage's grid file (its contents join the stage's key), ``[]`` for no
+    grid; a missing or malformed grid (``load`` refuses it) is refused here, before the run is
+    touched."""
+    if path is None:
+        return []
+    if not path.is_file():
+        raise ParameterError(f"{what} {path} not found ({setting}: default, none or a grid "
+                             "file)")
+    load(path, cfg)
+    return [path]
+
+
