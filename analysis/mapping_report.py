@@ -20,6 +20,36 @@ def _f(x, nd=3) -> str:
     return "–" if x is None or (isinstance(x, float) and np.isnan(x)) else f"{x:.{nd}f}"
 
 
+def r_cell(row: dict, split: str) -> str:
+    """Mean test R of an ablation row with its 95 % interval over seeds (``± half-width``) and
+    ``*`` when the paired test against the reference setting finds a difference."""
+    r = _num(row.get(f"{split}_R"))
+    if np.isnan(r):
+        return "–"
+    text = _f(r)
+    half = _num(row.get(f"{split}_R_ci95"))
+    if not np.isnan(half):
+        text += f" ± {half:.3f}"
+    if row.get(f"{split}_R_differs") == "True":
+        text += " *"
+    return text
+
+
+def seeds_note(rows: list[dict], split: str, reference: str) -> str:
+    """What the R column of a table of seed replicates shows, in words."""
+    n = sorted({int(float(r["n_seeds"])) for r in rows if r.get("n_seeds")})
+    if not n or n == [1]:
+        return ("One training seed per row: differences of a few thousandths in R are within "
+                "run-to-run noise.")
+    marked = sum(r.get(f"{split}_R_differs") == "True" for r in rows)
+    return (f"R: mean over {'/'.join(map(str, n))} training seeds ± the half-width of its 95 % "
+            f"t-interval. * marks a row whose R differs from {reference!r} in a paired t-test "
+            "over the same seeds, Holm-corrected over all the grid's settings (family-wise "
+            f"5 %): {marked} of the {len(rows) - 1} other rows here. Replicate k trains with "
+            "the run seed + 1000 k (its split, initialisation, batches and augmentation); the "
+            "corpus is the run's.")
+
+
 def paper_table_rows(rows: list[dict], method: str, part: str) -> list[list]:
     """Rows of Table I (``train``) or II (``test``): per split and expression, ours beside the
     paper's R, nu_d, nu_d' and MSE."""
@@ -82,11 +112,11 @@ def lookahead_section(report, ab: list[dict], figure: Path, split: str = "uttera
                   "MSE", "LVE (px)", "/p b m/ closed"],
                  [[r["setting"], r["method"], r.get("look_ahead", "–"),
                    r.get("window_align", "–"), _f(_num(r.get("latency_ms")), 1),
-                   _f(_num(r[f"{split}_R"])), _f(_num(r[f"{split}_MSE"]), 4),
+                   r_cell(r, split), _f(_num(r[f"{split}_MSE"]), 4),
                    _f(_num(r.get(f"{split}_LVE")), 2), _f(_num(r.get(f"{split}_closure")), 2)]
                   for r in rows],
-                 note="Mean over expressions of the test-set figures, one training seed each "
-                      "(differences of a few thousandths in R are within run-to-run noise).")
+                 note="Mean over expressions of the test-set figures. " +
+                      seeds_note(rows, split, "paper"))
     if figure.is_file():
         report.figure(figure, "Test R and closure on /p b m/ against algorithmic latency; "
                       "stars: the paper's setting (centred window).")
@@ -119,14 +149,13 @@ def ceiling_section(report, ceiling_dir: Path) -> None:
     report.table("The ceiling decomposition: mean test figures per step",
                  ["step", "changes", "R (utterance)", "R (frame split)", "MSE (utterance)",
                   "LVE (px)", "/p b m/ closed"],
-                 [[r["step"], escape(r["changes"]), _f(_num(r["utterance_R"])),
-                   _f(_num(r["random_frames_R"])), _f(_num(r["utterance_MSE"]), 4),
+                 [[r["step"], escape(r["changes"]), r_cell(r, "utterance"),
+                   r_cell(r, "random_frames"), _f(_num(r["utterance_MSE"]), 4),
                    _f(_num(r["utterance_LVE"]), 2), _f(_num(r["utterance_closure"]), 2)]
                   for r in rows] + [["paper (Table II)", "their corpus, frame split", "–",
                                      _f(paper), "–", "–", "–"]],
-                 note="One training seed per step: differences of a few thousandths in R are "
-                      "within run-to-run noise. Each step is an MLflow child run of the "
-                      "ceiling parent run.")
+                 note=seeds_note(rows, "utterance", rows[0]["step"]) + " Each step is an "
+                      "MLflow child run of the ceiling parent run.")
     fig = ceiling_dir / "ceiling.png"
     if fig.is_file():
         report.figure(fig, "Mean test R per step on both splits; the dashed line is the paper's "
@@ -240,13 +269,15 @@ def mapping_section(report, summary: dict, mapping_dir: Path, ablations_csv: Pat
                     r["n_mfcc"] + (" +delta" if r["deltas"] == "True" else ""), r["hidden"],
                     r["expression_model"]]
             for s in splits:
-                line += [_f(float(r[f"{s}_R"])) if r.get(f"{s}_R") else "–",
+                line += [r_cell(r, s),
                          _f(float(r[f"{s}_MSE"]), 4) if r.get(f"{s}_MSE") else "–"]
             body.append(line)
         for s in splits:
             head += [f"R ({s})", f"MSE ({s})"]
-        report.table("Ablations: one child run per setting (mean test figures)", head, body,
-                     note="Every setting is an MLflow child run of the ablation parent run.")
+        report.table("Ablations: mean test figures per setting over training seeds", head,
+                     body, note=seeds_note(ab, splits[0], ab[0]["setting"]) + " Every setting "
+                     "and seed is an MLflow child run of the ablation parent run (tags "
+                     "ablation.setting, ablation.seed).")
         lookahead_section(report, ab, ablations_csv.parent / "lookahead.png")
     traj = mapping_dir / summary["trajectories"]
     if traj.is_file():

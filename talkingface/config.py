@@ -5,7 +5,8 @@ Each package owns the dataclass of its settings — ``synth`` (:mod:`data_synth.
 settings (:mod:`mapping.config`), ``study`` (:mod:`study.config`) — and this module adds the two
 that belong to the command line: ``mlflow`` (where runs are logged), ``ablations`` (the grid
 ``replicate`` trains as child runs, and its seeds), ``cluster`` (where grid tasks run),
-``ceiling`` (the steps toward the ceiling) and ``voices`` (the grid of voice-robust models). It composes, loads, validates and dumps them.
+``ceiling`` (the steps toward the ceiling) and ``voices`` (the grid of voice-robust models).
+It composes, loads, validates and dumps them.
 
 ``configs/paper.yaml`` mirrors the defaults. A YAML file may set any subset of keys;
 ``--set section.key=value`` (or ``section.sub.key=value`` for a nested section) overrides single

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import socket
 import uuid
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
@@ -48,6 +49,21 @@ def check_scheduler(value: str) -> None:
         raise ParameterError(f"cluster.scheduler is {value!r}; allowed: local (a Dask "
                              "LocalCluster on this machine), processes (a process pool), or a "
                              "running Dask scheduler's address tcp://HOST:PORT")
+
+
+def check_reachable(scheduler: str) -> None:
+    """Refuse a ``tcp://`` scheduler that does not accept a connection (checked before a
+    command starts its work); ``local`` and ``processes`` need nothing."""
+    check_scheduler(scheduler)
+    if scheduler in SCHEDULERS:
+        return
+    host, _, port = scheduler.removeprefix("tcp://").rpartition(":")
+    try:
+        socket.create_connection((host, int(port)), timeout=CONNECT_TIMEOUT_S).close()
+    except OSError as exc:
+        raise ParameterError(f"cluster.scheduler {scheduler}: no Dask scheduler answers there "
+                             f"({exc.strerror or type(exc).__name__}); start one (`dask "
+                             "scheduler`) or use cluster.scheduler=local") from None
 
 
 def limit_threads() -> None:

@@ -14,6 +14,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from analysis.evaluation import row_metrics
+from face_model.errors import TalkingFaceError
 from talkingface.config import flatten
 from talkingface.paths import RunPaths
 from talkingface.provenance import git_commit
@@ -33,6 +34,29 @@ def tracking_uri(cfg) -> str:
     if env:
         return env
     return f"sqlite:///{Path.cwd() / 'mlflow.db'}"
+
+
+def check_tracking(cfg) -> None:
+    """Refuse a tracking server (``http(s)://`` URI) that does not answer, before a command
+    starts its work: one line, not minutes of MLflow's retries and a traceback."""
+    uri = tracking_uri(cfg)
+    if not cfg.mlflow.enabled or not uri.startswith(("http://", "https://")):
+        return
+    import urllib.error
+    import urllib.request
+
+    try:
+        with urllib.request.urlopen(uri.rstrip("/") + "/health", timeout=10) as r:
+            r.read()
+    except urllib.error.HTTPError as exc:
+        if exc.code >= 500:
+            raise TalkingFaceError(f"mlflow.uri {uri}: the tracking server answers with HTTP "
+                                   f"{exc.code}; see its log") from None
+    except (OSError, ValueError) as exc:
+        why = getattr(exc, "reason", None) or exc
+        raise TalkingFaceError(f"mlflow.uri {uri}: no tracking server answers there ({why}); "
+                               "start one (`talkingface server`), or leave mlflow.uri empty "
+                               "for ./mlflow.db") from None
 
 
 def artifact_root() -> str:

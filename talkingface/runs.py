@@ -8,8 +8,9 @@ written here and in :mod:`talkingface.experiment_log`, nowhere below.
 from __future__ import annotations
 
 from face_model.errors import ParameterError
-from talkingface.experiment_log import (grid_runs, log_ablations, log_replication, log_train,
-                                        mlflow_run)
+from talkingface.executor import check_reachable
+from talkingface.experiment_log import (check_tracking, grid_runs, log_ablations,
+                                        log_replication, log_train, mlflow_run)
 from talkingface.paths import RunPaths
 from talkingface.stages import REPLICATION, preflight, prepare_run, run
 from talkingface.stages.ablations import grid_path
@@ -20,8 +21,11 @@ from talkingface.stages.ceiling import grid_path as ceiling_grid_path, load_ceil
 def open_run(name: str, cfg, stages, *, overwrite: bool = False, runs_dir="runs",
              reports_dir="reports") -> RunPaths:
     """``runs/<name>`` for ``cfg`` (refused if made with other settings, unless overwrite),
-    after checking that every input the named ``stages`` read is there: nothing is written
-    for a command that cannot run."""
+    after checking that every input the named ``stages`` read is there, and that the tracking
+    server and the Dask scheduler it names answer: nothing is written for a command that
+    cannot run."""
+    check_tracking(cfg)
+    check_reachable(cfg.cluster.scheduler)
     paths = RunPaths.create(name, runs_dir=runs_dir, reports_dir=reports_dir)
     prepare_run(paths, cfg, overwrite=overwrite, check=lambda: preflight(stages, paths, cfg))
     return paths

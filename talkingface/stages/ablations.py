@@ -65,10 +65,11 @@ def reference_setting(grid) -> str:
 
 
 def summarise_replicates(reps: list[dict], *, reference: str, key: str = "setting") -> list[dict]:
-    """One row per setting (column ``key``) from its replicate rows: the settings' columns, the mean of every
-    figure over seeds, ``n_seeds``, and per split the R interval (``<split>_R_ci95``: half-width
-    of the 95 % interval), the paired difference from ``reference`` (``<split>_R_diff``), its
-    Holm-corrected p-value and whether it differs (:func:`analysis.replicates.paired_tests`)."""
+    """One row per setting (column ``key``) from its replicate rows: the settings' columns,
+    the mean of every figure over seeds, ``n_seeds``, and per split the R interval
+    (``<split>_R_ci95``: half-width of the 95 % interval), the paired difference from
+    ``reference`` (``<split>_R_diff``), its Holm-corrected p-value and whether it differs
+    (:func:`analysis.replicates.paired_tests`)."""
     names = list(dict.fromkeys(r[key] for r in reps))
     splits = [k[:-2] for k in reps[0] if k.endswith("_R") and not k.startswith("in_domain")]
     tests = {s: paired_tests({n: {r["seed"]: float(r[f"{s}_R"]) for r in reps

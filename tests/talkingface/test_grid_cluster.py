@@ -1,0 +1,160 @@
+"""Grid tasks on Dask distributed: the same figures as the process pool, a worker killed
+mid-grid leaves a complete grid with exactly one child run per setting and seed, and a
+scheduler that does not answer is one clear line."""
+import json
+import os
+import signal
+import socket
+import threading
+import time
+
+import pytest
+
+from talkingface.child_runs import KEY_TAG, ChildLog
+from talkingface.cli import main
+from talkingface.config import apply_overrides, load_config
+from talkingface.executor import check_reachable, map_tasks
+from talkingface.stages.foundation import fit_units_folder
+from talkingface.stages.grid import child_metrics, replicate_folder, run_grid
+
+SETTINGS = {"paper": {}, "context-1": {"context_back": 1, "context_forward": 1}}
+
+
+@pytest.fixture(scope="module")
+def units_path(small_corpus_dir, tmp_path_factory):
+    out = tmp_path_factory.mktemp("units")
+    fit_units_folder(small_corpus_dir, out, load_config(None, []))
+    return out / "motion_units.npz"
+
+
+def _jobs(corpus, units):
+    base = load_config(None, ["mapping.splits=[utterance]", "mapping.baselines=[]",
+                              "mapping.train.max_epochs=5"])
+    return {name: (corpus, units, apply_overrides(base, {"mapping": ch}))
+            for name, ch in SETTINGS.items()}
+
+
+def _store(tmp_path, name):
+    """A fresh SQLite store with an experiment and a parent run: its ChildLog."""
+    from mlflow.tracking import MlflowClient
+
+    uri = f"sqlite:///{tmp_path / f'{name}.db'}"
+    client = MlflowClient(uri)
+    exp = client.create_experiment("grid", artifact_location=(tmp_path / f"{name}-art").as_uri())
+    parent = client.create_run(exp, run_name="parent").info.run_id
+    return ChildLog(uri, exp, parent)
+
+
+def _figures(results):
+    """Every figure of every child but its timings."""
+    return {key: {k: v for k, v in child_metrics(r["summary"], "gated_mlp").items()
+                  if "seconds" not in k} for key, r in results.items()}
+
+
+def _free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_a_worker_killed_mid_grid_leaves_one_child_per_setting_and_seed(
+        small_corpus_dir, units_path, tmp_path):
+    from distributed import Client, LocalCluster
+
+    jobs = _jobs(small_corpus_dir, units_path)
+    # the reference: the plain process pool, nothing killed
+    pool_log = _store(tmp_path, "pool")
+    pool = run_grid(jobs, tmp_path / "pool", seeds=2, scheduler="processes", workers=2,
+                    progress=False, log=pool_log, stage="ablate")
+
+    # Dask: a cluster of two worker processes, reached by its address as a lab's would be
+    dask_log = _store(tmp_path, "dask")
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=None) as cluster, Client(cluster) as client:
+        out = {}
+        runner = threading.Thread(target=lambda: out.update(run_grid(
+            jobs, tmp_path / "dask", seeds=2, scheduler=cluster.scheduler_address, workers=2,
+            progress=False, log=dask_log, stage="ablate")))
+        runner.start()
+        busy = []
+        while not busy and runner.is_alive():  # a worker in the middle of a task
+            busy = [w for w, tasks in client.processing().items() if tasks]
+            time.sleep(0.05)
+        assert busy, "the grid ended before any task was seen running"
+        pids = client.run(os.getpid)
+        before = set(pids)
+        os.kill(pids[busy[0]], signal.SIGKILL)
+        runner.join(timeout=600)
+        assert not runner.is_alive()
+        after = set(client.scheduler_info()["workers"])
+        assert busy[0] not in after and after != before  # the killed worker was replaced
+    # a complete grid: every setting and seed, with the pool's figures bit for bit
+    assert set(out) == set(pool) == {(n, k) for n in SETTINGS for k in (0, 1)}
+    assert _figures(out) == _figures(pool)
+    # exactly one finished child run per setting and seed in the store, nothing half-logged
+    children = dask_log.children()
+    keys = sorted(r.data.tags[KEY_TAG] for r in children)
+    assert keys == sorted(f"{n}/seed-{s}" for n in SETTINGS for s in (2002, 3002))
+    assert {r.info.status for r in children} == {"FINISHED"}
+    for r in children:
+        n, s = r.data.tags["ablation.setting"], int(r.data.tags["ablation.seed"])
+        k = (s - 2002) // 1000
+        assert r.data.metrics["utterance.mean_test_R"] == out[n, k]["summary"]["ranking"][
+            "utterance"][0]["R"]
+    # every folder complete, no partial folder left by the killed attempt
+    for n, k in out:
+        folder = replicate_folder(tmp_path / "dask", n, 2002 + 1000 * k, k)
+        assert json.loads((folder / "summary.json").read_text())["seed"] == 2002 + 1000 * k
+    assert not list((tmp_path / "dask").rglob("*.partial"))
+
+
+def test_a_child_logged_twice_or_half_logged_is_one_child_run(tmp_path):
+    log = _store(tmp_path, "twice")
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(log.uri)
+    # what a worker killed while logging leaves: a run with the key that never finished
+    client.create_run(log.experiment_id, run_name="paper", tags={
+        "mlflow.parentRunId": log.parent_run_id, KEY_TAG: "paper/seed-2002"})
+    args = dict(tags={"ablation.setting": "paper"}, params={"seed": 2002},
+                metrics={"utterance.mean_test_R": 0.5})
+    first = log.log("paper", 2002, **args)
+    again = log.log("paper", 2002, **{**args, "metrics": {"utterance.mean_test_R": 0.9}})
+    assert again == first  # a finished child is kept, not logged a second time
+    children = log.children()
+    assert len(children) == 1 and children[0].info.status == "FINISHED"
+    assert children[0].data.metrics["utterance.mean_test_R"] == 0.5
+    other = log.log("paper", 3002, **args)  # another seed is another child
+    assert other != first and len(log.children()) == 2
+
+
+def test_an_unreachable_scheduler_is_one_line(tmp_path, monkeypatch, capsys):
+    port = _free_port()  # nothing listens there
+    with pytest.raises(Exception, match=rf"cluster.scheduler tcp://127.0.0.1:{port}: no Dask "
+                                        "scheduler answers there"):
+        check_reachable(f"tcp://127.0.0.1:{port}")
+    with pytest.raises(Exception, match="no Dask scheduler answered within"):
+        map_tasks(max, {"a": (1, 2)}, scheduler=f"tcp://127.0.0.1:{port}", progress=False)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "grid.yaml").write_text("children:\n  paper: {}\n")
+    code = main(["ablate", "--grid", "grid.yaml", "--name", "x", "--set",
+                 "synth.n_sentences=2", "--scheduler", f"tcp://127.0.0.1:{port}"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1
+    assert err.startswith(f"error: cluster.scheduler tcp://127.0.0.1:{port}: no Dask")
+    assert not (tmp_path / "runs" / "x").exists()  # refused before anything was written
+    code = main(["ablate", "--grid", "grid.yaml", "--name", "x", "--set",
+                 f"mlflow.uri=http://127.0.0.1:{port}"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1
+    assert err.startswith(f"error: mlflow.uri http://127.0.0.1:{port}: no tracking server")
+    assert not (tmp_path / "runs" / "x").exists()
+
+
+def test_the_local_executor_and_dask_agree_on_any_function():
+    tasks = {i: (i, 3) for i in range(5)}
+    assert map_tasks(pow, tasks, scheduler="local", workers=2, progress=False) == \
+        map_tasks(pow, tasks, scheduler="processes", workers=2, progress=False) == \
+        {i: i ** 3 for i in range(5)}
+    with pytest.raises(ZeroDivisionError):  # a task's own error reaches the caller
+        map_tasks(divmod, {"x": (1, 0)}, scheduler="local", workers=1, progress=False)
