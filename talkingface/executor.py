@@ -24,6 +24,7 @@ thread: the parallelism is the workers'.
 """
 from __future__ import annotations
 
+import logging
 import multiprocessing
 import os
 import socket
@@ -31,6 +32,7 @@ import uuid
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
 
+from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 from face_model.errors import ParameterError
@@ -69,7 +71,6 @@ def check_reachable(scheduler: str) -> None:
 def limit_threads() -> None:
     """One torch thread and one BLAS thread in this process (a grid task's worker)."""
     import torch
-    from threadpoolctl import threadpool_limits
 
     torch.set_num_threads(1)
     threadpool_limits(1)
@@ -84,8 +85,6 @@ def _call(fn, args):
 def dask_client(scheduler: str, workers: int):
     """A Dask client: of a ``LocalCluster`` started here (``scheduler == "local"``), closed
     with it on exit, or of the running scheduler at ``tcp://HOST:PORT``."""
-    import logging
-
     from distributed import Client, LocalCluster
 
     if scheduler == "local":

@@ -9,6 +9,8 @@ from __future__ import annotations
 import json
 import logging
 import os
+import urllib.error
+import urllib.request
 from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
@@ -42,9 +44,6 @@ def check_tracking(cfg) -> None:
     uri = tracking_uri(cfg)
     if not cfg.mlflow.enabled or not uri.startswith(("http://", "https://")):
         return
-    import urllib.error
-    import urllib.request
-
     try:
         with urllib.request.urlopen(uri.rstrip("/") + "/health", timeout=10) as r:
             r.read()

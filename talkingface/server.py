@@ -46,11 +46,13 @@ DB_NAME = "mlflow"
 DB_ROLE = "talkingface"
 RUN_AS = "postgres"  # the unprivileged user of Debian's postgresql package
 SET_UP = "run `make server` or `bash tools/setup.sh server`"
+PG_SEARCH = "/usr/lib/postgresql/*/bin"  # Debian's layout: one folder per major version
 
 
-def postgres_bin(version: str | None = None) -> Path:
+def postgres_bin(version: str | None = None, *, search: str = PG_SEARCH) -> Path:
     """The folder of PostgreSQL's programs: ``/usr/lib/postgresql/<version>/bin`` (the highest
-    version when ``version`` is None), else the folder of ``initdb`` on ``PATH``.
+    version when ``version`` is None; ``search`` is that pattern), else the folder of
+    ``initdb`` on ``PATH``.
 
     Raises
     ------
@@ -58,7 +60,7 @@ def postgres_bin(version: str | None = None) -> Path:
         PostgreSQL is not installed, or not the ``version`` an existing cluster needs.
     """
     found = {}
-    for d in glob.glob("/usr/lib/postgresql/*/bin"):
+    for d in glob.glob(search):
         if os.access(Path(d) / "initdb", os.X_OK) and os.access(Path(d) / "pg_ctl", os.X_OK):
             found[Path(d).parent.name] = Path(d)
     on_path = shutil.which("initdb")
@@ -75,8 +77,8 @@ def postgres_bin(version: str | None = None) -> Path:
         return found[max(found, key=lambda v: [int(x) for x in re.findall(r"\d+", v)] or [0])]
     if on_path:
         return Path(on_path).parent
-    raise TalkingFaceError("PostgreSQL's programs (initdb, pg_ctl) were not found in "
-                           f"/usr/lib/postgresql/*/bin or on PATH: {SET_UP} to install them")
+    raise TalkingFaceError(f"PostgreSQL's programs (initdb, pg_ctl) were not found in {search} "
+                           f"or on PATH: {SET_UP} to install them")
 
 
 def _major(initdb: Path) -> str:
@@ -175,10 +177,14 @@ class LabServer:
     db_port : int
         PostgreSQL's TCP port (on 127.0.0.1 only: the database is not on the network).
     start_timeout : float
-        Seconds to wait for the server to answer (it takes ~40 s on 2 cores).
+        Seconds to wait for the server to answer (5-40 s on 2 cores, with the load).
     allowed_hosts : str, optional
         Passed to ``mlflow server --allowed-hosts`` (the names colleagues reach it by, when
         not an IP address; MLflow allows localhost and private IPs by default).
+    jobs : bool
+        Run MLflow's job runner (its GenAI jobs: LLM judges, prompt optimisation, trace
+        archival). Off by default: model training does not use it, and it is ~8 more
+        processes and twice the start-up time.
     progress : callable, optional
         Called with a line of text at each step.
 
@@ -195,11 +201,12 @@ class LabServer:
 
     def __init__(self, folder, *, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT,
                  db_port: int = DEFAULT_DB_PORT, start_timeout: float = 300.0,
-                 allowed_hosts: str | None = None, progress=None):
+                 allowed_hosts: str | None = None, jobs: bool = False, progress=None):
         self.folder = Path(folder).absolute()
         self.host, self.port, self.db_port = host, port, db_port
         self.start_timeout = start_timeout
         self.allowed_hosts = allowed_hosts
+        self.jobs = jobs
         self.progress = progress or (lambda line: None)
         self.pgdata = self.folder / "pgdata"
         self.artifacts = self.folder / "artifacts"
@@ -316,6 +323,11 @@ class LabServer:
             self.progress(f"making the PostgreSQL cluster {self.pgdata}")
             self._pg("initdb", "-D", str(self.pgdata), "-A", "trust", "-U", DB_ROLE,
                      "-E", "UTF8", "--locale=C")
+        elif self._pg("pg_ctl", "-D", str(self.pgdata), "status", check=False).returncode == 0:
+            # never start (nor, on failure, stop) the PostgreSQL of another running server
+            raise TalkingFaceError(f"--folder {self.folder}: its PostgreSQL is already running "
+                                   "(is another `talkingface server` using this folder?): stop "
+                                   "that one first, or choose another --folder")
         log = self.logs / "postgres.log"
         opts = (f"-p {self.db_port} -c listen_addresses=127.0.0.1 "
                 "-c unix_socket_directories=''")
@@ -341,11 +353,12 @@ class LabServer:
                "--host", self.host, "--port", str(self.port), "--workers", "1"]
         if self.allowed_hosts:
             cmd += ["--allowed-hosts", self.allowed_hosts]
-        self.progress(f"starting the MLflow server on {self.uri} (about a minute)")
+        self.progress(f"starting the MLflow server on {self.uri} (up to a minute)")
+        env = {**os.environ, "MLFLOW_SERVER_ENABLE_JOB_EXECUTION": str(self.jobs).lower()}
         with open(self.logs / "mlflow.log", "ab") as log:
-            self._mlflow = subprocess.Popen(cmd, cwd=self.folder, stdin=subprocess.DEVNULL,
-                                            stdout=log, stderr=subprocess.STDOUT,
-                                            start_new_session=True)
+            self._mlflow = subprocess.Popen(cmd, cwd=self.folder, env=env,
+                                            stdin=subprocess.DEVNULL, stdout=log,
+                                            stderr=subprocess.STDOUT, start_new_session=True)
 
     def _wait_until_up(self) -> None:
         """Poll the REST API (which reads the database) until it answers 200."""
@@ -386,6 +399,11 @@ class LabServer:
             if (self.pgdata / "postmaster.pid").exists():
                 self._pg("pg_ctl", "-D", str(self.pgdata), "-m", "fast", "-w", "-t", "120",
                          "stop", check=False)
+            if (self.pgdata / "postmaster.pid").exists():
+                log = self.logs / "postgres.log"
+                raise TalkingFaceError(f"PostgreSQL of {self.pgdata} did not stop (pg_ctl stop "
+                                       f"-m fast); the last lines of its log {log}: "
+                                       f"{_last_lines(log)}")
 
     def __enter__(self) -> "LabServer":
         return self.start()

@@ -32,6 +32,7 @@ def _stop_on_signals() -> dict:
 def cmd_server(args) -> int:
     server = LabServer(args.folder, host=args.host, port=args.port, db_port=args.db_port,
                        start_timeout=args.start_timeout, allowed_hosts=args.allowed_hosts,
+                       jobs=args.jobs,
                        progress=lambda line: print(f"server: {line}", flush=True))
     server.check()  # bad input is refused before any signal handler is changed
     old = _stop_on_signals()
@@ -83,6 +84,8 @@ def add_parser(sub) -> None:
     s.add_argument("--allowed-hosts", help="host names colleagues reach the server by, when "
                    "not an IP address (mlflow server --allowed-hosts; default: localhost and "
                    "private IPs)")
+    s.add_argument("--jobs", action="store_true", help="also run MLflow's job runner (its "
+                   "GenAI features: LLM judges, prompt optimisation; ~8 more processes)")
     s.add_argument("--start-timeout", type=float, default=300.0,
                    help="seconds to wait for the server to answer (default: 300)")
     s.set_defaults(func=cmd_server)

@@ -18,7 +18,7 @@ LAYERS = {"face_model": 0, "data_synth": 1, "mapping": 1, "study": 2, "analysis"
           "talkingface": 4}
 # May be imported inside a function: heavy or optional, and only needed on some paths.
 LAZY_OK = ("torch", "mlflow", "psychopy", "pyglet", "psychtoolbox", "cv2", "sounddevice",
-           "imageio_ffmpeg", "matplotlib", "talkingface.pyfunc")
+           "imageio_ffmpeg", "matplotlib", "talkingface.pyfunc", "distributed")
 
 
 def _module_name(root: Path, path: Path) -> str:

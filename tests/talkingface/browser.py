@@ -1,0 +1,87 @@
+"""A real, headless browser for the tests: Debian's Chromium driven by selenium through Debian's
+chromedriver (``bash tools/setup.sh test`` installs both; selenium's own driver download cannot
+work offline, so the driver is given by path), and the processes a test leaves behind."""
+from __future__ import annotations
+
+import contextlib
+import tempfile
+import time
+from pathlib import Path
+
+import psutil
+
+CHROMIUM = "/usr/bin/chromium"
+CHROMEDRIVER = "/usr/bin/chromedriver"
+
+
+@contextlib.contextmanager
+def headless_chromium(*, width: int = 1600, height: int = 1000):
+    """``with headless_chromium() as driver:`` a selenium WebDriver on a fresh profile, quit on
+    leaving; afterwards no process of that browser (its profile folder is in their command
+    lines) is left running."""
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    with tempfile.TemporaryDirectory(prefix="talkingface-chromium-") as profile:
+        options = webdriver.ChromeOptions()
+        options.binary_location = CHROMIUM
+        for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage",
+                    "--disable-gpu", f"--window-size={width},{height}",
+                    f"--user-data-dir={profile}"):
+            options.add_argument(arg)
+        driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
+        try:
+            yield driver
+        finally:
+            driver.quit()
+            left = wait_gone(processes_mentioning(profile))
+            assert not left, f"chromium outlived driver.quit(): {left}"
+
+
+def processes_mentioning(text: str) -> list[psutil.Process]:
+    """Running processes whose command line contains ``text``, and all their descendants."""
+    found = {}
+    for p in psutil.process_iter(["cmdline"]):
+        with contextlib.suppress(psutil.Error):
+            if text in " ".join(p.info["cmdline"] or ()):
+                found[p.pid] = p
+                for c in p.children(recursive=True):
+                    found[c.pid] = c
+    return list(found.values())
+
+
+def alive_processes(procs) -> list[psutil.Process]:
+    """The processes of ``procs`` still running (not finished, not a zombie, not a new process
+    that reused the pid)."""
+    out = []
+    for p in procs:
+        with contextlib.suppress(psutil.Error):
+            if p.is_running() and p.status() != psutil.STATUS_ZOMBIE:
+                out.append(p)
+    return out
+
+
+def alive(procs) -> list[str]:
+    """:func:`alive_processes` as ``"pid command line"``, for assertion messages."""
+    out = []
+    for p in alive_processes(procs):
+        with contextlib.suppress(psutil.Error):
+            out.append(f"{p.pid} {' '.join(p.cmdline())[:120]}")
+    return out
+
+
+def wait_gone(procs, timeout: float = 30.0) -> list[str]:
+    """Wait up to ``timeout`` s for ``procs`` to end (zombies count as ended: their parent
+    may reap them later); those still running then."""
+    deadline = time.monotonic() + timeout
+    while alive(procs) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    return alive(procs)
+
+
+def save_png(driver, folder: Path, name: str) -> Path:
+    """A screenshot of the page into ``folder/name``."""
+    folder.mkdir(parents=True, exist_ok=True)
+    out = folder / name
+    assert driver.save_screenshot(str(out)), out
+    return out
