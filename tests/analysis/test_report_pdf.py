@@ -123,11 +123,22 @@ def test_a_table_wider_than_the_page_is_set_smaller_to_fit(tmp_path):
     assert not list(tmp_path.glob(".*"))  # no temporary file left beside it
 
 
+def _ablation_results(tmp_path, rows):
+    """``tmp_path/ablations/results.csv`` of ``rows``, as the ablations stage writes it."""
+    import csv
+
+    ab_dir = tmp_path / "ablations"
+    ab_dir.mkdir()
+    with open(ab_dir / "results.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    return ab_dir
+
+
 def test_the_look_ahead_curve_is_a_table_and_a_figure_titled_look_ahead(tmp_path):
     """The ablation rows of the curve (``lookahead-*``) and the paper's setting beside them, with
     a 0 ms row, from the stage's results.csv and figure."""
-    import csv
-
     from talkingface.stages.ablations import lookahead_figure
 
     def row(setting, method, f, align, latency, r, closure):
@@ -141,12 +152,7 @@ def test_the_look_ahead_curve_is_a_table_and_a_figure_titled_look_ahead(tmp_path
             row("classes-1", "gated_mlp", 3, "centre", 112.47, 0.6, 0.3),
             row("lookahead-gated-0", "gated_mlp", 0, "right", 0.0, 0.601, 0.25),
             row("lookahead-gated-3", "gated_mlp", 3, "right", 100.0, 0.671, 0.35)]
-    ab_dir = tmp_path / "ablations"
-    ab_dir.mkdir()
-    with open(ab_dir / "results.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    ab_dir = _ablation_results(tmp_path, rows)
     lookahead_figure(rows[2:] + rows[:1], ab_dir / "lookahead.png")
     rep = Report("T")
     mapping_section(rep, _mapping_summary(), tmp_path, ab_dir / "results.csv")
@@ -162,8 +168,6 @@ def test_the_look_ahead_curve_is_a_table_and_a_figure_titled_look_ahead(tmp_path
 def test_the_ablation_table_gives_each_setting_its_interval_and_marks_real_differences(tmp_path):
     """Seed replicates in, the report's ablation table out: mean ± 95 % half-width per setting,
     ``*`` on the setting the paired test separates from the paper's, none on the other."""
-    import csv
-
     from analysis.replicates import interval
     from talkingface.stages.ablations import summarise_replicates
 
@@ -179,12 +183,7 @@ def test_the_ablation_table_gives_each_setting_its_interval_and_marks_real_diffe
             + [rep("wide-hidden", s, v + 0.05) for s, v in paper.items()]  # +0.05 every seed
             + [rep("classes-8", s, v) for s, v in noise.items()])
     rows = summarise_replicates(reps, reference="paper")
-    ab_dir = tmp_path / "ablations"
-    ab_dir.mkdir()
-    with open(ab_dir / "results.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    ab_dir = _ablation_results(tmp_path, rows)
     report = Report("T")
     mapping_section(report, _mapping_summary(), tmp_path, ab_dir / "results.csv")
     text = pdf_text(report.build(tmp_path / "ab.pdf"))
