@@ -20,34 +20,42 @@ def _f(x, nd=3) -> str:
     return "–" if x is None or (isinstance(x, float) and np.isnan(x)) else f"{x:.{nd}f}"
 
 
+def ci_cell(row: dict, key: str, digits: int = 3) -> str:
+    """A mean over seeds (column ``key``) with ``± half-width`` of its 95 % interval (column
+    ``<key>_ci95``) when the row has one; ``–`` when there is no value."""
+    x = _num(row.get(key))
+    if np.isnan(x):
+        return "–"
+    half = _num(row.get(f"{key}_ci95"))
+    return _f(x, digits) + ("" if np.isnan(half) else f" ± {half:.{digits}f}")
+
+
 def r_cell(row: dict, split: str) -> str:
     """Mean test R of an ablation row with its 95 % interval over seeds (``± half-width``) and
     ``*`` when the paired test against the reference setting finds a difference."""
-    r = _num(row.get(f"{split}_R"))
-    if np.isnan(r):
-        return "–"
-    text = _f(r)
-    half = _num(row.get(f"{split}_R_ci95"))
-    if not np.isnan(half):
-        text += f" ± {half:.3f}"
-    if row.get(f"{split}_R_differs") == "True":
-        text += " *"
-    return text
+    text = ci_cell(row, f"{split}_R")
+    return text + " *" if row.get(f"{split}_R_differs") == "True" else text
 
 
-def seeds_note(rows: list[dict], split: str, reference: str) -> str:
-    """What the R column of a table of seed replicates shows, in words."""
+def seeds_note(rows: list[dict], split: str) -> str:
+    """What a table of seed replicates shows, in words (its reference setting is the row whose
+    ``<split>_R_differs`` is ``reference``)."""
     n = sorted({int(float(r["n_seeds"])) for r in rows if r.get("n_seeds")})
     if not n or n == [1]:
         return ("One training seed per row: differences of a few thousandths in R are within "
                 "run-to-run noise.")
-    marked = sum(r.get(f"{split}_R_differs") == "True" for r in rows)
-    return (f"R: mean over {'/'.join(map(str, n))} training seeds ± the half-width of its 95 % "
-            f"t-interval. * marks a row whose R differs from {reference!r} in a paired t-test "
-            "over the same seeds, Holm-corrected over all the grid's settings (family-wise "
-            f"5 %): {marked} of the {len(rows) - 1} other rows here. Replicate k trains with "
-            "the run seed + 1000 k (its split, initialisation, batches and augmentation); the "
-            "corpus is the run's.")
+    ref = [r.get("setting", r.get("step")) for r in rows
+           if r.get(f"{split}_R_differs") == "reference"]
+    tested = [r for r in rows if r.get(f"{split}_R_differs") in ("True", "False")]
+    marked = sum(r[f"{split}_R_differs"] == "True" for r in tested)
+    ref = repr(ref[0]) if ref else "the grid's reference setting"
+    return (f"Figures: mean over {'/'.join(map(str, n))} training seeds ± the half-width of its "
+            "95 % t-interval. " + (
+                f"* marks a row whose R differs from {ref} in a paired t-test over the same "
+                "seeds, Holm-corrected over all the grid's settings (family-wise 5 %): "
+                f"{marked} of the {len(tested)} rows tested here. " if tested else "") +
+            "Replicate k trains with the run seed + 1000 k (its split, initialisation, batches "
+            "and augmentation); the corpus is the run's.")
 
 
 def paper_table_rows(rows: list[dict], method: str, part: str) -> list[list]:
@@ -112,11 +120,11 @@ def lookahead_section(report, ab: list[dict], figure: Path, split: str = "uttera
                   "MSE", "LVE (px)", "/p b m/ closed"],
                  [[r["setting"], r["method"], r.get("look_ahead", "–"),
                    r.get("window_align", "–"), _f(_num(r.get("latency_ms")), 1),
-                   r_cell(r, split), _f(_num(r[f"{split}_MSE"]), 4),
-                   _f(_num(r.get(f"{split}_LVE")), 2), _f(_num(r.get(f"{split}_closure")), 2)]
+                   r_cell(r, split), ci_cell(r, f"{split}_MSE", 4),
+                   ci_cell(r, f"{split}_LVE", 2), ci_cell(r, f"{split}_closure", 2)]
                   for r in rows],
                  note="Mean over expressions of the test-set figures. " +
-                      seeds_note(rows, split, "paper"))
+                      seeds_note(rows, split))
     if figure.is_file():
         report.figure(figure, "Test R and closure on /p b m/ against algorithmic latency; "
                       "stars: the paper's setting (centred window).")
@@ -150,11 +158,11 @@ def ceiling_section(report, ceiling_dir: Path) -> None:
                  ["step", "changes", "R (utterance)", "R (frame split)", "MSE (utterance)",
                   "LVE (px)", "/p b m/ closed"],
                  [[r["step"], escape(r["changes"]), r_cell(r, "utterance"),
-                   r_cell(r, "random_frames"), _f(_num(r["utterance_MSE"]), 4),
-                   _f(_num(r["utterance_LVE"]), 2), _f(_num(r["utterance_closure"]), 2)]
+                   r_cell(r, "random_frames"), ci_cell(r, "utterance_MSE", 4),
+                   ci_cell(r, "utterance_LVE", 2), ci_cell(r, "utterance_closure", 2)]
                   for r in rows] + [["paper (Table II)", "their corpus, frame split", "–",
                                      _f(paper), "–", "–", "–"]],
-                 note=seeds_note(rows, "utterance", rows[0]["step"]) + " Each step is an "
+                 note=seeds_note(rows, "utterance") + " Each step is an "
                       "MLflow child run of the ceiling parent run.")
     fig = ceiling_dir / "ceiling.png"
     if fig.is_file():
@@ -269,13 +277,12 @@ def mapping_section(report, summary: dict, mapping_dir: Path, ablations_csv: Pat
                     r["n_mfcc"] + (" +delta" if r["deltas"] == "True" else ""), r["hidden"],
                     r["expression_model"]]
             for s in splits:
-                line += [r_cell(r, s),
-                         _f(float(r[f"{s}_MSE"]), 4) if r.get(f"{s}_MSE") else "–"]
+                line += [r_cell(r, s), ci_cell(r, f"{s}_MSE", 4)]
             body.append(line)
         for s in splits:
             head += [f"R ({s})", f"MSE ({s})"]
         report.table("Ablations: mean test figures per setting over training seeds", head,
-                     body, note=seeds_note(ab, splits[0], ab[0]["setting"]) + " Every setting "
+                     body, note=seeds_note(ab, splits[0]) + " Every setting "
                      "and seed is an MLflow child run of the ablation parent run (tags "
                      "ablation.setting, ablation.seed).")
         lookahead_section(report, ab, ablations_csv.parent / "lookahead.png")

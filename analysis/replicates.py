@@ -75,3 +75,48 @@ def paired_tests(by_setting: dict, reference: str, *, alpha: float = 0.05) -> di
         for n, r, p in zip(names, reject, p_holm):
             out[n].update(p_holm=float(p), differs=bool(r))
     return out
+
+
+INTERVAL_FIGURES = ("R", "MSE", "LVE", "closure")  # per split: the figures given with intervals
+
+
+def summarise_replicates(reps: list[dict], *, reference: str, key: str = "setting") -> list[dict]:
+    """One row per setting (column ``key``) from its replicate rows (one per setting and seed,
+    with a ``seed`` column and figures ``<split>_<figure>``).
+
+    A row has the setting's own columns, the mean of every figure over its seeds, ``n_seeds``,
+    and for each split the setting was evaluated on: ``<split>_<figure>_ci95``, the half-width of
+    the 95 % t-interval of each figure of :data:`INTERVAL_FIGURES` (:func:`interval`), and the
+    paired test of R against ``reference`` over their common seeds (:func:`paired_tests`,
+    Holm-corrected over the settings of that split): ``<split>_R_diff``, ``<split>_R_p_holm``
+    and ``<split>_R_differs`` (``True``/``False``, ``reference`` on the reference's row, empty
+    when there is nothing to pair with). Settings may differ in their splits and columns.
+    """
+    names = list(dict.fromkeys(r[key] for r in reps))
+    mine = {n: [r for r in reps if r[key] == n] for n in names}
+    splits = {n: [k[:-2] for k in rs[0] if k.endswith("_R") and not k.startswith("in_domain")]
+              for n, rs in mine.items()}
+    tests = {s: paired_tests({n: {r["seed"]: float(r[f"{s}_R"]) for r in mine[n]}
+                              for n in names if s in splits[n]}, reference)
+             for s in dict.fromkeys(s for ss in splits.values() for s in ss)}
+    rows = []
+    for n in names:
+        row = {k: v for k, v in mine[n][0].items() if k not in ("replicate", "seed")}
+        for k, v in row.items():
+            if isinstance(v, float):
+                vals = np.array([float(r.get(k, np.nan)) for r in mine[n]])
+                row[k] = float(vals[np.isfinite(vals)].mean()) if np.isfinite(vals).any() \
+                    else float("nan")
+        row["n_seeds"] = len(mine[n])
+        for s in splits[n]:
+            for fig in INTERVAL_FIGURES:
+                if f"{s}_{fig}" in row:
+                    _, row[f"{s}_{fig}_ci95"] = interval(
+                        [float(r.get(f"{s}_{fig}", np.nan)) for r in mine[n]])
+            t = tests[s].get(n, {})
+            row[f"{s}_R_diff"] = t.get("diff", float("nan"))
+            row[f"{s}_R_p_holm"] = t.get("p_holm", float("nan"))
+            row[f"{s}_R_differs"] = ("reference" if n == reference else
+                                     t["differs"] if t else "")
+        rows.append(row)
+    return rows

@@ -52,23 +52,30 @@ class ChildLog:
             [self.experiment_id], f"tags.mlflow.parentRunId = '{self.parent_run_id}'",
             max_results=50000)
 
+    def _with_key(self, client, key: str) -> list:
+        """The parent's child runs (not deleted) that carry ``key``."""
+        return client.search_runs(
+            [self.experiment_id], f"tags.mlflow.parentRunId = '{self.parent_run_id}' and "
+            f"tags.`{KEY_TAG}` = '{key}'")
+
     def log(self, name: str, seed: int, *, tags: dict, params: dict, metrics: dict,
             files=(), config: dict | None = None) -> str:
         """Log one child (setting ``name``, ``seed``) unless a finished child run with its key
-        is already there; returns the child's run id."""
-        from mlflow.entities import Metric, Param, RunTag
+        is already there; returns the id of the child run that stays.
+
+        Two attempts of one task may log at once (a scheduler that lost a worker's heartbeat
+        runs its task again while the first attempt still lives): each finishes its own run,
+        then keeps the earliest finished run with the key (by start time, then run id) and
+        deletes the others, so both attempts agree and one run stays. Unfinished runs are left
+        to their attempts; :meth:`prune` removes those a dead worker left, once the grid is
+        done."""
+        from mlflow.entities import Metric, Param
 
         client, key = self._client(), child_key(name, seed)
-        found = client.search_runs(
-            [self.experiment_id], f"tags.mlflow.parentRunId = '{self.parent_run_id}' and "
-            f"tags.`{KEY_TAG}` = '{key}'")
-        keep = next((r.info.run_id for r in found if r.info.status == "FINISHED"), None)
-        for r in found:
-            if r.info.run_id != keep:
-                client.delete_run(r.info.run_id)  # half-logged (its worker died), or a twin
-        if keep is not None:
-            return keep
-        run = client.create_run(self.experiment_id, run_name=name, tags={
+        done = _finished(self._with_key(client, key))
+        if done:
+            return done[0].info.run_id
+        run = client.create_run(self.experiment_id, run_name=key, tags={
             "mlflow.parentRunId": self.parent_run_id, KEY_TAG: key,
             **{k: str(v) for k, v in tags.items()}})
         rid, now = run.info.run_id, int(time.time() * 1000)
@@ -83,7 +90,26 @@ class ChildLog:
         if config is not None:
             client.log_dict(rid, config, "config.json")
         client.set_terminated(rid, "FINISHED")  # last: a run without it is half-logged
-        return rid
+        keep, *twins = _finished(self._with_key(client, key))
+        for r in twins:
+            client.delete_run(r.info.run_id)
+        return keep.info.run_id
+
+    def prune(self) -> int:
+        """Delete the parent's unfinished child runs (half-logged by a worker that died); call
+        it once every task of the grid has ended. Returns how many were deleted."""
+        client = self._client()
+        gone = [r.info.run_id for r in self.children() if r.info.status != "FINISHED"]
+        for rid in gone:
+            client.delete_run(rid)
+        return len(gone)
+
+
+def _finished(runs: list) -> list:
+    """The FINISHED runs of ``runs``, earliest first (start time, then run id): the first is
+    the one every attempt keeps."""
+    return sorted((r for r in runs if r.info.status == "FINISHED"),
+                  key=lambda r: (r.info.start_time or 0, r.info.run_id))
 
 
 @contextmanager

@@ -24,8 +24,8 @@ from talkingface import runs, server_cli, study_cli
 from talkingface.animate import animate_file, stream_file, stream_microphone
 from talkingface.cli_args import config_args, resolve_config, run_args, visual_source_arg
 from talkingface.config import apply_overrides, dump_config, load_config
-from talkingface.experiment_log import (artifact_root, log_speech_eval_model, mlflow_run,
-                                        tracking_uri)
+from talkingface.experiment_log import (artifact_root, check_tracking, log_speech_eval_model,
+                                        mlflow_run, tracking_uri)
 from talkingface.live import input_devices
 from talkingface.paths import RunPaths, check_run_name
 from talkingface.stages import run
@@ -241,6 +241,7 @@ def cmd_stream(args) -> int:
 
 def cmd_evaluate_speech(args) -> int:
     cfg = resolve_config(args)
+    check_tracking(cfg)  # before the evaluation, not after it
     models = find_models(args.model)
     files = output_files(args.out)
     for path in (files["results"], files["per_file"], files["json"]):

@@ -33,6 +33,7 @@ from face_model.errors import ParameterError
 from face_model.settings import SettingError, check_fields, choices_of, integer, require
 from mapping.config import MappingConfig
 from study.config import StudyConfig
+from talkingface.executor import scheduler_address
 
 
 @dataclass(frozen=True)
@@ -76,10 +77,7 @@ class ClusterConfig:
 
     def __post_init__(self):
         check_fields(self)
-        require(self, "scheduler", self.scheduler in ("local", "processes")
-                or re.fullmatch(r"tcp://[^\s:/]+:\d{1,5}", self.scheduler) is not None,
-                "local (a Dask LocalCluster on this machine), processes (a process pool) or a "
-                "running Dask scheduler's address tcp://HOST:PORT")
+        scheduler_address(self.scheduler)  # refuses anything else, naming what is allowed
 
 
 @dataclass(frozen=True)
@@ -126,6 +124,12 @@ class Config:
 
     def __post_init__(self):
         check_fields(self)
+        # replicate k of a grid trains with seed + 1000 k (talkingface.stages.grid)
+        top = self.seed + 1000 * (max(self.ablations.seeds, self.ceiling.seeds) - 1)
+        require(self, "seed", top <= MAX_SEED,
+                f"at most {MAX_SEED} - 1000 x (the largest of ablations.seeds and "
+                "ceiling.seeds, minus one): its replicates' seeds must stay within "
+                f"0..{MAX_SEED}", ("ablations.seeds", "ceiling.seeds"))
 
 
 # -- YAML ------------------------------------------------------------------------------------

@@ -18,7 +18,7 @@ named by ``cluster.scheduler``:
 
 A task that dies with its worker is run again on another worker by the Dask scheduler (up to
 ``distributed.scheduler.allowed-failures`` times); tasks are written to be run again safely
-(:func:`talkingface.stages.ablations.run_child` writes its folder under a temporary name and its
+(:func:`talkingface.stages.grid.run_child` writes its folder under a temporary name and its
 MLflow child run is keyed by setting and seed). Every task runs with one torch and one BLAS
 thread: the parallelism is the workers'.
 """
@@ -28,40 +28,50 @@ import logging
 import multiprocessing
 import os
 import socket
+import sys
+import threading
 import uuid
-from concurrent.futures import ProcessPoolExecutor, as_completed
-from contextlib import contextmanager
+from concurrent.futures import CancelledError, ProcessPoolExecutor, as_completed
+from contextlib import contextmanager, suppress
 
 from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
-from face_model.errors import ParameterError
+from face_model.errors import ParameterError, TalkingFaceError
 
 SCHEDULERS = ("local", "processes")
 CONNECT_TIMEOUT_S = 10
+NO_WORKER_WARN_S = 30
+
+
+def scheduler_address(value: str) -> tuple[str, int] | None:
+    """``(host, port)`` of a ``tcp://HOST:PORT`` scheduler, None for ``local`` and
+    ``processes``; anything else is refused, naming what is allowed."""
+    if value in SCHEDULERS:
+        return None
+    host, _, port = value.removeprefix("tcp://").rpartition(":")
+    host = host.removeprefix("[").removesuffix("]")  # an IPv6 address in brackets
+    if not value.startswith("tcp://") or not host or any(c.isspace() or c == "/" for c in host) \
+            or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ParameterError(f"cluster.scheduler is {value!r}; allowed: local (a Dask "
+                             "LocalCluster on this machine), processes (a process pool), or a "
+                             "running Dask scheduler's address tcp://HOST:PORT (port 1-65535)")
+    return host, int(port)
 
 
 def check_scheduler(value: str) -> None:
     """Refuse a ``cluster.scheduler`` that is neither a known name nor a ``tcp://`` address."""
-    if value in SCHEDULERS:
-        return
-    host, _, port = value.removeprefix("tcp://").rpartition(":")
-    if not value.startswith("tcp://") or not host or not port.isdigit() \
-            or not 1 <= int(port) <= 65535:
-        raise ParameterError(f"cluster.scheduler is {value!r}; allowed: local (a Dask "
-                             "LocalCluster on this machine), processes (a process pool), or a "
-                             "running Dask scheduler's address tcp://HOST:PORT")
+    scheduler_address(value)
 
 
 def check_reachable(scheduler: str) -> None:
     """Refuse a ``tcp://`` scheduler that does not accept a connection (checked before a
     command starts its work); ``local`` and ``processes`` need nothing."""
-    check_scheduler(scheduler)
-    if scheduler in SCHEDULERS:
+    address = scheduler_address(scheduler)
+    if address is None:
         return
-    host, _, port = scheduler.removeprefix("tcp://").rpartition(":")
     try:
-        socket.create_connection((host, int(port)), timeout=CONNECT_TIMEOUT_S).close()
+        socket.create_connection(address, timeout=CONNECT_TIMEOUT_S).close()
     except OSError as exc:
         raise ParameterError(f"cluster.scheduler {scheduler}: no Dask scheduler answers there "
                              f"({exc.strerror or type(exc).__name__}); start one (`dask "
@@ -105,6 +115,50 @@ def dask_client(scheduler: str, workers: int):
         yield client
 
 
+def _dask_result(fut, key, scheduler: str):
+    """The result of one Dask task; a task that kept killing its workers, or a scheduler lost
+    mid-grid, is one line naming the task (the task's own errors pass as they are)."""
+    from distributed import KilledWorker
+    from distributed.comm.core import CommClosedError
+
+    try:
+        return fut.result()
+    except KilledWorker as exc:
+        raise TalkingFaceError(
+            f"grid task {key!r}: every worker that ran it died (on {scheduler}: out of memory, "
+            f"or a node that keeps failing?): {exc}") from None
+    except (CommClosedError, CancelledError) as exc:
+        raise TalkingFaceError(f"cluster.scheduler {scheduler}: the connection to the Dask "
+                               f"scheduler was lost while task {key!r} ran "
+                               f"({type(exc).__name__}); the finished tasks' folders are "
+                               "kept: run the command again to go on") from None
+
+
+class _WorkerWatch:
+    """Warn once (on stderr) when a running scheduler has had no worker for
+    ``NO_WORKER_WARN_S`` seconds: its tasks wait (workers still queued as batch jobs?)."""
+
+    def __init__(self, client, scheduler: str):
+        self._stop = threading.Event()
+        if scheduler == "local":
+            return
+        self._thread = threading.Thread(target=self._run, args=(client, scheduler),
+                                        daemon=True)
+        self._thread.start()
+
+    def _run(self, client, scheduler):
+        if self._stop.wait(NO_WORKER_WARN_S):
+            return
+        with suppress(Exception):  # a warning only: the scheduler's own errors are reported
+            if not client.scheduler_info().get("workers"):
+                print(f"warning: cluster.scheduler {scheduler} has no worker; the tasks wait "
+                      "until one joins (`dask worker tcp://HOST:PORT`, or the batch jobs of "
+                      "dask-jobqueue)", file=sys.stderr, flush=True)
+
+    def stop(self):
+        self._stop.set()
+
+
 def map_tasks(fn, tasks: dict, *, scheduler: str = "local", workers: int = 0,
               desc: str = "tasks", progress: bool = True) -> dict:
     """``{key: fn(*args)}`` for every ``key: args`` of ``tasks``, run on ``scheduler`` (see the
@@ -122,11 +176,14 @@ def map_tasks(fn, tasks: dict, *, scheduler: str = "local", workers: int = 0,
         if scheduler == "processes":
             n = min(workers or os.cpu_count() or 1, len(tasks))
             ctx = multiprocessing.get_context("spawn")  # torch is not fork-safe
-            with ProcessPoolExecutor(max_workers=n, mp_context=ctx) as pool:
+            pool = ProcessPoolExecutor(max_workers=n, mp_context=ctx)
+            try:
                 futs = {pool.submit(_call, fn, args): key for key, args in tasks.items()}
                 for fut in as_completed(futs):
                     out[futs[fut]] = fut.result()
                     bar.update()
+            finally:  # on an error, the tasks not started yet are not started
+                pool.shutdown(wait=True, cancel_futures=True)
             return out
         from distributed import as_completed as dask_completed
 
@@ -134,11 +191,13 @@ def map_tasks(fn, tasks: dict, *, scheduler: str = "local", workers: int = 0,
         with dask_client(scheduler, min(workers or os.cpu_count() or 1, len(tasks))) as client:
             futs = {client.submit(_call, fn, args, key=f"{desc}-{tag}-{i}", pure=False): key
                     for i, (key, args) in enumerate(tasks.items())}
+            watch = _WorkerWatch(client, scheduler)
             try:
                 for fut in dask_completed(futs):
-                    out[futs[fut]] = fut.result()
+                    out[futs[fut]] = _dask_result(fut, futs[fut], scheduler)
                     bar.update()
             finally:
+                watch.stop()
                 client.cancel(list(futs))
         return out
     finally:

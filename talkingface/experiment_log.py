@@ -38,6 +38,9 @@ def tracking_uri(cfg) -> str:
     return f"sqlite:///{Path.cwd() / 'mlflow.db'}"
 
 
+_CREDENTIALS = ("MLFLOW_TRACKING_USERNAME", "MLFLOW_TRACKING_PASSWORD", "MLFLOW_TRACKING_TOKEN")
+
+
 def check_tracking(cfg) -> None:
     """Refuse a tracking server (``http(s)://`` URI) that does not answer, before a command
     starts its work: one line, not minutes of MLflow's retries and a traceback."""
@@ -51,6 +54,14 @@ def check_tracking(cfg) -> None:
         if exc.code >= 500:
             raise TalkingFaceError(f"mlflow.uri {uri}: the tracking server answers with HTTP "
                                    f"{exc.code}; see its log") from None
+        if exc.code == 404:
+            raise TalkingFaceError(f"mlflow.uri {uri}: a web server answers there but not "
+                                   "MLflow's (HTTP 404 at /health); check the address and "
+                                   "port") from None
+        if exc.code in (401, 403) and not any(os.environ.get(k) for k in _CREDENTIALS):
+            raise TalkingFaceError(f"mlflow.uri {uri}: the tracking server asks for a log-in "
+                                   f"(HTTP {exc.code}); set {' or '.join(_CREDENTIALS[::2])} "
+                                   "(MLflow's own variables)") from None
     except (OSError, ValueError) as exc:
         why = getattr(exc, "reason", None) or exc
         raise TalkingFaceError(f"mlflow.uri {uri}: no tracking server answers there ({why}); "
@@ -180,6 +191,7 @@ def log_ablations(mlf, log: ChildLog, out_dir: Path, grid: dict, *, seeds: int =
             where = replicate_folder(out_dir, name, ck.seed, k)
             summary = json.loads((where / "summary.json").read_text())
             log_child(log, stage, name, k, where, ck, summary)
+    log.prune()  # what a worker killed while logging left unfinished
     client = mlf.tracking.MlflowClient()
     for table in ("results.csv", "replicates.csv"):
         if (out_dir / table).is_file():

@@ -8,9 +8,9 @@ written here and in :mod:`talkingface.experiment_log`, nowhere below.
 from __future__ import annotations
 
 from face_model.errors import ParameterError
-from talkingface.executor import check_reachable
+from talkingface.executor import check_reachable, scheduler_address
 from talkingface.experiment_log import (check_tracking, grid_runs, log_ablations,
-                                        log_replication, log_train, mlflow_run)
+                                        log_replication, log_train, mlflow_run, tracking_uri)
 from talkingface.paths import RunPaths
 from talkingface.stages import REPLICATION, preflight, prepare_run, run
 from talkingface.stages.ablations import grid_path
@@ -26,9 +26,23 @@ def open_run(name: str, cfg, stages, *, overwrite: bool = False, runs_dir="runs"
     cannot run."""
     check_tracking(cfg)
     check_reachable(cfg.cluster.scheduler)
+    check_workers_log(cfg)
     paths = RunPaths.create(name, runs_dir=runs_dir, reports_dir=reports_dir)
     prepare_run(paths, cfg, overwrite=overwrite, check=lambda: preflight(stages, paths, cfg))
     return paths
+
+
+def check_workers_log(cfg) -> None:
+    """Refuse a running Dask scheduler (``tcp://``) with a tracking store its workers cannot
+    share: they log their child runs themselves, on their own machines, so the store must be a
+    tracking server (``http(s)://``), not a local file such as the default ``mlflow.db``."""
+    uri = tracking_uri(cfg)
+    if cfg.mlflow.enabled and scheduler_address(cfg.cluster.scheduler) is not None \
+            and not uri.startswith(("http://", "https://")):
+        raise ParameterError(f"cluster.scheduler {cfg.cluster.scheduler}: its workers log their "
+                             f"child runs themselves and cannot share the tracking store {uri}; "
+                             "set mlflow.uri to a tracking server they all reach "
+                             "(http://HOST:PORT, `talkingface server`), or mlflow.enabled=false")
 
 
 def replicate(name: str, cfg, *, overwrite: bool = False, runs_dir="runs",

@@ -6,10 +6,15 @@ Everything lives in one folder (``talkingface server --folder DIR``, default ``.
                      ``mlflow``, role ``talkingface``, listening on 127.0.0.1 only
     DIR/artifacts/   the artifact store: clients upload through the server (``mlflow-artifacts:``)
     DIR/logs/        postgres.log, mlflow.log
+    DIR/db-password  the database role's password (mode 600, readable by whoever starts the
+                     server only), made with the cluster
 
 PostgreSQL refuses to run as root, so a root user runs the cluster as the ``postgres`` system
 user that Debian's ``postgresql`` package creates (``DIR/pgdata`` and ``DIR/logs`` are given to
-it); anyone else runs it as themselves. MLflow runs in a process group of its own, so stopping
+it); anyone else runs it as themselves. The database asks for a password (scram-sha-256) even
+on 127.0.0.1, so other users of a shared machine cannot reach it; the server gives the password
+to PostgreSQL's programs and to MLflow in their environment (``PGPASSWORD``), never on a command
+line. MLflow runs in a process group of its own, so stopping
 the server stops its web workers and job runners too: nothing is left running.
 
 Library code: no MLflow import (the server is a separate process); the CLI is
@@ -25,6 +30,7 @@ import json
 import os
 import pwd
 import re
+import secrets
 import shutil
 import signal
 import socket
@@ -216,6 +222,7 @@ class LabServer:
         self._postgres_up = False
         self._bin: Path | None = None
         self._user: pwd.struct_passwd | None = None
+        self._password: str | None = None
 
     @property
     def uri(self) -> str:
@@ -273,7 +280,8 @@ class LabServer:
             self._start_mlflow()
             self._wait_until_up()
         except BaseException:
-            self.stop()
+            with contextlib.suppress(TalkingFaceError):  # the first error is the one to tell
+                self.stop()
             raise
         return self
 
@@ -307,7 +315,7 @@ class LabServer:
         kw = {}
         if self._user is not None:
             kw = dict(user=self._user.pw_uid, group=self._user.pw_gid, extra_groups=[])
-        env = {**os.environ, "LC_ALL": "C.UTF-8"}
+        env = {**os.environ, "LC_ALL": "C.UTF-8", **self._password_env()}
         done = subprocess.run([str(self._bin / args[0]), *args[1:]], cwd=self.logs, env=env,
                               stdin=subprocess.DEVNULL, capture_output=True, text=True,
                               start_new_session=True, **kw)
@@ -317,12 +325,42 @@ class LabServer:
                                    f"{done.returncode}) for {self.pgdata}: {out[-600:]}")
         return done
 
+    @property
+    def _password_file(self) -> Path:
+        return self.folder / "db-password"
+
+    def _new_password(self) -> None:
+        """A new random password for the database role, kept in ``DIR/db-password`` (mode
+        600)."""
+        self._password = secrets.token_urlsafe(24)
+        self._password_file.unlink(missing_ok=True)
+        fd = os.open(self._password_file, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+        with os.fdopen(fd, "w") as f:
+            f.write(self._password + "\n")
+
+    def _password_env(self) -> dict:
+        """``PGPASSWORD`` for PostgreSQL's programs and MLflow (libpq reads it); empty for a
+        cluster without a password file."""
+        if self._password is None and self._password_file.is_file():
+            self._password = self._password_file.read_text().strip()
+        return {"PGPASSWORD": self._password} if self._password else {}
+
     def _start_postgres(self) -> None:
         self.created = not (self.pgdata / "PG_VERSION").is_file()
         if self.created:
             self.progress(f"making the PostgreSQL cluster {self.pgdata}")
-            self._pg("initdb", "-D", str(self.pgdata), "-A", "trust", "-U", DB_ROLE,
-                     "-E", "UTF8", "--locale=C")
+            self._new_password()
+            pwfile = self.logs / ".initdb-password"  # for initdb alone, removed after it
+            try:
+                fd = os.open(pwfile, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+                with os.fdopen(fd, "w") as f:
+                    f.write(self._password + "\n")
+                if self._user is not None:
+                    os.chown(pwfile, self._user.pw_uid, self._user.pw_gid)
+                self._pg("initdb", "-D", str(self.pgdata), "-A", "scram-sha-256",
+                         f"--pwfile={pwfile}", "-U", DB_ROLE, "-E", "UTF8", "--locale=C")
+            finally:
+                pwfile.unlink(missing_ok=True)
         elif self._pg("pg_ctl", "-D", str(self.pgdata), "status", check=False).returncode == 0:
             # never start (nor, on failure, stop) the PostgreSQL of another running server
             raise TalkingFaceError(f"--folder {self.folder}: its PostgreSQL is already running "
@@ -354,7 +392,8 @@ class LabServer:
         if self.allowed_hosts:
             cmd += ["--allowed-hosts", self.allowed_hosts]
         self.progress(f"starting the MLflow server on {self.uri} (up to a minute)")
-        env = {**os.environ, "MLFLOW_SERVER_ENABLE_JOB_EXECUTION": str(self.jobs).lower()}
+        env = {**os.environ, "MLFLOW_SERVER_ENABLE_JOB_EXECUTION": str(self.jobs).lower(),
+               **self._password_env()}
         with open(self.logs / "mlflow.log", "ab") as log:
             self._mlflow = subprocess.Popen(cmd, cwd=self.folder, env=env,
                                             stdin=subprocess.DEVNULL, stdout=log,
@@ -408,8 +447,12 @@ class LabServer:
     def __enter__(self) -> "LabServer":
         return self.start()
 
-    def __exit__(self, *exc) -> None:
-        self.stop()
+    def __exit__(self, exc_type, exc, tb) -> None:
+        try:
+            self.stop()
+        except TalkingFaceError:
+            if exc_type is None:  # else the error that left the block is the one to tell
+                raise
 
 
 def _url_host(host: str) -> str:

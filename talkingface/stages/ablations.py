@@ -24,10 +24,11 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.replicates import interval, paired_tests
+from analysis.replicates import summarise_replicates
 from mapping.features import algorithmic_latency_s
 from talkingface.child_runs import log_for
 from talkingface.paths import RunPaths
+from talkingface.stages.base import write_csv
 from talkingface.stages.grid import (checked_grid, child_metrics, load_grid, resolve_grid,
                                      run_grid)
 from talkingface.stages.motion import training_corpus
@@ -49,9 +50,9 @@ def run_ablations(grid: dict, corpus_dir: Path, units_path: Path, out_dir: Path,
     sr = corpus_sample_rate(corpus_dir)
     reps = [{**_result_row(name, grid[name], res, sr), "replicate": k, "seed": res["seed"]}
             for (name, k), res in results.items()]
-    _write_rows(out_dir / "replicates.csv", reps)
+    write_csv(out_dir / "replicates.csv", reps)
     rows = summarise_replicates(reps, reference=reference_setting(grid))
-    _write_rows(out_dir / "results.csv", rows)
+    write_csv(out_dir / "results.csv", rows)
     curve = lookahead_rows(rows)
     if curve:
         lookahead_figure(curve, out_dir / "lookahead.png")
@@ -62,46 +63,6 @@ def reference_setting(grid) -> str:
     """The setting the others are tested against: ``paper`` if the grid has it, else its first
     child."""
     return "paper" if "paper" in grid else next(iter(grid))
-
-
-def summarise_replicates(reps: list[dict], *, reference: str, key: str = "setting") -> list[dict]:
-    """One row per setting (column ``key``) from its replicate rows: the settings' columns,
-    the mean of every figure over seeds, ``n_seeds``, and per split the R interval
-    (``<split>_R_ci95``: half-width of the 95 % interval), the paired difference from
-    ``reference`` (``<split>_R_diff``), its Holm-corrected p-value and whether it differs
-    (:func:`analysis.replicates.paired_tests`)."""
-    names = list(dict.fromkeys(r[key] for r in reps))
-    splits = [k[:-2] for k in reps[0] if k.endswith("_R") and not k.startswith("in_domain")]
-    tests = {s: paired_tests({n: {r["seed"]: float(r[f"{s}_R"]) for r in reps
-                                  if r[key] == n} for n in names}, reference)
-             for s in splits}
-    rows = []
-    for n in names:
-        mine = [r for r in reps if r[key] == n]
-        row = {k: v for k, v in mine[0].items() if k not in ("replicate", "seed")}
-        for k, v in row.items():
-            if isinstance(v, float):
-                vals = np.array([float(r[k]) for r in mine])
-                row[k] = float(vals[np.isfinite(vals)].mean()) if np.isfinite(vals).any() \
-                    else float("nan")
-        row["n_seeds"] = len(mine)
-        for s in splits:
-            _, row[f"{s}_R_ci95"] = interval([float(r[f"{s}_R"]) for r in mine])
-            t = tests[s].get(n, {})
-            row[f"{s}_R_diff"] = t.get("diff", float("nan"))
-            row[f"{s}_R_p_holm"] = t.get("p_holm", float("nan"))
-            row[f"{s}_R_differs"] = ("reference" if n == reference else
-                                     t["differs"] if t else "")
-        rows.append(row)
-    return rows
-
-
-def _write_rows(path: Path, rows: list[dict]) -> None:
-    fields = list(dict.fromkeys(k for r in rows for k in r))
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=fields, restval="")
-        w.writeheader()
-        w.writerows(rows)
 
 
 def corpus_sample_rate(corpus_dir) -> int:

@@ -81,9 +81,11 @@ def read_done(folder: Path) -> dict | None:
 
 
 def write_csv(path: Path, rows: list[dict]) -> Path:
-    """``rows`` (dicts with the same keys) as a CSV file with a header (written atomically)."""
+    """``rows`` (dicts) as a CSV file with a header (written atomically): the columns are every
+    key of any row, in order of appearance; a row without a key leaves its cell empty."""
     with atomic_file(path) as tmp, open(tmp, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w = csv.DictWriter(f, fieldnames=list(dict.fromkeys(k for r in rows for k in r)),
+                           restval="")
         w.writeheader()
         w.writerows(rows)
     return path

@@ -17,7 +17,7 @@ gets a tracked copy of its corpus; the others train on the run's training corpus
 Units. Each child trains only ``mapping.method`` on the paper's frame split and
 the utterance split (:func:`talkingface.stages.grid.run_child`), with ``ceiling.seeds``
 seeds; ``results.csv`` has their means, the 95 % interval of R and the paired test against the
-first step (:func:`talkingface.stages.ablations.summarise_replicates`), ``replicates.csv`` each
+first step (:func:`analysis.replicates.summarise_replicates`), ``replicates.csv`` each
 seed's figures.
 
 Files (``runs/<name>/ceiling/``)::
@@ -35,12 +35,12 @@ from pathlib import Path
 import numpy as np
 
 from analysis.metrics import PAPER_TABLES
+from analysis.replicates import summarise_replicates
 from data_synth.generate import synthesize_corpus
 from face_model.errors import ParameterError
 from talkingface.config import flatten
 from talkingface.paths import RunPaths
 from talkingface.child_runs import log_for
-from talkingface.stages.ablations import summarise_replicates
 from talkingface.stages.grid import (checked_grid, child_metrics, load_grid, resolve_grid,
                                      run_grid)
 from talkingface.stages.base import write_csv
@@ -62,13 +62,13 @@ def has_grid(cfg) -> bool:
 
 
 def load_ceiling_grid(path, cfg) -> dict:
-    """``{child: Config}``; a child may not change the seed or the Motion Units' settings (every
-    step is the run's replication with its own corpus)."""
+    """``{child: Config}``; a child may not change the seed (:func:`load_grid`) or the Motion
+    Units' settings (every step is the run's replication with its own corpus)."""
     children = load_grid(path, cfg, what=WHAT, shared_corpus=False)
     for name, child in children.items():
-        if child.seed != cfg.seed or child.units != cfg.units:
-            raise ParameterError(f"{path}: child {name!r} changes the seed or the Motion Units' "
-                                 "settings; set these for the whole run")
+        if child.units != cfg.units:
+            raise ParameterError(f"{path}: child {name!r} changes the Motion Units' settings; "
+                                 "set these for the whole run")
     return children
 
 

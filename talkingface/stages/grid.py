@@ -20,10 +20,12 @@ one seed gives exactly the single-run results. Folders::
     <out>/<child>/                          replicate 0: tables.csv, summary.json, model
     <out>/replicates/seed-<s>/<child>/      replicate k >= 1, trained with seed s
 
-A task writes its folder under ``<folder>.partial`` and renames it when complete, then logs its
-MLflow child run (keyed by setting and seed, :mod:`talkingface.child_runs`); a task run again
-after its worker died replaces the partial folder and finds or replaces its child run, so neither
-is ever doubled or left half-written.
+A task writes its folder under ``<folder>.partial-<attempt>`` (its own, since a scheduler may run
+a task again while the first attempt still lives) and swaps it in when complete
+(:func:`face_model.atomic.swap_in`), then logs its MLflow child run, keyed by setting and seed
+(:mod:`talkingface.child_runs`): attempts that race keep one run between them, and the partial
+folders and unfinished runs of attempts killed with their workers are removed once the grid has
+ended. So no child is ever doubled or left half-written.
 """
 from __future__ import annotations
 
@@ -35,6 +37,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from analysis.evaluation import row_metrics
+from face_model.atomic import swap_in
 from face_model.errors import ParameterError
 from talkingface.child_runs import artifact_files
 from talkingface.config import apply_overrides, flatten, parse_set, read_yaml, to_dict
@@ -44,6 +47,7 @@ from talkingface.stages.training import train_and_evaluate
 _CHILD_NAME = "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_.-"
 RESERVED = ("corpora", "replicates")  # folders of a grid stage beside its children
 REPLICATE_SEED_STEP = 1000
+PARTIAL = ".partial-"  # a task's folder while it is written: <child>.partial-<attempt>
 
 
 def load_grid(path, cfg, *, what: str = "ablation grid", extra_keys: tuple = (),
@@ -77,13 +81,17 @@ def load_grid(path, cfg, *, what: str = "ablation grid", extra_keys: tuple = (),
     for name, d in tree["children"].items():
         name = str(name)
         if not name or any(ch not in _CHILD_NAME for ch in name) or name in RESERVED \
-                or name.endswith(".partial"):
+                or ".partial" in name:
             raise ParameterError(f"{path}: child name {name!r} may use letters, digits, '_.-' "
-                                 f"(not {', '.join(RESERVED)}, nor ending in .partial)")
+                                 f"(not {', '.join(RESERVED)}, nor containing .partial)")
         try:
             child = apply_overrides(apply_overrides(cfg, base), settings(name, d))
         except ParameterError as e:
             raise ParameterError(f"{path}: child {name!r}: {e}") from None
+        if child.seed != cfg.seed:
+            raise ParameterError(f"{path}: child {name!r} sets seed {child.seed}; the children's "
+                                 "replicates are paired by seed with the reference's, so set "
+                                 "it for the whole run (--seed)")
         if shared_corpus and (child.mapping.visual_source != cfg.mapping.visual_source
                               or child.tracker != cfg.tracker):
             raise ParameterError(f"{path}: child {name!r} changes the visual source or the "
@@ -125,17 +133,6 @@ def replicate_folder(out_dir: Path, name: str, seed: int, k: int) -> Path:
     return out_dir / name if k == 0 else out_dir / "replicates" / f"seed-{seed}" / name
 
 
-def _replace_folder(src: Path, dst: Path) -> None:
-    """Put the complete folder ``src`` at ``dst`` (an older ``dst`` is removed)."""
-    old = None
-    if dst.exists():
-        old = dst.with_name(f"{dst.name}.old-{uuid.uuid4().hex[:8]}")
-        dst.rename(old)
-    src.rename(dst)
-    if old is not None:
-        shutil.rmtree(old)
-
-
 def log_child(log, stage: str, name: str, k: int, folder: Path, cfg, summary: dict) -> str:
     """Log one replicate of a child as an MLflow child run (``log``: a
     :class:`talkingface.child_runs.ChildLog`); idempotent."""
@@ -154,16 +151,16 @@ def run_child(name: str, k: int, corpus_dir: str, units_path: str, out_dir: str,
     """One task: replicate ``k`` of child ``name`` (``cfg`` carries its seed) trained into
     ``out_dir`` and, with ``log``, logged as its MLflow child run."""
     out = Path(out_dir)
-    partial = out.with_name(out.name + ".partial")
-    shutil.rmtree(partial, ignore_errors=True)  # what a killed attempt left
+    # this attempt's own folder: another attempt of the task may still be running
+    partial = out.with_name(f"{out.name}{PARTIAL}{uuid.uuid4().hex[:8]}")
+    out.parent.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     summary = train_and_evaluate(Path(corpus_dir), Path(units_path), partial, cfg,
                                  methods=[cfg.mapping.method], progress=False)
     summary["seconds"] = time.perf_counter() - t0
     summary["seed"] = cfg.seed
     (partial / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
-    out.parent.mkdir(parents=True, exist_ok=True)
-    _replace_folder(partial, out)
+    swap_in(partial, out)
     if log is not None:
         log_child(log, stage, name, k, out, cfg, summary)
     return {"name": name, "replicate": k, "seed": cfg.seed, "summary": summary,
@@ -185,6 +182,8 @@ def run_grid(jobs: dict, out_dir: Path, *, seeds: int = 1, scheduler: str = "loc
                                 str(replicate_folder(out_dir, name, ck.seed, k)), ck, log, stage)
     results = map_tasks(run_child, tasks, scheduler=scheduler, workers=workers, desc=desc,
                         progress=progress)
+    for left in out_dir.rglob(f"*{PARTIAL}*"):  # what attempts killed with their workers left
+        shutil.rmtree(left, ignore_errors=True)
     return {key: results[key] for key in tasks}
 
 

@@ -23,7 +23,7 @@ from face_model.errors import ParameterError
 from face_model.motion_units import MotionUnits
 from mapping.checkpoint import AudioMapping
 from talkingface.paths import RunPaths
-from talkingface.stages.base import read_done
+from talkingface.stages.base import read_done, write_csv
 from talkingface.animate import model_units
 from talkingface.stages.voices import voices_models
 
@@ -35,14 +35,6 @@ def set_files(paths, cfg) -> list:
     """The evaluation set's files (the stage is made again when one changes)."""
     rows = read_manifest(SET_DIR)
     return [SET_DIR / MANIFEST] + [SET_DIR / r[k] for r in rows for k in ("wav", "labels")]
-
-
-def _write_csv(path: Path, rows: list) -> None:
-    keys = list(dict.fromkeys(k for r in rows for k in r))
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=keys)
-        w.writeheader()
-        w.writerows(rows)
 
 
 def output_files(out_csv) -> dict:
@@ -85,8 +77,8 @@ def evaluate_models(models: dict, out_csv, *, set_dir=SET_DIR, recogniser: bool 
         rec_files, rec_summary = recogniser_scores(items, seen_any, delay_s=STREAM_DELAY_S)
         summary += rec_summary
         per_file += rec_files
-    _write_csv(files["results"], summary)
-    _write_csv(files["per_file"], per_file)
+    write_csv(files["results"], summary)
+    write_csv(files["per_file"], per_file)
     result = {"set_dir": str(Path(set_dir)), "recordings": [it.id for it in items],
               "seconds": round(sum(it.duration_s for it in items), 2),
               "seen_speakers": seen_by, "stream_delay_s": STREAM_DELAY_S,

@@ -188,6 +188,7 @@ def add_bad_inputs(root: Path) -> None:
     (root / "grid.yaml").write_text("children:\n  small:\n    mapping.hidden_max: 20\n")
     (root / "grid_list.yaml").write_text("- a\n- b\n")
     (root / "grid_unknown.yaml").write_text("settings:\n  x:\n    synth.bogus: 1\n")
+    (root / "grid_seed.yaml").write_text("children:\n  paper: {}\n  lucky: {seed: 7}\n")
     # -- text for synth
     (root / "empty.txt").write_text("")
     (root / "utf16.txt").write_bytes("One sentence.\n".encode("utf-16"))
@@ -368,6 +369,8 @@ CASES = [
     (["ablate", "--grid", "bad.yaml", "--name", "R", *RUN], ["bad.yaml"]),
     (["ablate", "--grid", "grid_list.yaml", "--name", "R", *RUN], ["grid_list.yaml"]),
     (["ablate", "--grid", "grid_unknown.yaml", "--name", "R", *RUN], ["grid_unknown.yaml"]),
+    (["ablate", "--grid", "grid_seed.yaml", "--name", "R", *RUN],
+     ["grid_seed.yaml", "'lucky' sets seed 7"]),
     (["report", "--name", "R", "--seed", "x"], ["--seed", "x"]),
     (["report", "--study-data", "runs/R/study_data", "--name", "S", "--seed", "-1"],
      ["seed", "-1"]),

@@ -200,6 +200,10 @@ BAD_VALUES = [
     ("cluster.scheduler=dask", "'dask'"),
     ("cluster.scheduler=tcp://host", "'tcp://host'"),
     ("cluster.scheduler=http://host:8786", "'http://host:8786'"),
+    ("cluster.scheduler=tcp://host:0", "'tcp://host:0'"),
+    ("cluster.scheduler=tcp://host:65536", "'tcp://host:65536'"),
+    ("cluster.scheduler=tcp://a host:8786", "'tcp://a host:8786'"),
+    ("seed=2147483000", "2147483000"),  # its third replicate's seed would pass 2**31 - 1
 ]
 
 

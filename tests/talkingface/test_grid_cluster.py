@@ -13,7 +13,9 @@ import pytest
 from talkingface.child_runs import KEY_TAG, ChildLog
 from talkingface.cli import main
 from talkingface.config import apply_overrides, load_config
+from face_model.errors import ParameterError
 from talkingface.executor import check_reachable, map_tasks
+from talkingface.runs import check_workers_log
 from talkingface.stages.foundation import fit_units_folder
 from talkingface.stages.grid import child_metrics, replicate_folder, run_grid
 
@@ -105,37 +107,67 @@ def test_a_worker_killed_mid_grid_leaves_one_child_per_setting_and_seed(
     for n, k in out:
         folder = replicate_folder(tmp_path / "dask", n, 2002 + 1000 * k, k)
         assert json.loads((folder / "summary.json").read_text())["seed"] == 2002 + 1000 * k
-    assert not list((tmp_path / "dask").rglob("*.partial"))
+    assert not [p for p in (tmp_path / "dask").rglob("*")
+                if ".partial" in p.name or p.name.endswith(".replaced")]
 
 
-def test_a_child_logged_twice_or_half_logged_is_one_child_run(tmp_path):
+def test_a_child_logged_twice_half_logged_or_by_racing_attempts_is_one_child_run(
+        tmp_path, monkeypatch):
     log = _store(tmp_path, "twice")
     from mlflow.tracking import MlflowClient
 
     client = MlflowClient(log.uri)
     # what a worker killed while logging leaves: a run with the key that never finished
-    client.create_run(log.experiment_id, run_name="paper", tags={
-        "mlflow.parentRunId": log.parent_run_id, KEY_TAG: "paper/seed-2002"})
+    dead = client.create_run(log.experiment_id, run_name="paper", tags={
+        "mlflow.parentRunId": log.parent_run_id, KEY_TAG: "paper/seed-2002"}).info.run_id
     args = dict(tags={"ablation.setting": "paper"}, params={"seed": 2002},
                 metrics={"utterance.mean_test_R": 0.5})
     first = log.log("paper", 2002, **args)
     again = log.log("paper", 2002, **{**args, "metrics": {"utterance.mean_test_R": 0.9}})
     assert again == first  # a finished child is kept, not logged a second time
+    assert client.get_run(first).info.run_name == "paper/seed-2002"
+    # the unfinished run may be a live attempt's: it goes only when the grid has ended
+    assert {r.info.run_id for r in log.children()} == {first, dead}
+    assert log.prune() == 1
     children = log.children()
     assert len(children) == 1 and children[0].info.status == "FINISHED"
     assert children[0].data.metrics["utterance.mean_test_R"] == 0.5
     other = log.log("paper", 3002, **args)  # another seed is another child
     assert other != first and len(log.children()) == 2
 
+    # two attempts of one task that both looked before either had finished: each logs its
+    # run, then both keep the earlier one
+    looked = {"n": 0}
+    real = ChildLog._with_key
+
+    def first_look_finds_nothing(self, client, key):
+        looked["n"] += 1
+        return [] if looked["n"] == 1 else real(self, client, key)
+
+    monkeypatch.setattr(ChildLog, "_with_key", first_look_finds_nothing)
+    racer = log.log("paper", 2002, **{**args, "metrics": {"utterance.mean_test_R": 0.9}})
+    assert racer == first
+    assert sorted(r.info.run_id for r in log.children()) == sorted([first, other])
+    assert log.prune() == 0
+
 
 def test_an_unreachable_scheduler_is_one_line(tmp_path, monkeypatch, capsys):
     port = _free_port()  # nothing listens there
-    with pytest.raises(Exception, match=rf"cluster.scheduler tcp://127.0.0.1:{port}: no Dask "
-                                        "scheduler answers there"):
+    with pytest.raises(ParameterError, match=rf"cluster.scheduler tcp://127.0.0.1:{port}: no "
+                                             "Dask scheduler answers there"):
         check_reachable(f"tcp://127.0.0.1:{port}")
-    with pytest.raises(Exception, match="no Dask scheduler answered within"):
+    with pytest.raises(ParameterError, match="no Dask scheduler answered within"):
         map_tasks(max, {"a": (1, 2)}, scheduler=f"tcp://127.0.0.1:{port}", progress=False)
     monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    # a lab's scheduler with the default store: the workers could not share ./mlflow.db
+    with pytest.raises(ParameterError, match=rf"cluster.scheduler tcp://127.0.0.1:{port}: its "
+                       rf"workers .* cannot share the tracking store sqlite:///{tmp_path}"):
+        check_workers_log(load_config(None, [f"cluster.scheduler=tcp://127.0.0.1:{port}"]))
+    check_workers_log(load_config(None, [f"cluster.scheduler=tcp://127.0.0.1:{port}",
+                                         "mlflow.uri=http://127.0.0.1:5000"]))
+    check_workers_log(load_config(None, [f"cluster.scheduler=tcp://127.0.0.1:{port}",
+                                         "mlflow.enabled=false"]))
     (tmp_path / "grid.yaml").write_text("children:\n  paper: {}\n")
     code = main(["ablate", "--grid", "grid.yaml", "--name", "x", "--set",
                  "synth.n_sentences=2", "--scheduler", f"tcp://127.0.0.1:{port}"])
@@ -158,3 +190,37 @@ def test_the_local_executor_and_dask_agree_on_any_function():
         {i: i ** 3 for i in range(5)}
     with pytest.raises(ZeroDivisionError):  # a task's own error reaches the caller
         map_tasks(divmod, {"x": (1, 0)}, scheduler="local", workers=1, progress=False)
+
+
+def test_a_tracking_uri_that_is_not_mlflow_is_one_line_before_any_work(tmp_path, monkeypatch,
+                                                                      capsys):
+    from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+
+    class Answer(BaseHTTPRequestHandler):
+        code = 404
+
+        def do_GET(self):
+            self.send_error(Answer.code)
+
+        def log_message(self, *args):
+            pass
+
+    server = ThreadingHTTPServer(("127.0.0.1", 0), Answer)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    uri = f"http://127.0.0.1:{server.server_address[1]}"
+    monkeypatch.chdir(tmp_path)
+    for var in ("MLFLOW_TRACKING_USERNAME", "MLFLOW_TRACKING_PASSWORD", "MLFLOW_TRACKING_TOKEN"):
+        monkeypatch.delenv(var, raising=False)
+    try:
+        for code, says in ((404, "a web server answers there but not MLflow's (HTTP 404"),
+                           (401, "the tracking server asks for a log-in (HTTP 401)"),
+                           (503, "the tracking server answers with HTTP 503")):
+            Answer.code = code
+            assert main(["evaluate-speech", "--model", "none.npz", "--set",
+                         f"mlflow.uri={uri}"]) == 2
+            err = capsys.readouterr().err
+            assert err.count("\n") == 1 and err.startswith(f"error: mlflow.uri {uri}: {says}"), err
+    finally:
+        server.shutdown()
+        server.server_close()
+    assert list(tmp_path.iterdir()) == []

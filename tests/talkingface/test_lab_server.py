@@ -97,6 +97,18 @@ def test_server_makes_its_database_once_reuses_it_and_leaves_nothing_running(lab
         cmdlines = " ".join(" ".join(p.cmdline()) for p in procs)
         assert "postgres" in cmdlines and "mlflow" in cmdlines and "uvicorn" in cmdlines
         assert not _port_free(port) and not _port_free(db_port)
+        # the database asks for the password, which only the folder's owner can read
+        password = lab_folder / "db-password"
+        assert stat.S_IMODE(password.stat().st_mode) == 0o600
+        assert "password" not in cmdlines and password.read_text().strip() not in cmdlines
+        psql = [str(postgres_bin() / "psql"), "-X", "-h", "127.0.0.1", "-p", str(db_port),
+                "-U", "talkingface", "-d", "mlflow", "-tAc", "SELECT 1", "-w"]
+        env = {k: v for k, v in os.environ.items() if k != "PGPASSWORD"}
+        refused = subprocess.run(psql, env=env, capture_output=True, text=True)
+        assert refused.returncode != 0 and "password" in refused.stderr, refused
+        allowed = subprocess.run(psql, env={**env, "PGPASSWORD": password.read_text().strip()},
+                                 capture_output=True, text=True)
+        assert allowed.stdout.strip() == "1", allowed
 
         client = MlflowClient(server.uri)
         exp = client.create_experiment("lab", tags={"mlflow.experimentKind":
@@ -370,7 +382,9 @@ def test_an_ablation_logged_to_the_server_compares_in_the_browser(lab_folder, tm
                       for c in children) == [("classes-1", "2002"), ("classes-1", "3002"),
                                              ("paper", "2002"), ("paper", "3002")]
         assert {c.info.status for c in children} == {"FINISHED"}
-        assert all(c.info.run_name == c.data.tags["ablation.setting"] for c in children)
+        # named by setting and seed, so the compare page tells the replicates apart
+        assert [c.info.run_name for c in children] == [
+            "classes-1/seed-2002", "classes-1/seed-3002", "paper/seed-2002", "paper/seed-3002"]
         # the children's files went through the server into the folder's artifact store
         assert len(list((lab_folder / "artifacts").rglob("tables.csv"))) == len(children)
 
