@@ -80,9 +80,18 @@ def _track_one(job) -> TrackedUtterance:
                            init=w["init"], seed=seed)
 
 
+def track_job(setup: tuple, job: tuple) -> TrackedUtterance:
+    """One utterance tracked in a process of its own (a task of a scheduler's ``map_fn``):
+    ``setup`` = (units, neutrals, noise_sd, init), ``job`` = (utt_id, speaker, expression,
+    markers, seed)."""
+    with _Serial(setup) as serial:
+        cv2.setNumThreads(1)
+        return next(serial.imap(_track_one, [job]))
+
+
 def track_corpus(corpus, units, out_dir, *, noise_sd: float = 10.0, init: str = "image",
                  seed: int = 0, workers: int = 0, progress: bool = True,
-                 overwrite: bool = False) -> dict:
+                 overwrite: bool = False, map_fn=None) -> dict:
     """Track every utterance of ``corpus`` and write the tracked corpus to ``out_dir``.
 
     Parameters
@@ -99,6 +108,11 @@ def track_corpus(corpus, units, out_dir, *, noise_sd: float = 10.0, init: str = 
         Seeds each utterance's video (skin texture, noise).
     workers : int
         Processes (0: all cores; 1: this process).
+    map_fn : callable, optional
+        Where the utterances are tracked instead of this machine's process pool:
+        ``map_fn(track_job, {i: (setup, job)})`` returns ``{i: TrackedUtterance}`` (e.g. the
+        project's executor on a Dask cluster; ``workers`` is then its business). The result
+        is the same wherever it runs: each utterance has its own seed.
     overwrite : bool
         Replace an existing ``out_dir``; otherwise an existing folder is refused.
 
@@ -129,15 +143,21 @@ def track_corpus(corpus, units, out_dir, *, noise_sd: float = 10.0, init: str = 
         shutil.rmtree(tmp)
     (tmp / "markers").mkdir(parents=True)
     results = []
-    # spawn, not fork: a process that has run OpenCV or torch holds thread pools that a forked
-    # child inherits half-locked (it hangs)
-    with (mp.get_context("spawn").Pool(workers, initializer=_init_worker, initargs=setup)
-          if workers > 1 else _Serial(setup)) as pool, \
-            tqdm(total=n, desc="tracking corpus", unit="utt", disable=not progress) as bar:
-        for r in pool.imap(_track_one, jobs):
+    if map_fn is not None:
+        done = map_fn(track_job, {i: (setup, job) for i, job in enumerate(jobs)})
+        results = [done[i] for i in range(n)]
+        for r in results:
             np.save(tmp / "markers" / f"{r.utt_id}.npy", r.markers, allow_pickle=False)
-            results.append(r)
-            bar.update()
+    else:
+        # spawn, not fork: a process that has run OpenCV or torch holds thread pools that a
+        # forked child inherits half-locked (it hangs)
+        with (mp.get_context("spawn").Pool(workers, initializer=_init_worker, initargs=setup)
+              if workers > 1 else _Serial(setup)) as pool, \
+                tqdm(total=n, desc="tracking corpus", unit="utt", disable=not progress) as bar:
+            for r in pool.imap(_track_one, jobs):
+                np.save(tmp / "markers" / f"{r.utt_id}.npy", r.markers, allow_pickle=False)
+                results.append(r)
+                bar.update()
     src = Path(corpus.root)
     with open(src / "manifest.csv", newline="", encoding="utf-8-sig") as f:
         listed = {row["utt_id"]: row for row in csv.DictReader(f)}

@@ -8,6 +8,7 @@ the same moment in neutral, smile and sad (Fig. 7 style), and that sentence's ke
 """
 from __future__ import annotations
 
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +24,7 @@ from face_model.motion_units import MotionUnits
 from face_model.phones import PHONES
 from face_model.render import FaceRenderer, face_grid
 from talkingface.animate import load_animator
+from talkingface.executor import map_tasks
 from talkingface.paths import RunPaths
 from talkingface.stages.base import read_done, write_csv
 
@@ -78,9 +80,12 @@ def track_folder(corpus_dir: Path, units_path: Path, out_dir: Path, cfg) -> dict
     """The corpus in ``corpus_dir`` rendered as marker video and tracked into ``out_dir`` with
     the Motion Units of ``units_path``, under ``cfg.tracker``'s settings and ``cfg.seed``."""
     t = cfg.tracker
+    # on Dask like the grids (cluster.scheduler), or this machine's process pool (processes)
+    map_fn = None if cfg.cluster.scheduler == "processes" else partial(
+        map_tasks, scheduler=cfg.cluster.scheduler, workers=t.workers, desc="tracking corpus")
     return track_corpus(load_corpus(corpus_dir), MotionUnits.load(units_path), out_dir,
                         noise_sd=t.corpus_noise_sd, init=t.init, seed=cfg.seed,
-                        workers=t.workers, progress=True, overwrite=True)
+                        workers=t.workers, progress=True, overwrite=True, map_fn=map_fn)
 
 
 def make_tracked_corpus(paths: RunPaths, cfg) -> dict:
