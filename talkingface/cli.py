@@ -27,6 +27,7 @@ from talkingface.config import apply_overrides, dump_config, load_config
 from talkingface.experiment_log import (artifact_root, check_tracking, log_speech_eval_model,
                                         mlflow_run, tracking_uri)
 from talkingface.live import input_devices
+from talkingface.server import check_free
 from talkingface.paths import RunPaths, check_run_name
 from talkingface.stages import run
 from talkingface.stages.foundation import fit_units_folder
@@ -159,9 +160,8 @@ def cmd_report(args) -> int:
 
 
 def cmd_ui(args) -> int:
-    if not 1 <= args.port <= 65535:
-        raise TalkingFaceError(f"--port {args.port}: allowed: a TCP port from 1 to 65535")
     uri = tracking_uri(load_config(args.config, args.overrides))
+    check_free("127.0.0.1", args.port)  # a bad port, or one in use: one line, before MLflow
     cmd = [sys.executable, "-m", "mlflow", "server", "--backend-store-uri", uri,
            "--host", "127.0.0.1", "--port", str(args.port)]
     if uri.startswith("sqlite:"):
