@@ -126,7 +126,7 @@ def _dask_result(fut, key, scheduler: str):
     except KilledWorker as exc:
         raise TalkingFaceError(
             f"grid task {key!r}: every worker that ran it died (on {scheduler}: out of memory, "
-            f"or a node that keeps failing?): {exc}") from None
+            f"or a node that keeps failing?): {' '.join(str(exc).split())}") from None
     except (CommClosedError, CancelledError) as exc:
         raise TalkingFaceError(f"cluster.scheduler {scheduler}: the connection to the Dask "
                                f"scheduler was lost while task {key!r} ran "

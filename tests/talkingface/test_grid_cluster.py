@@ -270,3 +270,15 @@ def test_the_tracked_corpus_on_dask_is_the_process_pools_byte_for_byte(small_cor
     assert (tmp_path / "dask" / "tracking.csv").read_text() == \
         (tmp_path / "pool" / "tracking.csv").read_text()
     assert _children_alive() == []
+
+
+def test_a_task_that_kills_every_worker_it_runs_on_is_one_line():
+    from face_model.errors import TalkingFaceError
+
+    # os._exit ends the worker process itself: the scheduler runs the task again on the
+    # restarted worker until its allowed failures are spent
+    with pytest.raises(TalkingFaceError, match=r"^grid task 'x': every worker that ran it died "
+                                               r"\(on local: out of memory") as info:
+        map_tasks(os._exit, {"x": (3,)}, scheduler="local", workers=1, progress=False)
+    assert "\n" not in str(info.value)  # the CLI prints it as one line
+    assert _children_alive() == []
