@@ -17,7 +17,7 @@ from xml.sax.saxutils import unescape as _xml_unescape
 
 from reportlab.lib import colors
 from reportlab.lib.pagesizes import A4
-from reportlab.lib.styles import getSampleStyleSheet
+from reportlab.lib.styles import ParagraphStyle, getSampleStyleSheet
 from reportlab.lib.units import cm
 from reportlab.lib.utils import ImageReader
 from reportlab.platypus import (
@@ -75,12 +75,32 @@ class Report:
         t = self._table(data, col_widths, 8.5)
         width = t.wrap(_WIDTH, A4[1])[0]
         if width > _WIDTH and col_widths is None:  # too wide for the page: a smaller font
-            t = self._table(data, None, max(5.0, 8.5 * _WIDTH / width - 0.3), padding=3)
+            size = max(5.0, 8.5 * _WIDTH / width - 0.3)
+            t = self._table(data, None, size, padding=3)
+            if t.wrap(_WIDTH, A4[1])[0] > _WIDTH:  # still too wide: the widest column wraps
+                t = self._wrap_widest(t, [header, *rows], data, size)
         parts = [Paragraph(f"<b>{caption}</b>", _STYLES["BodyText"]), t]
         if note:
             parts.append(Paragraph(f"<font size=7.5>{note}</font>", _STYLES["BodyText"]))
         parts.append(Spacer(1, 0.3 * cm))
         self.story.append(KeepTogether(parts))
+
+    @classmethod
+    def _wrap_widest(cls, t: Table, markup: list, data: list, size: float) -> Table:
+        """``t`` (laid out) again with its widest column narrowed to the width the others
+        leave and its cells set as paragraphs that wrap (``markup``: the rows as given)."""
+        widths = list(t._colWidths)
+        j = max(range(len(widths)), key=widths.__getitem__)
+        room = _WIDTH - (sum(widths) - widths[j])
+        if room < 2 * cm:  # the other columns fill the page: nothing to wrap into
+            return t
+        widths[j] = room
+        styles = [ParagraphStyle(f"cell{b}", fontName="Helvetica" + b, fontSize=size,
+                                 leading=1.2 * size) for b in ("-Bold", "")]
+        data = [list(r) for r in data]
+        for i, r in enumerate(markup):
+            data[i][j] = Paragraph(str(r[j]), styles[min(i, 1)])
+        return cls._table(data, widths, size, padding=3)
 
     @staticmethod
     def _table(data: list, col_widths, size: float, padding: float = 6) -> Table:

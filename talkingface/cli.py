@@ -93,7 +93,7 @@ def _ablation_overrides(args) -> list[str]:
 def _grid_args(s, workers_help: str) -> None:
     """The options of the commands that train a grid: workers, seeds, the scheduler."""
     s.add_argument("--workers", type=int, help=workers_help)
-    s.add_argument("--seeds", type=int, help="training seeds per ablation setting (default 3; "
+    s.add_argument("--seeds", type=int, help="training seeds per ablation setting (default 5; "
                    "same as --set ablations.seeds=N)")
     s.add_argument("--scheduler", metavar="WHERE", help="where grid tasks run: local (a Dask "
                    "LocalCluster, the default), processes (a process pool), or a running Dask "

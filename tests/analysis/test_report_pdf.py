@@ -199,3 +199,24 @@ def test_the_ablation_table_gives_each_setting_its_interval_and_marks_real_diffe
                 "0.0100 ± 0.0000") in text, name
     assert "Holm-corrected" in text and "1 of the 2 rows tested here" in text
     assert "differs from 'paper'" in text
+
+
+def test_a_table_too_wide_even_in_small_type_wraps_its_widest_column(tmp_path):
+    """A column of long text (the ceiling steps' changes) does not push the figures off the
+    page: the table is set in the width of the page, that column wraps, every figure prints."""
+    from analysis.report import _WIDTH, Report
+
+    changes = "; ".join(f"synth.setting_number_{k}=[0.375, 0.375]" for k in range(12))
+    head = ["step", "changes", "R (utterance)", "R (frame split)", "MSE (utterance)",
+            "LVE (px)", "/p b m/ closed"]
+    rows = [[f"step-{k}", escape(changes + " & more"), "0.675 ± 0.017", "0.700 ± 0.020",
+             "0.0183 ± 0.0012", "1.64 ± 0.10", f"0.8{k} ± 0.15"] for k in range(3)]
+    rep = Report("t", "s")
+    rep.table("Ceiling", head, rows)
+    table = rep.story[-1]._content[1]
+    assert table.wrap(_WIDTH, 1e4)[0] <= _WIDTH + 1e-6
+    pdf = rep.build(tmp_path / "wrapped.pdf")
+    text = " ".join(PdfReader(pdf).pages[0].extract_text().split())
+    for k in range(3):
+        assert f"0.8{k} ± 0.15" in text
+    assert "synth.setting_number_11=[0.375, 0.375] & more" in text
