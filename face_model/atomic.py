@@ -36,12 +36,15 @@ def atomic_file(path):
             tmp.unlink()
 
 
-def fresh_partial_folder(folder) -> Path:
+def fresh_partial_folder(folder, *, keep=None) -> Path:
     """An empty folder beside ``folder`` to build it in (what an interrupted build left there
-    is removed: it was never used)."""
+    is removed: it was never used), or, when ``keep(partial)`` says so, the interrupted build's
+    folder as it is, for a build that goes on from its finished parts."""
     folder = Path(folder)
     partial = folder.parent / f".{folder.name}.partial"
     if partial.exists():
+        if keep is not None and keep(partial):
+            return partial
         shutil.rmtree(partial)
     partial.mkdir(parents=True)
     return partial

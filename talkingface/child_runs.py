@@ -6,9 +6,10 @@ a task needs for that (the tracking URI, the experiment, the parent run), and it
 
 A child run is keyed by its setting and seed (the tag ``ablation.key``). Logging is idempotent:
 a finished child run with the key is kept and not logged again (a task run twice, or a stage
-reused and logged from its files), and an unfinished one — left by a worker killed while it was
-logging — is deleted before the child is logged afresh. So a grid ends with exactly one child
-run per setting and seed, whatever died on the way.
+reused and logged from its files); attempts that log at once keep one finished run between
+them; an unfinished run — left by a worker killed while it was logging — is deleted by
+:meth:`ChildLog.prune` once the grid has ended. So a grid ends with exactly one child run per
+setting and seed, whatever died on the way.
 
 The stages learn their parent run from the entry point (:mod:`talkingface.runs`) through
 :func:`logging_to`; without one (MLflow disabled, or a stage run alone) :func:`log_for` gives
@@ -66,9 +67,9 @@ class ChildLog:
         Two attempts of one task may log at once (a scheduler that lost a worker's heartbeat
         runs its task again while the first attempt still lives): each finishes its own run,
         then keeps the earliest finished run with the key (by start time, then run id) and
-        deletes the others, so both attempts agree and one run stays. Unfinished runs are left
-        to their attempts; :meth:`prune` removes those a dead worker left, once the grid is
-        done."""
+        deletes the others, so one run stays (the id returned by an attempt that looked before
+        the other had finished may be the one deleted). Unfinished runs are left to their
+        attempts; :meth:`prune` removes those a dead worker left, once the grid is done."""
         from mlflow.entities import Metric, Param
 
         client, key = self._client(), child_key(name, seed)

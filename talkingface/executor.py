@@ -134,6 +134,20 @@ def _dask_result(fut, key, scheduler: str):
                                "kept: run the command again to go on") from None
 
 
+def _pool_result(fut, key):
+    """The result of one process-pool task; a pool whose process died is one line naming the
+    task (the task's own errors pass as they are)."""
+    from concurrent.futures.process import BrokenProcessPool
+
+    try:
+        return fut.result()
+    except BrokenProcessPool:
+        raise TalkingFaceError(
+            f"grid task {key!r}: a process of the pool (cluster.scheduler processes) died while "
+            "it ran (out of memory, or killed?); the finished tasks' folders are kept: run the "
+            "command again to go on") from None
+
+
 class _WorkerWatch:
     """Warn once (on stderr) when a running scheduler has had no worker for
     ``NO_WORKER_WARN_S`` seconds: its tasks wait (workers still queued as batch jobs?)."""
@@ -180,7 +194,7 @@ def map_tasks(fn, tasks: dict, *, scheduler: str = "local", workers: int = 0,
             try:
                 futs = {pool.submit(_call, fn, args): key for key, args in tasks.items()}
                 for fut in as_completed(futs):
-                    out[futs[fut]] = fut.result()
+                    out[futs[fut]] = _pool_result(fut, futs[fut])
                     bar.update()
             finally:  # on an error, the tasks not started yet are not started
                 pool.shutdown(wait=True, cancel_futures=True)

@@ -24,9 +24,9 @@ def open_run(name: str, cfg, stages, *, overwrite: bool = False, runs_dir="runs"
     after checking that every input the named ``stages`` read is there, and that the tracking
     server and the Dask scheduler it names answer: nothing is written for a command that
     cannot run."""
+    check_workers_log(cfg)  # a mistake in the settings first, then what must answer
     check_tracking(cfg)
     check_reachable(cfg.cluster.scheduler)
-    check_workers_log(cfg)
     paths = RunPaths.create(name, runs_dir=runs_dir, reports_dir=reports_dir)
     prepare_run(paths, cfg, overwrite=overwrite, check=lambda: preflight(stages, paths, cfg))
     return paths
@@ -34,11 +34,13 @@ def open_run(name: str, cfg, stages, *, overwrite: bool = False, runs_dir="runs"
 
 def check_workers_log(cfg) -> None:
     """Refuse a running Dask scheduler (``tcp://``) with a tracking store its workers cannot
-    share: they log their child runs themselves, on their own machines, so the store must be a
-    tracking server (``http(s)://``), not a local file such as the default ``mlflow.db``."""
+    share: they log their child runs themselves, on their own machines, so the store must be
+    one they all reach (a tracking server ``http(s)://``, or a database such as
+    ``postgresql://``), not a local file such as the default ``mlflow.db``."""
     uri = tracking_uri(cfg)
+    scheme = uri.partition("://")[0] if "://" in uri else ""
     if cfg.mlflow.enabled and scheduler_address(cfg.cluster.scheduler) is not None \
-            and not uri.startswith(("http://", "https://")):
+            and (scheme in ("", "file", "sqlite") or scheme.startswith("sqlite+")):
         raise ParameterError(f"cluster.scheduler {cfg.cluster.scheduler}: its workers log their "
                              f"child runs themselves and cannot share the tracking store {uri}; "
                              "set mlflow.uri to a tracking server they all reach "

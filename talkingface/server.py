@@ -366,6 +366,8 @@ class LabServer:
             raise TalkingFaceError(f"--folder {self.folder}: its PostgreSQL is already running "
                                    "(is another `talkingface server` using this folder?): stop "
                                    "that one first, or choose another --folder")
+        else:
+            warn_trusting(self.pgdata)
         log = self.logs / "postgres.log"
         opts = (f"-p {self.db_port} -c listen_addresses=127.0.0.1 "
                 "-c unix_socket_directories=''")
@@ -453,6 +455,22 @@ class LabServer:
         except TalkingFaceError:
             if exc_type is None:  # else the error that left the block is the one to tell
                 raise
+
+
+def warn_trusting(pgdata: Path) -> bool:
+    """Warn (stderr) when ``pgdata`` lets users in without a password (a ``trust`` line in its
+    ``pg_hba.conf``: made before the server set one); returns whether it warned."""
+    hba = Path(pgdata) / "pg_hba.conf"
+    try:
+        lines = hba.read_text(encoding="utf-8", errors="replace").splitlines()
+    except OSError:
+        return False
+    if not any(w[-1] == "trust" for w in (line.split("#")[0].split() for line in lines) if w):
+        return False
+    print(f"warning: {hba} lets every user of this machine into the database without a "
+          "password (made by an older `talkingface server`): set a password for the role and "
+          "replace 'trust' by 'scram-sha-256' there, or start a new --folder", file=sys.stderr)
+    return True
 
 
 def _url_host(host: str) -> str:

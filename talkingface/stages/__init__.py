@@ -38,7 +38,7 @@ STAGES = {s.name: s for s in (
     Stage("mapping", train, config=("seed", "mapping"), upstream=_TRAINING_INPUTS),
     Stage("voices", train_voices, config=("seed", "synth", "units", "mapping", "voices.grid"),
           speed_only=("synth.workers",), upstream=_TRAINING_INPUTS, enabled=has_voices,
-          files=voices_grid),
+          files=voices_grid, resumable=True),
     Stage("speech_eval", evaluate_speech, upstream=("corpus", "units", "mapping", "voices"),
           files=set_files),
     Stage("render", render_held_out, upstream=("corpus", "keyframes", "mapping")),
@@ -48,12 +48,12 @@ STAGES = {s.name: s for s in (
           upstream=("corpus", "stimuli"), guard=keep_real_participants),
     Stage("analysis", analyze, config=("seed",), upstream=("study_data",)),
     Stage("ablations", ablate, config=("seed", "mapping", "ablations.grid", "ablations.seeds"),
-          upstream=_TRAINING_INPUTS, enabled=has_grid, files=grid_file),
+          upstream=_TRAINING_INPUTS, enabled=has_grid, files=grid_file, resumable=True),
     Stage("ceiling", decompose, config=("seed", "synth", "units", "mapping", "tracker.init",
                                         "tracker.corpus_noise_sd", "ceiling.grid",
                                         "ceiling.seeds"),
           speed_only=("synth.workers",), upstream=_TRAINING_INPUTS, enabled=has_ceiling,
-          files=ceiling_grid),
+          files=ceiling_grid, resumable=True),
     Stage("report", build_report, always=True),
 )}
 

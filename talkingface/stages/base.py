@@ -14,7 +14,9 @@ reused exactly when its *key* is unchanged; the key is
 
 So a changed mapping setting re-runs training and everything downstream of it, and a changed
 study setting re-runs the study stages and nothing upstream. A stale or interrupted stage
-folder is removed and made again, never mixed with new results.
+folder is removed and made again, never mixed with new results; except that a *resumable*
+stage (a grid: hours of independent tasks, each written complete or not at all) interrupted
+under the same key goes on from the tasks it had finished.
 """
 from __future__ import annotations
 
@@ -33,6 +35,7 @@ from talkingface.config import dump_config, read_yaml, select, to_dict
 from talkingface.paths import RunPaths
 
 DONE = "done.json"
+BUILDING = "building.json"  # in a resumable stage's partial folder: the key it is built under
 
 
 def _always(cfg) -> bool:
@@ -51,7 +54,9 @@ class Stage:
     ``speed_only``: keys inside those that do not change the results; ``upstream``: stages whose
     results it reads; ``enabled``: whether the config asks for the stage at all; ``files``:
     files outside the run it reads; ``always``: never reused (the report); ``guard``: called with
-    an existing folder before it would be replaced, raises to refuse.
+    an existing folder before it would be replaced, raises to refuse; ``resumable``: an
+    interrupted build under the same key is kept and goes on (the stage must keep only complete
+    parts in its folder and check each against its own settings before reusing it).
     """
 
     name: str
@@ -63,6 +68,15 @@ class Stage:
     files: Callable = _no_files
     always: bool = False
     guard: Callable | None = None
+    resumable: bool = False
+
+
+def _building(partial: Path) -> str | None:
+    """The fingerprint an interrupted build of a resumable stage was made under (None: none)."""
+    try:
+        return json.loads((partial / BUILDING).read_text(encoding="utf-8")).get("fingerprint")
+    except (OSError, ValueError, AttributeError):
+        return None
 
 
 def read_done(folder: Path) -> dict | None:
@@ -131,11 +145,14 @@ def run_stage(stage: Stage, stages: dict, paths: RunPaths, cfg) -> dict:
         return done
     if stage.guard is not None and out.exists():
         stage.guard(out)
-    partial = fresh_partial_folder(out)
+    partial = fresh_partial_folder(out, keep=lambda p: stage.resumable and _building(p) == fp)
+    if stage.resumable:
+        (partial / BUILDING).write_text(json.dumps({"fingerprint": fp}))
     t0 = time.perf_counter()
     results = stage.run(paths.building_in(stage.name, partial), cfg)
     record = {"stage": stage.name, "fingerprint": fp, "key": key,
               "seconds": time.perf_counter() - t0, **results}
+    (partial / BUILDING).unlink(missing_ok=True)
     dump_config(cfg, partial / "config.yaml")
     (partial / DONE).write_text(json.dumps(record, indent=1, default=float))
     swap_in(partial, out)

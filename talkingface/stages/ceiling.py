@@ -36,13 +36,12 @@ import numpy as np
 
 from analysis.metrics import PAPER_TABLES
 from analysis.replicates import summarise_replicates
-from data_synth.generate import synthesize_corpus
 from face_model.errors import ParameterError
 from talkingface.config import flatten
 from talkingface.paths import RunPaths
 from talkingface.child_runs import log_for
-from talkingface.stages.grid import (checked_grid, child_metrics, load_grid, resolve_grid,
-                                     run_grid)
+from talkingface.stages.grid import (checked_grid, child_metrics, grid_corpus, load_grid,
+                                     resolve_grid, run_grid)
 from talkingface.stages.base import write_csv
 from talkingface.stages.foundation import fit_units_folder
 from talkingface.stages.motion import track_folder, training_corpus, uses_tracked_corpus
@@ -103,7 +102,7 @@ def _inputs(children: dict, cfg, paths: RunPaths, out: Path) -> dict:
             base = (paths.corpus, paths.units_model)
         elif child.synth not in built:
             folder = out / str(len(built))
-            synthesize_corpus(folder / "corpus", child.synth, cfg.seed)
+            grid_corpus(folder / "corpus", child.synth, cfg.seed)
             fit_units_folder(folder / "corpus", folder / "units", child)
             base = built[child.synth] = (folder / "corpus",
                                          folder / "units" / "motion_units.npz")

@@ -22,13 +22,21 @@ one seed gives exactly the single-run results. Folders::
 
 A task writes its folder under ``<folder>.partial-<attempt>`` (its own, since a scheduler may run
 a task again while the first attempt still lives) and swaps it in when complete
-(:func:`face_model.atomic.swap_in`), then logs its MLflow child run, keyed by setting and seed
-(:mod:`talkingface.child_runs`): attempts that race keep one run between them, and the partial
-folders and unfinished runs of attempts killed with their workers are removed once the grid has
-ended. So no child is ever doubled or left half-written.
+(:func:`face_model.atomic.swap_in`), unless another attempt's finished folder got there first,
+then logs its MLflow child run, keyed by setting and seed (:mod:`talkingface.child_runs`):
+attempts that race keep one folder and one run between them, and the partial folders and
+unfinished runs of attempts killed with their workers are removed once the grid has ended. So
+no child is ever doubled or left half-written.
+
+A task whose folder is already finished under the same inputs and settings (its
+``summary.json`` records them as ``task_key``: :func:`task_key`) is not trained again, only
+logged. The grid stages are resumable (:class:`talkingface.stages.base.Stage`): a grid cut off
+by a lost scheduler, a Ctrl-C or a dead machine goes on from its finished tasks when the same
+command runs again.
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import shutil
 import time
@@ -40,6 +48,7 @@ from analysis.evaluation import row_metrics
 from face_model.atomic import swap_in
 from face_model.errors import ParameterError
 from talkingface.child_runs import artifact_files
+from data_synth.generate import synthesize_corpus
 from talkingface.config import apply_overrides, flatten, parse_set, read_yaml, to_dict
 from talkingface.executor import map_tasks
 from talkingface.stages.training import train_and_evaluate
@@ -146,21 +155,62 @@ def log_child(log, stage: str, name: str, k: int, folder: Path, cfg, summary: di
                    files=artifact_files(folder), config=to_dict(cfg))
 
 
+def task_key(corpus_dir, units_path, cfg) -> str:
+    """What one task's results depend on: its corpus and Motion Units (by path: they are the
+    run's, or built in the stage's own folder from settings in the stage's key) and every
+    setting but where and how fast it runs (``cluster``, ``mlflow``, worker counts)."""
+    settings = {k: v for k, v in flatten(cfg).items()
+                if not k.startswith(("cluster.", "mlflow.")) and not k.endswith(".workers")}
+    text = json.dumps([str(corpus_dir), str(units_path), settings], sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def finished_task(folder: Path, key: str) -> dict | None:
+    """The summary of the task folder ``folder`` when it is finished under ``key``, else None."""
+    try:
+        summary = json.loads((folder / "summary.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return summary if isinstance(summary, dict) and summary.get("task_key") == key else None
+
+
+def _keep_one(partial: Path, out: Path, key: str) -> dict:
+    """Swap this attempt's finished ``partial`` in as ``out``, unless another attempt's finished
+    folder is there already (then this one is dropped); the summary of the folder that stays."""
+    for _ in range(5):
+        summary = finished_task(out, key)
+        if summary is not None:
+            shutil.rmtree(partial, ignore_errors=True)
+            return summary
+        try:
+            swap_in(partial, out)
+            return finished_task(out, key)
+        except OSError:  # another attempt was swapping its own folder in at the same moment
+            time.sleep(0.2)
+    raise OSError(f"{out}: could not swap in {partial.name} (another attempt of the task keeps "
+                  "changing the folder)")
+
+
 def run_child(name: str, k: int, corpus_dir: str, units_path: str, out_dir: str, cfg,
               log=None, stage: str = "") -> dict:
     """One task: replicate ``k`` of child ``name`` (``cfg`` carries its seed) trained into
-    ``out_dir`` and, with ``log``, logged as its MLflow child run."""
+    ``out_dir`` (or found there finished under the same :func:`task_key`) and, with ``log``,
+    logged as its MLflow child run."""
     out = Path(out_dir)
-    # this attempt's own folder: another attempt of the task may still be running
-    partial = out.with_name(f"{out.name}{PARTIAL}{uuid.uuid4().hex[:8]}")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
-    summary = train_and_evaluate(Path(corpus_dir), Path(units_path), partial, cfg,
-                                 methods=[cfg.mapping.method], progress=False)
-    summary["seconds"] = time.perf_counter() - t0
-    summary["seed"] = cfg.seed
-    (partial / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
-    swap_in(partial, out)
+    key = task_key(corpus_dir, units_path, cfg)
+    summary = finished_task(out, key)
+    if summary is None:
+        # this attempt's own folder: another attempt of the task may still be running
+        partial = out.with_name(f"{out.name}{PARTIAL}{uuid.uuid4().hex[:8]}")
+        out.parent.mkdir(parents=True, exist_ok=True)
+        t0 = time.perf_counter()
+        summary = train_and_evaluate(Path(corpus_dir), Path(units_path), partial, cfg,
+                                     methods=[cfg.mapping.method], progress=False)
+        summary["seconds"] = time.perf_counter() - t0
+        summary["seed"] = cfg.seed
+        summary["task_key"] = key
+        (partial / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
+        summary = _keep_one(partial, out, key)
     if log is not None:
         log_child(log, stage, name, k, out, cfg, summary)
     return {"name": name, "replicate": k, "seed": cfg.seed, "summary": summary,
@@ -193,6 +243,15 @@ def run_children(jobs: dict, out_dir: Path, *, scheduler: str = "local", workers
     res = run_grid(jobs, out_dir, scheduler=scheduler, workers=workers, desc=desc,
                    progress=progress)
     return {name: r for (name, _), r in res.items()}
+
+
+def grid_corpus(folder: Path, synth, seed: int) -> Path:
+    """A corpus a grid stage builds for its children in its own folder: synthesized, or kept
+    when a resumed build of the stage (same key, so the same settings and seed) finished it
+    (a corpus is swapped into place only when complete)."""
+    if not (Path(folder) / "manifest.csv").is_file():
+        synthesize_corpus(folder, synth, seed)
+    return Path(folder)
 
 
 def resolve_grid(grid: str, default: Path) -> Path | None:

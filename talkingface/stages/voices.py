@@ -30,7 +30,6 @@ from pathlib import Path
 import numpy as np
 
 from analysis.evaluation import database_scale, evaluate_predictions
-from data_synth.generate import synthesize_corpus
 from face_model.corpus import load_corpus
 from face_model.errors import ParameterError
 from face_model.motion_units import MotionUnits
@@ -39,7 +38,7 @@ from mapping.dataset import build_dataset, split_masks
 from mapping.experiment import SPLIT_SEED_OFFSET, predict_utterance, recognise_context
 from talkingface.config import read_yaml
 from talkingface.paths import RunPaths
-from talkingface.stages.grid import load_grid, resolve_grid, run_children
+from talkingface.stages.grid import grid_corpus, load_grid, resolve_grid, run_children
 from talkingface.stages.base import read_done, write_csv
 from talkingface.stages.motion import training_corpus
 
@@ -97,7 +96,7 @@ def _corpora(children: dict, cfg, paths: RunPaths, out: Path) -> dict:
         folder = next((f for s, f in built if s == child.synth), None)
         if folder is None:
             folder = out / f"{len(built)}"
-            synthesize_corpus(folder, child.synth, cfg.seed)
+            grid_corpus(folder, child.synth, cfg.seed)
             built.append((child.synth, folder))
         where[name] = folder
     return where

@@ -151,6 +151,60 @@ def test_a_child_logged_twice_half_logged_or_by_racing_attempts_is_one_child_run
     assert log.prune() == 0
 
 
+def test_a_finished_task_is_found_not_trained_again_and_racing_attempts_keep_one_folder(
+        small_corpus_dir, units_path, tmp_path, monkeypatch):
+    from talkingface.stages import grid
+
+    (name, (corpus, units, cfg)), = list(_jobs(small_corpus_dir, units_path).items())[:1]
+    out = tmp_path / "grid" / name
+    first = grid.run_child(name, 0, str(corpus), str(units), str(out), cfg)
+    made = (out / "summary.json").read_bytes()
+    trained = []
+    real_train = grid.train_and_evaluate
+    monkeypatch.setattr(grid, "train_and_evaluate",
+                        lambda *a, **k: trained.append(a[2]) or real_train(*a, **k))
+    # the same task again (a retried task, a resumed grid): found, logged, not trained
+    log = _store(tmp_path, "again")
+    again = grid.run_child(name, 0, str(corpus), str(units), str(out), cfg, log, "ablate")
+    assert trained == [] and again["summary"] == first["summary"]
+    assert (out / "summary.json").read_bytes() == made
+    assert [r.data.tags[KEY_TAG] for r in log.children()] == [f"{name}/seed-2002"]
+    # where or how fast it runs is not part of the task; any result setting is
+    fast = apply_overrides(cfg, {"cluster": {"scheduler": "processes"},
+                                 "ablations": {"workers": 1}})
+    assert grid.task_key(corpus, units, fast) == grid.task_key(corpus, units, cfg)
+    other = apply_overrides(cfg, {"mapping": {"train": {"max_epochs": 4}}})
+    assert grid.task_key(corpus, units, other) != grid.task_key(corpus, units, cfg)
+    assert grid.task_key(corpus, tmp_path / "u.npz", cfg) != grid.task_key(corpus, units, cfg)
+    grid.run_child(name, 0, str(corpus), str(units), str(out), other)
+    assert len(trained) == 1 and json.loads((out / "summary.json").read_text())[
+        "task_key"] == grid.task_key(corpus, units, other)
+    # two attempts that both trained: the one that finishes second keeps the first's folder
+    key = grid.task_key(corpus, units, other)
+    kept = (out / "summary.json").read_bytes()
+    late = tmp_path / "grid" / f"{name}.partial-late"
+    late.mkdir()
+    (late / "summary.json").write_text(json.dumps({"task_key": key, "late": True}))
+    assert "late" not in grid._keep_one(late, out, key)
+    assert (out / "summary.json").read_bytes() == kept and not late.exists()
+    # ... and when both swap at once, the one whose rename fails finds the other's folder
+    looks = {"n": 0}
+    real_finished = grid.finished_task
+
+    def not_yet_then_finished(folder, k):
+        looks["n"] += 1
+        return None if looks["n"] == 1 else real_finished(folder, k)
+
+    def collides(partial, folder):
+        raise OSError(39, "Directory not empty")
+
+    monkeypatch.setattr(grid, "finished_task", not_yet_then_finished)
+    monkeypatch.setattr(grid, "swap_in", collides)
+    late.mkdir()
+    assert "late" not in grid._keep_one(late, out, key) and not late.exists()
+    assert looks["n"] == 2 and (out / "summary.json").read_bytes() == kept
+
+
 def test_an_unreachable_scheduler_is_one_line(tmp_path, monkeypatch, capsys):
     port = _free_port()  # nothing listens there
     with pytest.raises(ParameterError, match=rf"cluster.scheduler tcp://127.0.0.1:{port}: no "
@@ -168,9 +222,17 @@ def test_an_unreachable_scheduler_is_one_line(tmp_path, monkeypatch, capsys):
                                          "mlflow.uri=http://127.0.0.1:5000"]))
     check_workers_log(load_config(None, [f"cluster.scheduler=tcp://127.0.0.1:{port}",
                                          "mlflow.enabled=false"]))
+    # a database every worker reaches is a shared store; a file is not, however it is named
+    check_workers_log(load_config(None, [f"cluster.scheduler=tcp://127.0.0.1:{port}",
+                                         "mlflow.uri=postgresql://tf@db.lab:5432/mlflow"]))
+    for local in (f"file://{tmp_path}/mlruns", "sqlite:///x.db"):
+        with pytest.raises(ParameterError, match=f"cannot share the tracking store {local}"):
+            check_workers_log(load_config(None, [f"cluster.scheduler=tcp://127.0.0.1:{port}",
+                                                 f"mlflow.uri={local}"]))
     (tmp_path / "grid.yaml").write_text("children:\n  paper: {}\n")
     code = main(["ablate", "--grid", "grid.yaml", "--name", "x", "--set",
-                 "synth.n_sentences=2", "--scheduler", f"tcp://127.0.0.1:{port}"])
+                 "synth.n_sentences=2", "--scheduler", f"tcp://127.0.0.1:{port}",
+                 "--set", "mlflow.enabled=false"])
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1
     assert err.startswith(f"error: cluster.scheduler tcp://127.0.0.1:{port}: no Dask")
@@ -281,4 +343,10 @@ def test_a_task_that_kills_every_worker_it_runs_on_is_one_line():
                                                r"\(on local: out of memory") as info:
         map_tasks(os._exit, {"x": (3,)}, scheduler="local", workers=1, progress=False)
     assert "\n" not in str(info.value)  # the CLI prints it as one line
+    assert _children_alive() == []
+    # the process pool has no retries: its first dead process is the line
+    with pytest.raises(TalkingFaceError, match=r"^grid task 'x': a process of the pool "
+                                               r"\(cluster.scheduler processes\) died") as info:
+        map_tasks(os._exit, {"x": (3,)}, scheduler="processes", workers=1, progress=False)
+    assert "\n" not in str(info.value)
     assert _children_alive() == []

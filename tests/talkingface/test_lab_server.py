@@ -29,7 +29,7 @@ import pytest
 
 from face_model.errors import TalkingFaceError
 from talkingface.cli import main
-from talkingface.server import PG_SEARCH, lab_server, postgres_bin
+from talkingface.server import PG_SEARCH, lab_server, postgres_bin, warn_trusting
 from tests.talkingface.browser import (alive, alive_processes, headless_chromium,
                                        processes_mentioning, save_png, wait_gone)
 
@@ -109,6 +109,7 @@ def test_server_makes_its_database_once_reuses_it_and_leaves_nothing_running(lab
         allowed = subprocess.run(psql, env={**env, "PGPASSWORD": password.read_text().strip()},
                                  capture_output=True, text=True)
         assert allowed.stdout.strip() == "1", allowed
+        assert not warn_trusting(lab_folder / "pgdata")  # no line of it trusts anyone
 
         client = MlflowClient(server.uri)
         exp = client.create_experiment("lab", tags={"mlflow.experimentKind":
@@ -287,6 +288,18 @@ def format_metric(x: float) -> str:
     digits = 3 if abs(x) < 10 else 2 if abs(x) < 100 else 1
     r = math.floor(x * 10 ** digits + 0.5) / 10 ** digits  # JavaScript's Math.round
     return str(int(r)) if r == int(r) else repr(r)
+
+
+def test_a_cluster_that_trusts_local_users_is_warned_about(tmp_path, capsys):
+    hba = tmp_path / "pg_hba.conf"
+    hba.write_text("# local all all trust   (a comment)\n"
+                   "host all all 127.0.0.1/32 scram-sha-256\n")
+    assert not warn_trusting(tmp_path) and capsys.readouterr().err == ""
+    hba.write_text("local all all trust\nhost all all 127.0.0.1/32 trust # made by initdb\n")
+    assert warn_trusting(tmp_path)
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"warning: {hba} lets every user")
+    assert not warn_trusting(tmp_path / "missing")
 
 
 def test_format_metric_follows_the_ui():

@@ -166,6 +166,59 @@ def test_a_failing_stage_leaves_the_previous_result_exactly_as_it_was(toy):
     assert not list(paths.root.glob(".*"))  # no .partial or .replaced folder left
 
 
+def _two_tasks(name: str, seen: list, kill: bool):
+    """A stage ``name`` of two tasks, each skipped when its file is there; with ``kill`` the
+    second one dies (a lost scheduler). ``seen`` gets what the stage found in its folder."""
+
+    def run(p, cfg):
+        folder = p.stage(name)
+        seen.append(sorted(f.name for f in folder.iterdir()))
+        for task in ("a", "b"):
+            if not (folder / task).is_file():
+                if task == "b" and kill:
+                    raise RuntimeError("scheduler lost")
+                (folder / task).write_text(task)
+        return {"tasks": 2}
+    return run
+
+
+def test_a_resumable_stage_goes_on_from_an_interrupted_build_of_the_same_key_only(toy):
+    stages, paths, calls, _ = toy
+    seen: list = []
+    units = stages["units"]
+    same = load_config(None, ["units.n_expression=1"])
+    stages["units"] = dataclasses.replace(units, run=_two_tasks("units", seen, True),
+                                          resumable=True)
+    with pytest.raises(RuntimeError, match="scheduler lost"):
+        run_stages(["units"], stages, paths, same)
+    assert seen == [["building.json"]]  # a fresh build, with the key it is built under
+    assert not paths.stage("units").exists()  # nothing half-made under the final name
+    # the same settings again: the finished task a is still there, and only b runs
+    stages["units"] = dataclasses.replace(units, run=_two_tasks("units", seen, False),
+                                          resumable=True)
+    run_stages(["units"], stages, paths, same)
+    assert seen[-1] == ["a", "building.json"]
+    assert sorted(f.name for f in paths.stage("units").iterdir()) == [
+        "a", "b", "config.yaml", "done.json"]  # the build's own record is not left in it
+    # other settings: an interrupted build is not theirs, so they start from nothing
+    stages["units"] = dataclasses.replace(units, run=_two_tasks("units", seen, True),
+                                          resumable=True)
+    with pytest.raises(RuntimeError, match="scheduler lost"):
+        run_stages(["units"], stages, paths, load_config(None, ["units.n_utterance=5"]))
+    stages["units"] = dataclasses.replace(units, run=_two_tasks("units", seen, False),
+                                          resumable=True)
+    run_stages(["units"], stages, paths, load_config(None, ["units.n_utterance=6"]))
+    assert seen[-1] == ["building.json"]
+    # and a stage that is not resumable never goes on from one
+    tracking = stages["tracking"]
+    stages["tracking"] = dataclasses.replace(tracking, run=_two_tasks("tracking", seen, True))
+    with pytest.raises(RuntimeError, match="scheduler lost"):
+        run_stages(["tracking"], stages, paths, Config())
+    stages["tracking"] = dataclasses.replace(tracking, run=_two_tasks("tracking", seen, False))
+    run_stages(["tracking"], stages, paths, Config())
+    assert seen[-2:] == [[], []]
+
+
 def test_a_guard_refuses_to_replace_a_folder(toy):
     stages, paths, calls, _ = toy
     run_stages(["units"], stages, paths, Config())
