@@ -174,17 +174,18 @@ def finished_task(folder: Path, key: str) -> dict | None:
     return summary if isinstance(summary, dict) and summary.get("task_key") == key else None
 
 
-def _keep_one(partial: Path, out: Path, key: str) -> dict:
-    """Swap this attempt's finished ``partial`` in as ``out``, unless another attempt's finished
-    folder is there already (then this one is dropped); the summary of the folder that stays."""
+def _keep_one(partial: Path, out: Path, key: str, summary: dict) -> dict:
+    """Swap this attempt's finished ``partial`` (its ``summary``) in as ``out``, unless another
+    attempt's finished folder is there already (then this one is dropped); the summary of the
+    folder that stays."""
     for _ in range(5):
-        summary = finished_task(out, key)
-        if summary is not None:
+        other = finished_task(out, key)
+        if other is not None:
             shutil.rmtree(partial, ignore_errors=True)
-            return summary
+            return other
         try:
             swap_in(partial, out)
-            return finished_task(out, key)
+            return summary
         except OSError:  # another attempt was swapping its own folder in at the same moment
             time.sleep(0.2)
     raise OSError(f"{out}: could not swap in {partial.name} (another attempt of the task keeps "
@@ -210,7 +211,7 @@ def run_child(name: str, k: int, corpus_dir: str, units_path: str, out_dir: str,
         summary["seed"] = cfg.seed
         summary["task_key"] = key
         (partial / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
-        summary = _keep_one(partial, out, key)
+        summary = _keep_one(partial, out, key, summary)
     if log is not None:
         log_child(log, stage, name, k, out, cfg, summary)
     return {"name": name, "replicate": k, "seed": cfg.seed, "summary": summary,

@@ -185,7 +185,7 @@ def test_a_finished_task_is_found_not_trained_again_and_racing_attempts_keep_one
     late = tmp_path / "grid" / f"{name}.partial-late"
     late.mkdir()
     (late / "summary.json").write_text(json.dumps({"task_key": key, "late": True}))
-    assert "late" not in grid._keep_one(late, out, key)
+    assert "late" not in grid._keep_one(late, out, key, {"late": True})
     assert (out / "summary.json").read_bytes() == kept and not late.exists()
     # ... and when both swap at once, the one whose rename fails finds the other's folder
     looks = {"n": 0}
@@ -201,7 +201,7 @@ def test_a_finished_task_is_found_not_trained_again_and_racing_attempts_keep_one
     monkeypatch.setattr(grid, "finished_task", not_yet_then_finished)
     monkeypatch.setattr(grid, "swap_in", collides)
     late.mkdir()
-    assert "late" not in grid._keep_one(late, out, key) and not late.exists()
+    assert "late" not in grid._keep_one(late, out, key, {"late": True}) and not late.exists()
     assert looks["n"] == 2 and (out / "summary.json").read_bytes() == kept
 
 
