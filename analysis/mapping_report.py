@@ -112,9 +112,10 @@ def lookahead_section(report, ab: list[dict], figure: Path, split: str = "uttera
         "How much the paper's 100 ms of look-ahead buys: the same mapping trained with 0 to 5 "
         "frames of future context and its analysis window ending at the frame instant, so the "
         "algorithmic latency is the look-ahead alone (0 ms: no sample after the frame's instant "
-        "is read), beside the paper's setting (3 frames, window centred: 112.5 ms). The GRU is "
-        "unidirectional: its only look-ahead is its stacked future context. One MLflow child "
-        "run per row, in the ablation parent run.")
+        "is read), beside the paper's setting (3 frames, window centred: 112.5 ms). The rows "
+        "with a centred window and no frame of look-ahead read only the 12.5 ms of the window "
+        "past the instant. The GRU is unidirectional: its only look-ahead is its stacked future "
+        "context. One MLflow child run per row and seed, in the ablation parent run.")
     report.table(f"Look-ahead: test figures against algorithmic latency ({split} split)",
                  ["setting", "method", "look-ahead (frames)", "window", "latency (ms)", "R",
                   "MSE", "LVE (px)", "/p b m/ closed"],

@@ -104,7 +104,8 @@ def lookahead_rows(rows: list[dict]) -> list[dict]:
 
 def lookahead_figure(curve: list[dict], path: Path, split: str = "utterance") -> Path:
     """Test R and /p b m/ closure against algorithmic latency (ms), one line per method (the
-    ``lookahead-*`` children, right-aligned window) and the paper's setting as a marker."""
+    ``lookahead-*`` children: right-aligned window, and centred with no frame of look-ahead)
+    and the paper's setting as a marker."""
     import matplotlib
 
     matplotlib.use("Agg")
