@@ -419,7 +419,8 @@ def main(argv=None) -> int:
         print(f"error: {exc.filename}: {_os_problem(exc)}", file=sys.stderr)
     except KeyboardInterrupt:
         print("interrupted: finished stages and files are kept; unfinished ones were not "
-              "written under their names", file=sys.stderr)
+              "written under their names (a grid's finished tasks are: the same command goes "
+              "on from them)", file=sys.stderr)
         return 130
     return 2
 
