@@ -32,6 +32,7 @@ import sys
 import threading
 import uuid
 from concurrent.futures import CancelledError, ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager, suppress
 
 from threadpoolctl import threadpool_limits
@@ -137,8 +138,6 @@ def _dask_result(fut, key, scheduler: str):
 def _pool_result(fut, key):
     """The result of one process-pool task; a pool whose process died is one line naming the
     task (the task's own errors pass as they are)."""
-    from concurrent.futures.process import BrokenProcessPool
-
     try:
         return fut.result()
     except BrokenProcessPool:
