@@ -45,10 +45,10 @@ from dataclasses import replace
 from pathlib import Path
 
 from analysis.evaluation import row_metrics
+from data_synth.generate import synthesize_corpus
 from face_model.atomic import swap_in
 from face_model.errors import ParameterError
 from talkingface.child_runs import artifact_files
-from data_synth.generate import synthesize_corpus
 from talkingface.config import apply_overrides, flatten, parse_set, read_yaml, to_dict
 from talkingface.executor import map_tasks
 from talkingface.stages.training import train_and_evaluate
