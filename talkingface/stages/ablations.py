@@ -105,7 +105,7 @@ def lookahead_rows(rows: list[dict]) -> list[dict]:
 def lookahead_figure(curve: list[dict], path: Path, split: str = "utterance") -> Path:
     """Test R and /p b m/ closure against algorithmic latency (ms), one line per method (the
     ``lookahead-*`` children: right-aligned window, and centred with no frame of look-ahead)
-    and the paper's setting as a marker."""
+    with their 95 % intervals over seeds, and the paper's setting as a marker."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -115,9 +115,14 @@ def lookahead_figure(curve: list[dict], path: Path, split: str = "utterance") ->
     for ax, key, label in ((axes[0], f"{split}_R", "test R (Eq. 6)"),
                            (axes[1], f"{split}_closure", "/p b m/ closed (test)")):
         for method in sorted({r["method"] for r in curve}):
-            pts = sorted((float(r["latency_ms"]), float(r[key])) for r in curve
+            pts = sorted((float(r["latency_ms"]), float(r[key]),
+                          float(r.get(f"{key}_ci95") or "nan")) for r in curve
                          if r["method"] == method and str(r["setting"]).startswith("lookahead-"))
-            line, = ax.plot(*zip(*pts), marker="o", label=method) if pts else (None,)
+            line = None
+            if pts:  # with the 95 % interval over seeds where there is one
+                x, y, ci = map(np.asarray, zip(*pts))
+                line = ax.errorbar(x, y, yerr=np.where(np.isfinite(ci), ci, 0), marker="o",
+                                   capsize=3, label=method).lines[0]
             for r in curve:
                 if r["method"] == method and r["setting"] in PAPER_POINTS:
                     ax.plot(float(r["latency_ms"]), float(r[key]), marker="*", markersize=12,
