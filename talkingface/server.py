@@ -458,12 +458,11 @@ class LabServer:
 
 
 def warn_trusting(pgdata: Path) -> bool:
-    """Warn (stderr) when ``pgdata`` lets users in without a password (a ``trust`` line in its
-    ``pg_hba.conf``: made before the server set one); returns whether it warned."""
+    """Warn when ``pgdata``'s ``pg_hba.conf`` trusts users (no password); True if it warned."""
     hba = Path(pgdata) / "pg_hba.conf"
     try:
-        lines = hba.read_text(encoding="utf-8", errors="replace").splitlines()
-    except OSError:
+        lines = hba.read_text(errors="replace").splitlines()
+    except OSError:  # missing or unreadable: nothing seen to warn about
         return False
     if not any(w[-1] == "trust" for w in (line.split("#")[0].split() for line in lines) if w):
         return False
