@@ -62,8 +62,8 @@ class AblationConfig:
     # training seeds per setting: replicate k trains with seed + 1000 k (its split, its model's
     # initialisation and batches, its augmentation); the corpus stays the run's. 5 by default:
     # on the default grid the per-seed R differences from the paper's setting have an SD of
-    # ~0.005, and the first of Holm's 29 steps needs a mean difference of 13.9 SD with 3 seeds
-    # (~0.07 R: nothing short of a broken model separates) but 3.3 SD with 5 (~0.017 R)
+    # ~0.005, and the first of Holm's 31 steps needs a mean difference of 14.4 SD with 3 seeds
+    # (~0.07 R: nothing short of a broken model separates) but 3.4 SD with 5 (~0.017 R)
     seeds: int = integer(5, ge=1, le=100)
 
     def __post_init__(self):
