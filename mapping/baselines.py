@@ -32,7 +32,7 @@ from face_model.numerics import single_threaded
 from mapping.features import ContextFeatures, check_context, check_seed
 from mapping.normalize import check_cmvn
 from mapping.config import TrainSettings
-from mapping.nets import GRUNet, MLP, TDNN, NetRegressor
+from mapping.nets import GRUNet, MLP, TDNN, NetRegressor, fit_many
 from mapping.state import (ArrayGroup, nest, part_name, settings_from_params,
                            settings_to_params)
 
@@ -231,7 +231,7 @@ class Baseline:
         self.context_ = ContextFeatures(*self._context(), self.cmvn,
                                         self.cmvn_warmup_frames).fit([d.features for d in data],
                                                                      masks)
-        self.models_ = {}
+        self.models_, frame_nets = {}, []
         for j, e in enumerate(sorted({d.expression for d in data})):
             idx = [i for i, d in enumerate(data) if d.expression == e and masks[i].any()]
             if not idx:
@@ -243,9 +243,15 @@ class Baseline:
                 X, Y, M = _pad(xs, ys, [masks[i] for i in idx])
                 model.fit(X, Y, M)
             else:
-                model.fit(np.concatenate([x[masks[i]] for x, i in zip(xs, idx)]),
-                          np.concatenate([y[masks[i]] for y, i in zip(ys, idx)]))
+                x = np.concatenate([x[masks[i]] for x, i in zip(xs, idx)])
+                y = np.concatenate([y[masks[i]] for y, i in zip(ys, idx)])
+                if isinstance(model, NetRegressor):  # trained below, every expression at once
+                    frame_nets.append((model, x, y))
+                else:
+                    model.fit(x, y)
             self.models_[e] = model
+        if frame_nets:
+            fit_many(*map(list, zip(*frame_nets)))
         return self
 
     def predict(self, features: np.ndarray, expression: str = "neutral") -> np.ndarray:

@@ -47,7 +47,7 @@ from face_model.errors import NotFittedError, ParameterError
 from mapping.features import ContextFeatures, check_context, check_seed
 from mapping.gate import COVARIANCE_TYPES, PhoneGate, class_groups, merge_small_classes
 from mapping.config import TrainSettings
-from mapping.nets import MLP, NetRegressor
+from mapping.nets import MLP, NetRegressor, fit_many
 from mapping.normalize import check_cmvn
 from mapping.recogniser import N_PHONES, label_windows, phone_inputs
 from mapping.state import (ArrayGroup, nest, part_name, settings_from_params,
@@ -77,6 +77,15 @@ def hidden_units(n_frames: int, smallest: int, largest: int, lo: int = 15, hi: i
     return int(round(lo + (hi - lo) * float(np.clip(t, 0, 1))))
 
 
+def fit_banks(prepared: list) -> list:
+    """Train the networks of several banks (each from :meth:`MLPBank.prepare`) as one batch;
+    returns the banks."""
+    nets = [n for _, ns, _ in prepared for n in ns]
+    data = [d for _, _, ds in prepared for d in ds]
+    fit_many(nets, [x for x, _ in data], [y for _, y in data])
+    return [bank for bank, _, _ in prepared]
+
+
 class MLPBank:
     """One MLP per class; each frame is estimated by the MLP of its class."""
 
@@ -87,19 +96,27 @@ class MLPBank:
         self.settings = settings
         self.seed = seed
 
-    def fit(self, X: np.ndarray, Y: np.ndarray, subsets: dict) -> "MLPBank":
-        """``subsets``: class → row indices of X/Y used to train that class's MLP."""
+    def prepare(self, X: np.ndarray, Y: np.ndarray, subsets: dict) -> tuple:
+        """The untrained bank, its networks and their ``(X, Y)``, for :func:`fit_banks`
+        (``subsets``: class → row indices of X/Y used to train that class's MLP)."""
         sizes = {c: len(rows) for c, rows in subsets.items()}
         empty = [c for c, n in sizes.items() if n == 0]
         if empty:
             raise ParameterError(f"phone classes {empty} have no training frames for their MLP")
         lo, hi = min(sizes.values()), max(sizes.values())
-        self.nets_, self.hidden_ = {}, {}
+        self.nets_, self.hidden_, data = {}, {}, []
         for i, (c, rows) in enumerate(sorted(subsets.items())):
             h = hidden_units(len(rows), lo, hi, self.hidden_min, self.hidden_max)
-            net = NetRegressor(MLP(X.shape[1], h, Y.shape[1]), self.settings, self.seed + 101 * i)
-            self.nets_[c], self.hidden_[c] = net.fit(X[rows], Y[rows]), h
-        return self
+            self.nets_[c] = NetRegressor(MLP(X.shape[1], h, Y.shape[1]), self.settings,
+                                         self.seed + 101 * i)
+            self.hidden_[c] = h
+            data.append((X[rows], Y[rows]))
+        return self, list(self.nets_.values()), data
+
+    def fit(self, X: np.ndarray, Y: np.ndarray, subsets: dict) -> "MLPBank":
+        """``subsets``: class → row indices of X/Y used to train that class's MLP. The MLPs
+        train together as one batched module (:func:`mapping.nets.fit_many`)."""
+        return fit_banks([self.prepare(X, Y, subsets)])[0]
 
     def predict(self, X: np.ndarray, classes: np.ndarray) -> np.ndarray:
         if not hasattr(self, "nets_"):
@@ -287,18 +304,25 @@ class GatedMLP:
             X, Y[:, :self.n_utterance], self._subsets(gated, labels, neutral, classes))
         self.expressions_ = tuple(sorted({e for e in expr if e != "neutral"}))
         self.n_mups_ = Y.shape[1]
-        self.experts_ = {}
+        # the expression networks of every expression train together (one batch)
+        self.experts_, inputs, banks = {}, [], []
         for j, k in enumerate(self.expressions_):
             rows = expr == k
             if self.expression_model == "cascade":
                 c0 = self.bank_.predict(X[rows], gated[rows])
-                net = NetRegressor(MLP(c0.shape[1], self.cascade_hidden, Y.shape[1]), self.train,
-                                   seed + 7919 * (j + 1))
-                self.experts_[k] = net.fit(c0, Y[rows])
+                self.experts_[k] = NetRegressor(MLP(c0.shape[1], self.cascade_hidden,
+                                                    Y.shape[1]), self.train,
+                                                seed + 7919 * (j + 1))
+                inputs.append((c0, Y[rows]))
             else:
                 sub = self._subsets(gated[rows], labels[rows], np.ones(rows.sum(), bool), classes)
-                self.experts_[k] = MLPBank(self.hidden_min, self.hidden_max, self.train,
-                                           seed + 7919 * (j + 1)).fit(X[rows], Y[rows], sub)
+                banks.append(MLPBank(self.hidden_min, self.hidden_max, self.train,
+                                     seed + 7919 * (j + 1)).prepare(X[rows], Y[rows], sub))
+                self.experts_[k] = banks[-1][0]
+        if inputs:
+            fit_many(list(self.experts_.values()), [x for x, _ in inputs],
+                     [y for _, y in inputs])
+        fit_banks(banks)
         return self
 
     def _stack(self, data, masks, group_of_phone):

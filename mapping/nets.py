@@ -18,6 +18,7 @@ import torch
 from torch import nn
 
 from face_model.errors import NotFittedError, ParameterError
+from mapping.batched import fit_mlps
 from mapping.config import TrainSettings
 from mapping.state import ArrayGroup, settings_from_params, settings_to_params
 
@@ -115,15 +116,18 @@ class NetRegressor:
         self.seed = seed
 
     def fit(self, X, Y, mask=None) -> "NetRegressor":
+        X, Y, mask = self._standardise(X, Y, mask)
+        self.history_ = fit_module(self.module, X, Y, mask, self.settings, self.seed)
+        return self
+
+    def _standardise(self, X, Y, mask):
+        """Check the data, keep the training frames' means and SDs; the standardised data."""
         X, Y, mask = _check_xy(X, Y, mask)
         x, y = X[mask], Y[mask]
         self.x_mean_, self.x_std_ = x.mean(0), _safe_std(x)
         self.y_mean_, self.y_std_ = y.mean(0), _safe_std(y)
         self._np_weights = None
-        self.history_ = fit_module(self.module, (X - self.x_mean_) / self.x_std_,
-                                   (Y - self.y_mean_) / self.y_std_, mask, self.settings,
-                                   self.seed)
-        return self
+        return (X - self.x_mean_) / self.x_std_, (Y - self.y_mean_) / self.y_std_, mask
 
     def predict(self, X) -> np.ndarray:
         if not hasattr(self, "y_mean_"):
@@ -200,6 +204,27 @@ class NetRegressor:
         return net
 
 
+def fit_many(nets: list, X: list, Y: list) -> list:
+    """Fit every :class:`NetRegressor` ``nets[i]`` on ``X[i]``, ``Y[i]`` (all rows training
+    rows); returns ``nets``. MLPs of one input and output width trained full-batch under the
+    same settings are trained together as one batched module (:mod:`mapping.batched`: each
+    ends where it would alone, to float32 rounding); any other network alone."""
+    groups: dict = {}
+    for i, net in enumerate(nets):
+        key = (net.settings, np.shape(X[i])[-1], np.shape(Y[i])[-1])
+        if isinstance(net.module, MLP) and net.settings.batch_size == 0:
+            groups.setdefault(key, []).append(i)
+        else:
+            net.fit(X[i], Y[i])
+    for key, members in groups.items():
+        data = [nets[i]._standardise(X[i], Y[i], None)[:2] for i in members]
+        histories = fit_mlps([nets[i].module for i in members], [x for x, _ in data],
+                             [y for _, y in data], key[0], [nets[i].seed for i in members])
+        for i, h in zip(members, histories):
+            nets[i].history_ = h
+    return nets
+
+
 def fit_module(module: nn.Module, X: np.ndarray, Y: np.ndarray, mask: np.ndarray,
                settings: TrainSettings, seed: int) -> dict:
     """Adam on the masked MSE with early stopping; returns the training history.
@@ -225,6 +250,16 @@ def fit_module(module: nn.Module, X: np.ndarray, Y: np.ndarray, mask: np.ndarray
     opt = torch.optim.Adam(module.parameters(), lr=settings.learning_rate,
                            weight_decay=settings.weight_decay)
     n_units = len(X)
+    batch = settings.batch_size or n_units
+    if batch >= n_units and n_val:
+        return _fit_full_batch(module, opt, x, y, w_tr, w_va, settings)
+    return _fit_epochs(module, opt, x, y, w_tr, w_va, settings, rng, n_val)
+
+
+def _fit_epochs(module, opt, x, y, w_tr, w_va, settings, rng, n_val) -> dict:
+    """:func:`fit_module`'s plain loop: mini-batches (or the full batch), then a validation
+    pass, every epoch."""
+    n_units = len(x)
     batch = settings.batch_size or n_units
     best, best_state, best_epoch, losses = np.inf, None, 0, []
     for epoch in range(settings.max_epochs):
@@ -254,3 +289,32 @@ def fit_module(module: nn.Module, X: np.ndarray, Y: np.ndarray, mask: np.ndarray
         module.load_state_dict(best_state)
     return {"epochs": len(losses) if n_val else settings.max_epochs, "best_epoch": best_epoch,
             "best_validation_mse": float(best) if n_val else float("nan")}
+
+
+def _fit_full_batch(module, opt, x, y, w_tr, w_va, settings) -> dict:
+    """:func:`fit_module`'s loop for full-batch training with a validation part, one forward
+    pass per epoch: the pass that follows a step gives both that step's validation loss and
+    the next step's training loss (none of the networks behaves differently in training and
+    evaluation), so the same epochs and weights cost one pass less each."""
+    denom_tr = w_tr.sum() * y.shape[-1]
+    denom_va = w_va.sum() * y.shape[-1]
+    best, best_state, best_epoch, n_epochs = np.inf, None, 0, 0
+    module.train()
+    out = module(x)
+    for epoch in range(settings.max_epochs):
+        if denom_tr > 0:
+            opt.zero_grad()
+            loss = (((out - y) ** 2) * w_tr).sum() / denom_tr
+            loss.backward()
+            opt.step()
+            out = module(x)
+        n_epochs += 1
+        with torch.no_grad():
+            v = float((((out.detach() - y) ** 2) * w_va).sum() / denom_va)
+        if v < best - 1e-6:
+            best, best_state, best_epoch = v, copy.deepcopy(module.state_dict()), epoch
+        elif epoch - best_epoch >= settings.patience:
+            break
+    module.load_state_dict(best_state)
+    module.eval()
+    return {"epochs": n_epochs, "best_epoch": best_epoch, "best_validation_mse": float(best)}
