@@ -42,4 +42,4 @@ lock:
 	/tmp/talkingface-lock/bin/pip freeze | sed 's/^torch==\(.*\)+cpu/torch==\1/' > requirements/lock.txt
 
 clean:
-	rm -rf runs reports/*.pdf mlartifacts mlflow.db .pytest_cache
+	rm -rf runs cache reports/*.pdf mlartifacts mlflow.db .pytest_cache

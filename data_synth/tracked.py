@@ -33,6 +33,7 @@ from data_synth.video import INITS, VideoDifficulty, first_frame_markers, render
 from face_model.alignment import speaker_neutrals
 from face_model.corpus import corpus_hash, write_manifest
 from face_model.errors import ParameterError
+from face_model.threads import limit_threads, thread_budget
 from face_model.tracker import MUTracker
 
 
@@ -67,8 +68,9 @@ def track_utterance(utt, units, neutral, *, noise_sd: float = 10.0, init: str = 
 _WORKER: dict = {}
 
 
-def _init_worker(units, neutrals, noise_sd: float, init: str) -> None:
+def _init_worker(units, neutrals, noise_sd: float, init: str, threads: int = 1) -> None:
     cv2.setNumThreads(1)  # one core per process: the pool gives the parallelism
+    limit_threads(threads)
     _WORKER.update(units=units, neutrals=neutrals, noise_sd=noise_sd, init=init)
 
 
@@ -151,7 +153,8 @@ def track_corpus(corpus, units, out_dir, *, noise_sd: float = 10.0, init: str = 
     else:
         # spawn, not fork: a process that has run OpenCV or torch holds thread pools that a
         # forked child inherits half-locked (it hangs)
-        with (mp.get_context("spawn").Pool(workers, initializer=_init_worker, initargs=setup)
+        with (mp.get_context("spawn").Pool(workers, initializer=_init_worker,
+                                              initargs=(*setup, thread_budget(workers)))
               if workers > 1 else _Serial(setup)) as pool, \
                 tqdm(total=n, desc="tracking corpus", unit="utt", disable=not progress) as bar:
             for r in pool.imap(_track_one, jobs):

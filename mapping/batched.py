@@ -1,29 +1,37 @@
 """Many small MLPs trained as one batched module (the MLP bank, the expression nets).
 
 :func:`fit_mlps` trains ``B`` three-layer perceptrons of one input and output width (hidden
-widths may differ) exactly as :func:`mapping.nets.fit_module` trains each alone — the same
-initial weights from each member's seed, the same validation draw, full-batch Adam on the
-masked MSE with the same hyper-parameters, early stopping with the member's own patience and its
-own best weights kept — but every epoch is one batched step (``torch.baddbmm``) for all members
-still training, not ``B`` steps of tiny tensors. Per-call overhead, not arithmetic, dominates
-tiny networks, so this is several times faster (``bench/bench_profile.py`` prints the ratio).
+widths may differ) as :func:`mapping.nets.fit_module` trains each alone — the same initial
+weights from each member's seed, the same validation draw, full-batch Adam on the MSE with the
+same hyper-parameters, early stopping with each member's own patience and its own best weights
+kept — but every epoch is a handful of batched tensor operations for all members still training,
+not ``B`` rounds of tiny ones. Per-call overhead, not arithmetic, dominates networks this small,
+so this is several times faster (``bench/bench_profile.py`` prints the ratio to the arithmetic
+floor).
 
-How the members stay independent:
+How it is laid out:
 
-* weights are padded to the widest hidden layer with zeros; a padded unit has zero weights in and
-  out, so its gradient is zero and Adam (with L2 weight decay) keeps it exactly zero;
-* rows are padded to the member with most frames and weighted 0 in that member's loss;
-* the loss is the sum of the members' own losses, so each member's gradient is the gradient of
-  its own loss alone; Adam is element-wise (the update below is torch's ``Adam`` formula);
-* a member whose validation loss has not improved for ``patience`` epochs stops: its best
-  weights are kept and it leaves the batch when the batch is next compacted (when half the
-  members have stopped), so finished members cost nothing.
+* **Blocks of rows.** Every member's training rows (and, apart, its validation rows) are cut into
+  blocks of equal rows (:func:`block_rows`), each block of one member; one batched product
+  (``torch.baddbmm``) over the blocks, with each block's member's weights gathered, computes
+  every member at once. The padding is at most one part-block per member, whatever the sizes
+  (a bank's classes range from 40 to over 1,000 frames: padding every member to the largest
+  would multiply the work several times).
+* **Gradients by hand.** The forward pass, the MSE's gradient and the backward pass of a tanh
+  layer are a few products and element-wise operations, written out on the blocks and summed
+  per member (``index_add_``); no autograd graph is built each epoch.
+* **Independent members.** Weights are padded to the widest hidden layer with zeros; a padded
+  unit has zero weights in and out, so its gradient is zero and Adam (with L2 weight decay)
+  keeps it exactly zero. Each member's loss is its own mean over its own frames, so its
+  gradient is that of its loss alone; Adam is element-wise (torch's ``Adam`` formula below).
+* **Early stopping.** A member whose validation loss has not improved for ``patience`` epochs
+  stops with its best weights; stopped members leave the batch when half of it has stopped.
 
-The training and validation frames of each member are separate tensors (the single-network loop
-runs both passes over all frames with a mask), so the sums run in another order: a member equals
-its network trained alone to float32 rounding, not bit for bit (``tests/mapping/test_batched.py``
-states the tolerance). Only full-batch training is batched (``batch_size`` 0, the default);
-with mini-batches each network trains alone.
+The sums run in another order than the single network's, so a member equals its network
+trained alone to float32 rounding, not bit for bit; early stopping may then pick a neighbouring
+epoch on a flat validation curve (``tests/mapping/test_batched.py`` states the tolerance). Only
+full-batch training is batched (``batch_size`` 0, the default); with mini-batches each network
+trains alone.
 """
 from __future__ import annotations
 
@@ -35,29 +43,89 @@ from mapping.config import TrainSettings
 BETAS = (0.9, 0.999)  # torch.optim.Adam's defaults, as fit_module uses them
 EPS = 1e-8
 IMPROVEMENT = 1e-6  # a validation loss counts as better when lower by more than this
+BLOCK_ROWS = 32  # the fewest rows of a block
 
 
 def validation_draw(n_rows: int, fraction: float, rng: np.random.Generator) -> np.ndarray:
     """Boolean (n_rows,) mask of the validation rows of a network trained on every row: a
     random ``fraction`` of them, none when fewer than 10 (as :func:`mapping.nets.fit_module`)."""
     idx = np.arange(n_rows)
-    n_val = int(round(fraction * n_rows)) if n_rows >= 10 else 0
+    n_val = int(round(fraction * n_rows)) if n_rows >= 10 else 0  # nets.validation_rows
     val = np.zeros(n_rows, bool)
     val[rng.permutation(idx)[:n_val]] = True
     return val
 
 
-def _pad_rows(arrays: list, rows: list, width: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(B, n_max, width)`` tensor of each member's ``arrays[b][rows[b]]`` and the (B, n_max, 1)
-    weights (1 on real rows)."""
-    n_max = max(1, max(int(r.sum()) for r in rows))
-    out = np.zeros((len(arrays), n_max, width), np.float32)
-    w = np.zeros((len(arrays), n_max, 1), np.float32)
-    for b, (a, r) in enumerate(zip(arrays, rows)):
-        k = int(r.sum())
-        out[b, :k] = a[r]
-        w[b, :k] = 1
-    return torch.from_numpy(out), torch.from_numpy(w)
+def block_rows(sizes: list) -> int:
+    """Rows per block for members of ``sizes`` rows: a power of two between
+    :data:`BLOCK_ROWS` and 1024 near a quarter of the mean size, so that padding stays small
+    (at most one part-block per member) and the blocks few (each is one small product)."""
+    mean = sum(sizes) / max(len(sizes), 1)
+    return int(np.clip(2 ** round(np.log2(max(mean / 4, 1))), BLOCK_ROWS, 1024))
+
+
+class _Blocks:
+    """Rows of several members in blocks of :func:`block_rows` rows, each block of one member:
+    inputs ``x`` (n_blocks, R, n_in), targets ``y`` (n_blocks, R, n_out), row weights ``w``
+    (n_blocks, R, 1: 1 / (the member's rows × n_out), 0 on padding) and each block's member
+    ``member`` (n_blocks,), an index into the members in the batch."""
+
+    def __init__(self, xs: list, ys: list):
+        n_in, n_out = xs[0].shape[1], ys[0].shape[1]
+        R = block_rows([len(x) for x in xs])
+        counts = [-(-len(x) // R) for x in xs]
+        n = sum(counts)
+        x = np.zeros((n * R, n_in), np.float32)
+        y = np.zeros((n * R, n_out), np.float32)
+        w = np.zeros((n * R, 1), np.float32)
+        start = 0
+        for xi, yi, c in zip(xs, ys, counts):
+            k = len(xi)
+            x[start:start + k], y[start:start + k] = xi, yi
+            w[start:start + k] = 1.0 / (max(k, 1) * n_out)
+            start += c * R
+        self.x = torch.from_numpy(x).view(n, R, n_in)
+        self.y = torch.from_numpy(y).view(n, R, n_out)
+        self.w = torch.from_numpy(w).view(n, R, 1)
+        self.member = torch.from_numpy(np.repeat(np.arange(len(xs)), counts))
+
+    def keep(self, alive: np.ndarray) -> None:
+        """Keep the blocks of the members where ``alive`` (over the members in the batch) and
+        number those members afresh."""
+        new = torch.from_numpy(np.cumsum(alive) - 1)
+        sel = torch.from_numpy(alive)[self.member]
+        self.x, self.y, self.w = self.x[sel], self.y[sel], self.w[sel]
+        self.member = new[self.member[sel]]
+
+
+def _forward(blocks: _Blocks, params: list):
+    W1, b1, W2, b2 = (p[blocks.member] for p in params)
+    h = torch.baddbmm(b1, blocks.x, W1).tanh_()
+    return h, torch.baddbmm(b2, h, W2), W2
+
+
+def _per_member(values: torch.Tensor, member: torch.Tensor, n: int) -> torch.Tensor:
+    """Sum per member of per-block ``values`` (n_blocks, ...)."""
+    return torch.zeros((n, *values.shape[1:])).index_add_(0, member, values)
+
+
+def _gradients(blocks: _Blocks, params: list) -> list:
+    """Gradients of the members' own mean squared errors over their blocks."""
+    n = len(params[0])
+    h, out, W2 = _forward(blocks, params)
+    g = out.sub_(blocks.y).mul_(blocks.w).mul_(2.0)  # dLoss/dout per row
+    dz = torch.ops.aten.tanh_backward(torch.bmm(g, W2.transpose(1, 2)), h)  # (1 - h²) dh
+    return [_per_member(torch.bmm(blocks.x.transpose(1, 2), dz), blocks.member, n),
+            _per_member(dz.sum(1, keepdim=True), blocks.member, n),
+            _per_member(torch.bmm(h.transpose(1, 2), g), blocks.member, n),
+            _per_member(g.sum(1, keepdim=True), blocks.member, n)]
+
+
+def _losses(blocks: _Blocks, params: list) -> np.ndarray:
+    """Each member's mean squared error over its blocks."""
+    _, out, _ = _forward(blocks, params)
+    sq = out.sub_(blocks.y).square_().mul_(blocks.w).sum((1, 2))
+    return _per_member(sq, blocks.member, len(params[0])).numpy()
 
 
 def fit_mlps(modules: list, X: list, Y: list, settings: TrainSettings, seeds: list) -> list:
@@ -72,10 +140,8 @@ def fit_mlps(modules: list, X: list, Y: list, settings: TrainSettings, seeds: li
     hidden = [m.net[0].out_features for m in modules]
     H = max(hidden)
     # initial weights and validation draws, member by member, as fit_module makes them
-    W1 = torch.zeros(B, n_in, H)
-    b1 = torch.zeros(B, 1, H)
-    W2 = torch.zeros(B, H, n_out)
-    b2 = torch.zeros(B, 1, n_out)
+    params = [torch.zeros(B, n_in, H), torch.zeros(B, 1, H), torch.zeros(B, H, n_out),
+              torch.zeros(B, 1, n_out)]
     vals = []
     for b, (m, seed) in enumerate(zip(modules, seeds)):
         rng = np.random.default_rng(seed)
@@ -83,56 +149,41 @@ def fit_mlps(modules: list, X: list, Y: list, settings: TrainSettings, seeds: li
         for sub in m.modules():
             if hasattr(sub, "reset_parameters"):
                 sub.reset_parameters()
-        first, last = m.net[0], m.net[2]
-        h = hidden[b]
+        first, last, h = m.net[0], m.net[2], hidden[b]
         with torch.no_grad():
-            W1[b, :, :h] = first.weight.T
-            b1[b, 0, :h] = first.bias
-            W2[b, :h] = last.weight.T
-            b2[b, 0] = last.bias
+            params[0][b, :, :h] = first.weight.T
+            params[1][b, 0, :h] = first.bias
+            params[2][b, :h] = last.weight.T
+            params[3][b, 0] = last.bias
         vals.append(validation_draw(len(X[b]), settings.validation_fraction, rng))
-    trains = [~v for v in vals]
-    x_tr, w_tr = _pad_rows(X, trains, n_in)
-    y_tr, _ = _pad_rows(Y, trains, n_out)
-    x_va, w_va = _pad_rows(X, vals, n_in)
-    y_va, _ = _pad_rows(Y, vals, n_out)
-    d_tr = (w_tr.sum((1, 2)) * n_out).clamp_min(1)[:, None, None]
-    d_va = (w_va.sum((1, 2)) * n_out).clamp_min(1)[:, None, None]
     has_val = np.array([v.any() for v in vals])
+    train = _Blocks([x[~v] for x, v in zip(X, vals)], [y[~v] for y, v in zip(Y, vals)])
+    # members without a validation part have no validation blocks (their loss is not read)
+    val = _Blocks([x[v] if v.any() else x[:0] for x, v in zip(X, vals)],
+                  [y[v] if v.any() else y[:0] for y, v in zip(Y, vals)])
 
-    params = [W1, b1, W2, b2]
     avg = [torch.zeros_like(p) for p in params]
     avg_sq = [torch.zeros_like(p) for p in params]
     best_params = [p.clone() for p in params]
     best = np.full(B, np.inf)
     best_epoch = np.zeros(B, int)
     n_losses = np.zeros(B, int)
-    active = np.arange(B)  # members in the batch (indices into the original order)
+    active = np.arange(B)  # the members in the batch (indices into the original order)
     running = np.ones(B, bool)  # members not yet stopped
     lr, wd = settings.learning_rate, settings.weight_decay
     beta1, beta2 = BETAS
-    tensors = [x_tr, w_tr, y_tr, d_tr, x_va, w_va, y_va, d_va]
-    for p in params:
-        p.requires_grad_(True)
     for epoch in range(settings.max_epochs):
         step = epoch + 1
-        x, w, y, d = tensors[:4]
-        W1, b1, W2, b2 = params
-        out = torch.baddbmm(b2, torch.tanh(torch.baddbmm(b1, x, W1)), W2)
-        loss = ((((out - y) ** 2) * w).sum((1, 2), keepdim=True) / d).sum()
-        grads = torch.autograd.grad(loss, params)
-        with torch.no_grad():
-            c1 = 1 - beta1 ** step
-            c2_sqrt = (1 - beta2 ** step) ** 0.5
-            for p, g, m, v in zip(params, grads, avg, avg_sq):
-                if wd:
-                    g = g.add(p, alpha=wd)
-                m.lerp_(g, 1 - beta1)
-                v.mul_(beta2).addcmul_(g, g, value=1 - beta2)
-                p.addcdiv_(m, (v.sqrt() / c2_sqrt).add_(EPS), value=-lr / c1)
-            xv, wv, yv, dv = tensors[4:]
-            out = torch.baddbmm(b2, torch.tanh(torch.baddbmm(b1, xv, W1)), W2)
-            v_loss = ((((out - yv) ** 2) * wv).sum((1, 2)) / dv[:, 0, 0]).numpy()
+        grads = _gradients(train, params)
+        c1 = 1 - beta1 ** step
+        c2_sqrt = (1 - beta2 ** step) ** 0.5
+        for p, g, m, v in zip(params, grads, avg, avg_sq):  # torch.optim.Adam's update
+            if wd:
+                g.add_(p, alpha=wd)
+            m.lerp_(g, 1 - beta1)
+            v.mul_(beta2).addcmul_(g, g, value=1 - beta2)
+            p.addcdiv_(m, (v.sqrt() / c2_sqrt).add_(EPS), value=-lr / c1)
+        v_loss = _losses(val, params)
         better = np.zeros(len(active), bool)
         for j, b in enumerate(active):
             if not running[b] or not has_val[b]:
@@ -146,19 +197,19 @@ def fit_mlps(modules: list, X: list, Y: list, settings: TrainSettings, seeds: li
         if keep.any():
             sel = torch.from_numpy(np.flatnonzero(keep))
             tgt = torch.from_numpy(active[keep])
-            with torch.no_grad():
-                for bp, p in zip(best_params, params):
-                    bp[tgt] = p[sel]
+            for bp, p in zip(best_params, params):
+                bp[tgt] = p[sel]
         alive = running[active]
         if not alive.any():
             break
         if alive.sum() * 2 <= len(active):  # compact: stopped members leave the batch
             sel = torch.from_numpy(np.flatnonzero(alive))
             active = active[alive]
-            params = [p.detach()[sel].clone().requires_grad_(True) for p in params]
-            avg = [a[sel].clone() for a in avg]
-            avg_sq = [a[sel].clone() for a in avg_sq]
-            tensors = [t[sel] for t in tensors]
+            params = [p[sel] for p in params]
+            avg = [a[sel] for a in avg]
+            avg_sq = [a[sel] for a in avg_sq]
+            train.keep(alive)
+            val.keep(alive)
     histories = []
     for b, m in enumerate(modules):
         h = hidden[b]

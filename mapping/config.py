@@ -163,6 +163,8 @@ class MappingConfig:
     train: TrainSettings = field(default_factory=TrainSettings)
     # training-time audio augmentation (off: copies = 0)
     augment: AugmentSettings = field(default_factory=AugmentSettings)
+    # processes training the methods × splits at once (0: one per core); the speed only
+    workers: int = integer(0, ge=0)
 
     def __post_init__(self):
         check_fields(self)

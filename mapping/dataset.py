@@ -19,11 +19,13 @@ import numpy as np
 from tqdm import tqdm
 
 from face_model.alignment import corpus_deformations
+from face_model.cache import content_key
+from face_model.corpus import corpus_hash
 from face_model.errors import ParameterError
 from mapping.augment import augment, retime_labels, retime_targets, rir_bank
 from mapping.config import AugmentSettings
-from mapping.features import audio_features, hop_samples
-from mapping.recogniser import fit_length, recognise_windows
+from mapping.features import FEATURES_VERSION, audio_features, hop_samples
+from mapping.recogniser import RECOGNISER_NAME, fit_length, recognise_windows
 
 SPLITS = ("random_frames", "utterance")
 
@@ -68,7 +70,8 @@ class UttData:
 
 def build_dataset(corpus, units, *, n_mfcc: int = 10, deltas: bool = False,
                   alignment: str | None = None, recognise_context: tuple | None = None,
-                  window_align: str = "centre", progress: bool = False) -> list[UttData]:
+                  window_align: str = "centre", progress: bool = False,
+                  cache=None) -> list[UttData]:
     """Features, true MUPs and phone labels of every utterance of ``corpus``.
 
     The MUPs are the Motion Units' projection of the aligned deformations (the alignment model
@@ -77,24 +80,51 @@ def build_dataset(corpus, units, *, n_mfcc: int = 10, deltas: bool = False,
     future frames decided with ``forward`` frames of look-ahead
     (:func:`mapping.recogniser.recognise_windows`; the recogniser gate's input), fitted to the
     utterance's frames. ``window_align``: the MFCC window's alignment
-    (:func:`mapping.features.aligned`).
+    (:func:`mapping.features.aligned`). ``cache``: a :class:`face_model.cache.ArrayCache`
+    that keeps the features and the recognised phones of a corpus, by its content and the
+    settings, for every later call (a grid's tasks, later runs).
     """
     alignment = alignment or units.metadata_.get("alignment", "similarity")
     defs = corpus_deformations(corpus, model=alignment)
+    feats = _per_utterance(corpus, cache, ("features", FEATURES_VERSION, n_mfcc, deltas,
+                                           window_align),
+                           lambda u: audio_features(u.audio, sr=u.sample_rate, fps=u.fps,
+                                                    n_mfcc=n_mfcc, deltas=deltas,
+                                                    n_frames=u.n_frames, align=window_align))
+    heard = {}
+    if recognise_context is not None:
+        heard = _per_utterance(
+            corpus, cache, ("recognised", RECOGNISER_NAME, tuple(recognise_context)),
+            lambda u: recognised_windows(u.audio, u.sample_rate, u.fps, recognise_context,
+                                         u.n_frames), desc="recognising phones" if progress
+            else None)
     out = []
-    for u in tqdm(corpus.utterances, desc="recognising phones", unit="utt",
-                  disable=not progress or recognise_context is None):
-        feats = audio_features(u.audio, sr=u.sample_rate, fps=u.fps, n_mfcc=n_mfcc,
-                               deltas=deltas, n_frames=u.n_frames, align=window_align)
-        heard = None
-        if recognise_context is not None:
-            heard = recognised_windows(u.audio, u.sample_rate, u.fps, recognise_context,
-                                       u.n_frames)
-        out.append(UttData(u.utt_id, u.speaker, u.expression, u.text, feats,
+    for u in corpus.utterances:
+        out.append(UttData(u.utt_id, u.speaker, u.expression, u.text, feats[u.utt_id],
                            units.transform(defs[u.utt_id], u.expression).astype(np.float32),
                            u.phone_per_frame(), audio=u.audio, sample_rate=u.sample_rate,
-                           fps=u.fps, recognised=heard))
+                           fps=u.fps, recognised=heard.get(u.utt_id)))
     return out
+
+
+def _per_utterance(corpus, cache, what: tuple, make, desc: str | None = None) -> dict:
+    """``{utt_id: make(u)}`` for every utterance of ``corpus``; with ``cache`` (a
+    :class:`face_model.cache.ArrayCache`) read from, or made once into, the entry keyed by the
+    corpus's content hash and ``what`` (the kind first, then every setting and version the
+    arrays depend on)."""
+    def build() -> dict:
+        return {u.utt_id: make(u) for u in tqdm(corpus.utterances, desc=desc, unit="utt",
+                                                disable=desc is None)}
+
+    if cache is None:
+        return build()
+    key = content_key(corpus_hash(corpus.root), *what)
+    arrays = cache.get_or_make(what[0], key, build)
+    missing = [u.utt_id for u in corpus.utterances if u.utt_id not in arrays]
+    if missing:  # a hash collision cannot happen; a damaged entry can: make it again
+        raise ParameterError(f"cache entry {cache.path(what[0], key)} lacks utterances "
+                             f"{missing[:3]}; remove it (talkingface cache clean)")
+    return arrays
 
 
 def recognised_windows(y: np.ndarray, sr: int, fps: int, context: tuple, n_frames: int

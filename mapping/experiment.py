@@ -14,7 +14,7 @@ Predictions and the gate's accuracy are always of the original utterances.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from tqdm import tqdm
 
@@ -118,18 +118,34 @@ def experiment_methods(mcfg: MappingConfig) -> list[str]:
 
 
 def run_experiment(data: list, mcfg: MappingConfig, *, n_utterance: int, seed: int,
-                   methods=None, splits=None, progress: bool = False) -> list[TrainedMethod]:
+                   methods=None, splits=None, progress: bool = False,
+                   map_fn=None) -> list[TrainedMethod]:
     """Every method × split (default: :func:`experiment_methods` × ``mcfg.splits``); the split
-    of a given seed is the same for every method."""
+    of a given seed is the same for every method.
+
+    ``map_fn(fn, {key: args}) -> {key: fn(*args)}`` runs the trainings (each method × split is
+    one call of :func:`train_method`; e.g. on a process pool); by default one after the other
+    here. Each training is seeded alone, so where it runs does not change its result. The
+    utterances are sent without their audio (the augmented copies are drawn here first)."""
     methods = list(methods or experiment_methods(mcfg))
     splits = list(splits or mcfg.splits)
-    jobs = [(s, m) for s in splits for m in methods]
-    out, copies = [], {}
-    for split, method in tqdm(jobs, desc="training", unit="model", disable=not progress):
-        masks = split_masks(data, split, train_fraction=mcfg.train_fraction,
-                            seed=seed + SPLIT_SEED_OFFSET)
-        if split not in copies:
-            copies[split] = augmented_copies(data, masks, mcfg, seed=seed)
-        out.append(train_method(method, data, masks, mcfg, n_utterance=n_utterance, split=split,
-                                seed=seed, copies=copies[split]))
-    return out
+    masks = {s: split_masks(data, s, train_fraction=mcfg.train_fraction,
+                            seed=seed + SPLIT_SEED_OFFSET) for s in splits}
+    copies = {s: augmented_copies(data, masks[s], mcfg, seed=seed) for s in splits}
+    if map_fn is None:
+        jobs = [(s, m) for s in splits for m in methods]
+        return [train_method(method, data, masks[split], mcfg, n_utterance=n_utterance,
+                             split=split, seed=seed, copies=copies[split])
+                for split, method in tqdm(jobs, desc="training", unit="model",
+                                          disable=not progress)]
+    light = [replace(d, audio=None) for d in data]
+    tasks = {(s, m): (m, light, masks[s], mcfg, n_utterance, s, seed, copies[s])
+             for s in splits for m in methods}
+    done = map_fn(_train_task, tasks)
+    return [done[key] for key in tasks]
+
+
+def _train_task(method, data, masks, mcfg, n_utterance, split, seed, copies) -> TrainedMethod:
+    """:func:`train_method` with positional arguments (a task of :func:`run_experiment`)."""
+    return train_method(method, data, masks, mcfg, n_utterance=n_utterance, split=split,
+                        seed=seed, copies=copies)

@@ -39,6 +39,10 @@ MFCC_SETTINGS = {"window_s": 0.025, "window": "hamming", "n_mels": 26, "fmin": 0
 WINDOW_ALIGNS = ("centre", "right")
 
 
+# The version of the feature computation: cached features (mapping.dataset) are keyed by it and
+# librosa's version; raise it whenever a change here changes what audio_features returns.
+FEATURES_VERSION = f"1/librosa-{librosa.__version__}"
+
 def window_future(sr: int) -> int:
     """Samples after the frame instant that a centred frame reads: the last non-zero sample of
     its MFCC window (the ``win``-sample window centred in the ``n_fft`` frame) or the end of

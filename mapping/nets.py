@@ -12,6 +12,8 @@ whole utterances while only the training frames count in the loss.
 from __future__ import annotations
 
 import copy
+import time
+from contextlib import contextmanager
 
 import numpy as np
 import torch
@@ -204,6 +206,49 @@ class NetRegressor:
         return net
 
 
+# -- what training costs (bench/bench_profile.py) ----------------------------------------------
+_FIT_LOG: list | None = None
+
+
+@contextmanager
+def record_fits():
+    """Within the block, every training appends one record to the yielded list: ``network``
+    (MLP, TDNN, GRUNet), ``members`` (networks trained together), ``epochs`` (summed over
+    members), ``seconds`` and ``flops`` — the arithmetic it could not do without: per epoch a
+    forward and backward pass (3 forward passes' worth) over the training frames and a forward
+    pass over the validation frames (:func:`forward_flops`)."""
+    global _FIT_LOG
+    saved, _FIT_LOG = _FIT_LOG, []
+    try:
+        yield _FIT_LOG
+    finally:
+        _FIT_LOG = saved
+
+
+def forward_flops(module: nn.Module) -> float:
+    """Floating-point operations of one frame's forward pass (multiply-adds count two)."""
+    a = module.arguments
+    n_in, h, n_out = a["n_in"], a["n_hidden"], a["n_out"]
+    if isinstance(module, MLP):
+        return 2.0 * (n_in * h + h * n_out)
+    if isinstance(module, TDNN):
+        k = 2 * a["width"] + 1
+        return 2.0 * k * (n_in * h + (a["layers"] - 1) * h * h) + 2.0 * h * n_out
+    return 2.0 * 3 * (n_in * h + h * h) + 2.0 * h * n_out  # GRU: three gates
+
+
+def _record(module, members: int, histories: list, seconds: float, frames: list) -> None:
+    """Append a record of one training to the active :func:`record_fits` (``frames``: per
+    member ``(training, validation)`` frames)."""
+    if _FIT_LOG is None:
+        return
+    f = forward_flops(module)
+    flops = sum(h["epochs"] * f * (3 * n_tr + n_va) for h, (n_tr, n_va) in zip(histories, frames))
+    _FIT_LOG.append({"network": type(module).__name__, "members": members,
+                     "epochs": sum(h["epochs"] for h in histories), "seconds": seconds,
+                     "flops": flops})
+
+
 def fit_many(nets: list, X: list, Y: list) -> list:
     """Fit every :class:`NetRegressor` ``nets[i]`` on ``X[i]``, ``Y[i]`` (all rows training
     rows); returns ``nets``. MLPs of one input and output width trained full-batch under the
@@ -218,8 +263,12 @@ def fit_many(nets: list, X: list, Y: list) -> list:
             net.fit(X[i], Y[i])
     for key, members in groups.items():
         data = [nets[i]._standardise(X[i], Y[i], None)[:2] for i in members]
+        t0 = time.perf_counter()
         histories = fit_mlps([nets[i].module for i in members], [x for x, _ in data],
                              [y for _, y in data], key[0], [nets[i].seed for i in members])
+        n_val = [validation_rows(len(x), key[0].validation_fraction) for x, _ in data]
+        _record(nets[members[0]].module, len(members), histories, time.perf_counter() - t0,
+                [(len(x) - v, v) for (x, _), v in zip(data, n_val)])
         for i, h in zip(members, histories):
             nets[i].history_ = h
     return nets
@@ -233,13 +282,26 @@ def fit_module(module: nn.Module, X: np.ndarray, Y: np.ndarray, mask: np.ndarray
     stopping when there are at least 10 of them; otherwise every epoch up to ``max_epochs`` runs
     on all of them and the last weights are kept.
     """
+    t0 = time.perf_counter()
+    history = _fit_module(module, X, Y, mask, settings, seed)
+    n_val = validation_rows(int(mask.sum()), settings.validation_fraction)
+    _record(module, 1, [history], time.perf_counter() - t0, [(int(mask.sum()) - n_val, n_val)])
+    return history
+
+
+def validation_rows(n: int, fraction: float) -> int:
+    """Validation frames held out of ``n`` training frames (none when fewer than 10)."""
+    return int(round(fraction * n)) if n >= 10 else 0
+
+
+def _fit_module(module, X, Y, mask, settings, seed) -> dict:
     rng = np.random.default_rng(seed)
     torch.manual_seed(seed)
     for m in module.modules():  # deterministic initial weights from the seed
         if hasattr(m, "reset_parameters"):
             m.reset_parameters()
     idx = np.flatnonzero(mask.ravel())
-    n_val = int(round(settings.validation_fraction * len(idx))) if len(idx) >= 10 else 0
+    n_val = validation_rows(len(idx), settings.validation_fraction)
     val = np.zeros(mask.size, bool)
     val[rng.permutation(idx)[:n_val]] = True
     val = val.reshape(mask.shape)

@@ -20,7 +20,7 @@ from data_synth.generate import synthesize_corpus
 from face_model.atomic import check_output_file
 from face_model.corpus import load_corpus
 from face_model.errors import TalkingFaceError
-from talkingface import runs, server_cli, study_cli
+from talkingface import cache_cli, runs, server_cli, study_cli
 from talkingface.animate import animate_file, stream_file, stream_microphone
 from talkingface.cli_args import config_args, resolve_config, run_args, visual_source_arg
 from talkingface.config import apply_overrides, dump_config, load_config
@@ -399,6 +399,7 @@ def build_parser() -> argparse.ArgumentParser:
     _face_commands(sub)
     study_cli.add_parser(sub)
     server_cli.add_parser(sub)
+    cache_cli.add_parser(sub)
     return p
 
 

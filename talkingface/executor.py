@@ -19,8 +19,9 @@ named by ``cluster.scheduler``:
 A task that dies with its worker is run again on another worker by the Dask scheduler (up to
 ``distributed.scheduler.allowed-failures`` times); tasks are written to be run again safely
 (:func:`talkingface.stages.grid.run_child` writes its folder under a temporary name and its
-MLflow child run is keyed by setting and seed). Every task runs with one torch and one BLAS
-thread: the parallelism is the workers'.
+MLflow child run is keyed by setting and seed). Every task's process sets its torch and BLAS
+threads so that workers × threads ≤ cores (:mod:`face_model.threads`): the parallelism is the
+workers'.
 """
 from __future__ import annotations
 
@@ -35,10 +36,10 @@ from concurrent.futures import CancelledError, ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager, suppress
 
-from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 from face_model.errors import ParameterError, TalkingFaceError
+from face_model.threads import cores, limit_threads, thread_budget
 
 SCHEDULERS = ("local", "processes")
 CONNECT_TIMEOUT_S = 10
@@ -79,16 +80,8 @@ def check_reachable(scheduler: str) -> None:
                              "scheduler`) or use cluster.scheduler=local") from None
 
 
-def limit_threads() -> None:
-    """One torch thread and one BLAS thread in this process (a grid task's worker)."""
-    import torch
-
-    torch.set_num_threads(1)
-    threadpool_limits(1)
-
-
-def _call(fn, args):
-    limit_threads()
+def _call(fn, args, threads: int = 1):
+    limit_threads(threads)  # processes x threads <= cores (face_model.threads)
     return fn(*args)
 
 
@@ -99,11 +92,12 @@ def dask_client(scheduler: str, workers: int):
     from distributed import Client, LocalCluster
 
     if scheduler == "local":
-        n = workers or os.cpu_count() or 1
+        n = workers or cores()
+        t = str(thread_budget(n))
         with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                           dashboard_address=None, silence_logs=logging.ERROR,
-                          env={"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
-                               "MKL_NUM_THREADS": "1"}) as cluster, Client(cluster) as client:
+                          env={"OMP_NUM_THREADS": t, "OPENBLAS_NUM_THREADS": t,
+                               "MKL_NUM_THREADS": t}) as cluster, Client(cluster) as client:
             yield client
         return
     try:
@@ -187,11 +181,12 @@ def map_tasks(fn, tasks: dict, *, scheduler: str = "local", workers: int = 0,
     out = {}
     try:
         if scheduler == "processes":
-            n = min(workers or os.cpu_count() or 1, len(tasks))
+            n = min(workers or cores(), len(tasks))
             ctx = multiprocessing.get_context("spawn")  # torch is not fork-safe
             pool = ProcessPoolExecutor(max_workers=n, mp_context=ctx)
             try:
-                futs = {pool.submit(_call, fn, args): key for key, args in tasks.items()}
+                futs = {pool.submit(_call, fn, args, thread_budget(n)): key
+                        for key, args in tasks.items()}
                 for fut in as_completed(futs):
                     out[futs[fut]] = _pool_result(fut, futs[fut])
                     bar.update()
@@ -201,8 +196,12 @@ def map_tasks(fn, tasks: dict, *, scheduler: str = "local", workers: int = 0,
         from distributed import as_completed as dask_completed
 
         tag = uuid.uuid4().hex[:8]  # the keys of one call, unique on a shared scheduler
-        with dask_client(scheduler, min(workers or os.cpu_count() or 1, len(tasks))) as client:
-            futs = {client.submit(_call, fn, args, key=f"{desc}-{tag}-{i}", pure=False): key
+        n = min(workers or cores(), len(tasks))
+        # a cluster's workers: one thread each (their machines' cores are not known here)
+        threads = thread_budget(n) if scheduler == "local" else 1
+        with dask_client(scheduler, n) as client:
+            futs = {client.submit(_call, fn, args, threads, key=f"{desc}-{tag}-{i}",
+                                  pure=False): key
                     for i, (key, args) in enumerate(tasks.items())}
             watch = _WorkerWatch(client, scheduler)
             try:

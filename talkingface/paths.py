@@ -18,6 +18,7 @@
       ablations/     one folder per ablation setting and results.csv
       report/        figures and the summary the PDF is built from
     reports/<name>.pdf
+    cache/           what tasks, stages and runs share, by content (`talkingface cache clean`)
 
 Every stage folder holds the ``config.yaml`` it ran under and a ``done.json`` written last (see
 :mod:`talkingface.stages.base`).
@@ -69,6 +70,12 @@ class RunPaths:
         if self.building and self.building[0] == name:
             return self.building[1]
         return self.root / name
+
+    @property
+    def cache(self) -> Path:
+        """The content-keyed cache beside ``runs/`` (:mod:`face_model.cache`): what tasks,
+        stages and runs share (a corpus's features, its recognised phones)."""
+        return self.root.parent.parent / "cache"
 
     @property
     def config(self) -> Path:

@@ -13,6 +13,7 @@ from talkingface.experiment_log import (check_tracking, grid_runs, log_ablations
                                         log_replication, log_train, mlflow_run, tracking_uri)
 from talkingface.paths import RunPaths
 from talkingface.stages import REPLICATION, preflight, prepare_run, run
+from talkingface.stages.base import time_summary
 from talkingface.stages.ablations import grid_path
 from talkingface.stages.grid import load_grid
 from talkingface.stages.ceiling import grid_path as ceiling_grid_path, load_ceiling_grid
@@ -68,6 +69,7 @@ def replicate(name: str, cfg, *, overwrite: bool = False, runs_dir="runs",
                               load_ceiling_grid(ceiling_grid_path(cfg), cfg),
                               seeds=cfg.ceiling.seeds, stage="ceiling", folder="ceiling")
             log_replication(mlf, paths, done)
+    print("time per stage:", *time_summary(done), sep="\n", flush=True)
     return paths.pdf
 
 

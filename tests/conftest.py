@@ -25,11 +25,11 @@ from data_synth.generate import synthesize_corpus  # noqa: E402
 from face_model.corpus import load_corpus  # noqa: E402
 from talkingface.config import Config  # noqa: E402
 
-# Each pytest-xdist worker is one process on one core: torch's own thread pool would only
-# oversubscribe the machine (tiny networks run many times slower when threads compete).
-import torch  # noqa: E402
+# The test workers share the cores: each sets its torch and BLAS threads so that workers x
+# threads <= cores (face_model.threads; tiny networks run many times slower when threads compete).
+from face_model.threads import limit_threads, thread_budget  # noqa: E402
 
-torch.set_num_threads(1)
+limit_threads(thread_budget(int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))))
 
 # Property tests: reproducible examples (derandomize), no wall-clock deadline, no example database.
 settings.register_profile("talkingface", derandomize=True, deadline=None, database=None,

@@ -38,7 +38,7 @@ DEFAULT_GRID = Path(__file__).resolve().parents[2] / "configs" / "ablations.yaml
 
 def run_ablations(grid: dict, corpus_dir: Path, units_path: Path, out_dir: Path, *,
                   seeds: int = 1, scheduler: str = "local", workers: int = 0,
-                  progress: bool = True, log=None) -> list[dict]:
+                  progress: bool = True, log=None, cache=None) -> list[dict]:
     """Train every child of ``grid`` (from :func:`load_grid`) with ``seeds`` replicates on
     ``scheduler`` (``workers`` processes, 0: all cores); write ``replicates.csv`` (one row per
     child and seed), ``results.csv`` (one row per child: means over seeds, 95 % intervals and
@@ -46,7 +46,7 @@ def run_ablations(grid: dict, corpus_dir: Path, units_path: Path, out_dir: Path,
     a curve; return the rows of ``results.csv``."""
     results = run_grid({name: (corpus_dir, units_path, c) for name, c in grid.items()}, out_dir,
                        seeds=seeds, scheduler=scheduler, workers=workers, desc="ablations",
-                       progress=progress, log=log, stage="ablate")
+                       progress=progress, log=log, stage="ablate", cache=cache)
     sr = corpus_sample_rate(corpus_dir)
     reps = [{**_result_row(name, grid[name], res, sr), "replicate": k, "seed": res["seed"]}
             for (name, k), res in results.items()]
@@ -159,5 +159,6 @@ def ablate(paths: RunPaths, cfg) -> dict:
     grid = load_grid(grid_path(cfg), cfg)
     rows = run_ablations(grid, training_corpus(paths, cfg), paths.units_model, paths.ablations,
                          seeds=cfg.ablations.seeds, scheduler=cfg.cluster.scheduler,
-                         workers=cfg.ablations.workers, progress=True, log=log_for("ablations"))
+                         workers=cfg.ablations.workers, progress=True, log=log_for("ablations"),
+                         cache=paths.cache)
     return {"grid": str(grid_path(cfg)), "children": list(grid), "rows": rows}

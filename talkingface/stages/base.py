@@ -23,6 +23,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import json
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -113,6 +114,28 @@ def _sha256(path: Path) -> str:
     return h.hexdigest()
 
 
+def _cpu_seconds() -> float:
+    """CPU seconds (user + system) of this process and of its finished child processes (a
+    stage's pool and Dask workers count once they have ended, as they do with the stage)."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
+def time_summary(done: dict) -> list[str]:
+    """One line per stage of ``{stage: done.json}``: its wall and CPU seconds, or that it was
+    reused; and the total of the stages that ran."""
+    lines, wall, cpu = [], 0.0, 0.0
+    for name, d in done.items():
+        if d.get("reused"):
+            lines.append(f"  {name:<12} reused")
+            continue
+        w, c = float(d.get("seconds", 0.0)), float(d.get("cpu_seconds", float("nan")))
+        wall, cpu = wall + w, cpu + c
+        lines.append(f"  {name:<12} {w:8.1f} s wall {c:8.1f} s CPU")
+    lines.append(f"  {'total':<12} {wall:8.1f} s wall {cpu:8.1f} s CPU")
+    return lines
+
+
 def stage_key(stage: Stage, stages: dict, paths: RunPaths, cfg) -> dict:
     """What a stage's results depend on, as plain data (see the module docstring)."""
     tree = to_dict(cfg)
@@ -142,16 +165,17 @@ def run_stage(stage: Stage, stages: dict, paths: RunPaths, cfg) -> dict:
     fp = fingerprint(key)
     done = read_done(out)
     if done is not None and done.get("fingerprint") == fp and not stage.always:
-        return done
+        return {**done, "reused": True}
     if stage.guard is not None and out.exists():
         stage.guard(out)
     partial = fresh_partial_folder(out, keep=lambda p: stage.resumable and _building(p) == fp)
     if stage.resumable:
         (partial / BUILDING).write_text(json.dumps({"fingerprint": fp}))
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), _cpu_seconds()
     results = stage.run(paths.building_in(stage.name, partial), cfg)
     record = {"stage": stage.name, "fingerprint": fp, "key": key,
-              "seconds": time.perf_counter() - t0, **results}
+              "seconds": time.perf_counter() - t0, "cpu_seconds": _cpu_seconds() - c0,
+              **results}
     (partial / BUILDING).unlink(missing_ok=True)
     dump_config(cfg, partial / "config.yaml")
     (partial / DONE).write_text(json.dumps(record, indent=1, default=float))
@@ -203,7 +227,7 @@ def stale_stages(names, stages: dict, paths: RunPaths, cfg) -> list[str]:
 
 
 # Settings that change neither results nor outputs: a run made with other values is the same run.
-RUN_INDEPENDENT = ("synth.workers", "tracker.workers", "mlflow", "ablations")
+RUN_INDEPENDENT = ("synth.workers", "tracker.workers", "mapping.workers", "mlflow", "ablations")
 
 
 def _result_settings(tree: dict) -> dict:

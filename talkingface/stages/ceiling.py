@@ -128,7 +128,7 @@ def decompose(paths: RunPaths, cfg) -> dict:
     results = run_grid({n: (*inputs[n], c) for n, c in children.items()}, out,
                        seeds=cfg.ceiling.seeds, scheduler=cfg.cluster.scheduler,
                        workers=cfg.ceiling.workers, desc="ceiling steps",
-                       log=log_for("ceiling"), stage="ceiling")
+                       log=log_for("ceiling"), stage="ceiling", cache=paths.cache)
     run_corpus = training_corpus(paths, cfg)
     reps = []
     for (name, k), res in results.items():

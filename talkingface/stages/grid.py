@@ -193,10 +193,11 @@ def _keep_one(partial: Path, out: Path, key: str, summary: dict) -> dict:
 
 
 def run_child(name: str, k: int, corpus_dir: str, units_path: str, out_dir: str, cfg,
-              log=None, stage: str = "") -> dict:
+              log=None, stage: str = "", cache: str | None = None) -> dict:
     """One task: replicate ``k`` of child ``name`` (``cfg`` carries its seed) trained into
     ``out_dir`` (or found there finished under the same :func:`task_key`) and, with ``log``,
-    logged as its MLflow child run."""
+    logged as its MLflow child run. ``cache``: the content-keyed cache's folder, which the
+    tasks share (a corpus's features and recognised phones are made once)."""
     out = Path(out_dir)
     key = task_key(corpus_dir, units_path, cfg)
     summary = finished_task(out, key)
@@ -206,7 +207,8 @@ def run_child(name: str, k: int, corpus_dir: str, units_path: str, out_dir: str,
         out.parent.mkdir(parents=True, exist_ok=True)
         t0 = time.perf_counter()
         summary = train_and_evaluate(Path(corpus_dir), Path(units_path), partial, cfg,
-                                     methods=[cfg.mapping.method], progress=False)
+                                     methods=[cfg.mapping.method], progress=False,
+                                     cache=cache, figures=False)
         summary["seconds"] = time.perf_counter() - t0
         summary["seed"] = cfg.seed
         summary["task_key"] = key
@@ -220,17 +222,19 @@ def run_child(name: str, k: int, corpus_dir: str, units_path: str, out_dir: str,
 
 def run_grid(jobs: dict, out_dir: Path, *, seeds: int = 1, scheduler: str = "local",
              workers: int = 0, desc: str = "runs", progress: bool = True, log=None,
-             stage: str = "") -> dict:
+             stage: str = "", cache=None) -> dict:
     """Train every job ``name → (corpus folder, motion_units.npz, Config)`` with ``seeds``
     replicates each, on ``scheduler`` with ``workers`` processes (0: all cores); returns
-    ``{(name, k): run_child's result}``, in the order of ``jobs`` then replicates."""
+    ``{(name, k): run_child's result}``, in the order of ``jobs`` then replicates. ``cache``:
+    the folder of the content-keyed cache the tasks share (None: none)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     tasks = {}
     for name, (corpus, units, c) in jobs.items():
         for k in range(seeds):
             ck = replace(c, seed=replicate_seed(c.seed, k))
             tasks[(name, k)] = (name, k, str(corpus), str(units),
-                                str(replicate_folder(out_dir, name, ck.seed, k)), ck, log, stage)
+                                str(replicate_folder(out_dir, name, ck.seed, k)), ck, log, stage,
+                                None if cache is None else str(cache))
     results = map_tasks(run_child, tasks, scheduler=scheduler, workers=workers, desc=desc,
                         progress=progress)
     for left in out_dir.rglob(f"*{PARTIAL}*"):  # what attempts killed with their workers left
@@ -239,10 +243,10 @@ def run_grid(jobs: dict, out_dir: Path, *, seeds: int = 1, scheduler: str = "loc
 
 
 def run_children(jobs: dict, out_dir: Path, *, scheduler: str = "local", workers: int = 0,
-                 desc: str = "runs", progress: bool = True) -> dict:
+                 desc: str = "runs", progress: bool = True, cache=None) -> dict:
     """:func:`run_grid` with one seed: ``{name: run_child's result}``."""
     res = run_grid(jobs, out_dir, scheduler=scheduler, workers=workers, desc=desc,
-                   progress=progress)
+                   progress=progress, cache=cache)
     return {name: r for (name, _), r in res.items()}
 
 

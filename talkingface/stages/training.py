@@ -17,23 +17,27 @@ from __future__ import annotations
 import csv
 import json
 import time
+from functools import partial
 from pathlib import Path
 
 from analysis.evaluation import evaluate_experiment, ranking, table_rows
 from analysis.figures import confusion_matrix, mup_trajectories
+from face_model.cache import ArrayCache
 from face_model.corpus import corpus_hash, load_corpus
 from face_model.motion_units import MotionUnits
 from mapping.checkpoint import AudioMapping, rest_mups
 from mapping.dataset import build_dataset
 from mapping.experiment import recognise_context, run_experiment
 from talkingface.config import to_dict
+from talkingface.executor import map_tasks
 from talkingface.paths import RunPaths
 from talkingface.stages.base import write_csv
 from talkingface.stages.motion import training_corpus
 
 
-def _write_gate(out_dir: Path, r) -> dict:
-    """The gate's confusion (CSV and heat map) of one trained method; its accuracy figures."""
+def _write_gate(out_dir: Path, r, figure: bool = True) -> dict:
+    """The gate's confusion (CSV, and the heat map with ``figure``) of one trained method; its
+    accuracy figures."""
     gate = dict(r.trained.gate)
     conf = gate.pop("confusion")
     with open(out_dir / f"confusion_{r.split}.csv", "w", newline="") as f:
@@ -41,16 +45,23 @@ def _write_gate(out_dir: Path, r) -> dict:
         w.writerow(["true\\gated", *gate["class_names"]])
         for name, row in zip(gate["class_names"], conf):
             w.writerow([name, *row.tolist()])
-    confusion_matrix(conf, gate["class_names"], out_dir / f"confusion_{r.split}.png",
-                     title=f"Gate confusion, neutral test frames ({r.split} split)")
+    if figure:
+        confusion_matrix(conf, gate["class_names"], out_dir / f"confusion_{r.split}.png",
+                         title=f"Gate confusion, neutral test frames ({r.split} split)")
     return gate
 
 
 def train_and_evaluate(corpus_dir: Path, units_path: Path, out_dir: Path, cfg, *,
-                       methods=None, splits=None, progress: bool = True) -> dict:
+                       methods=None, splits=None, progress: bool = True, cache=None,
+                       figures: bool = True, map_fn=None) -> dict:
     """Train and evaluate ``methods`` (default: the primary method and every baseline) on
     ``splits``; write the files listed in the module docstring into ``out_dir`` and return the
-    summary the report and MLflow read."""
+    summary the report and MLflow read. ``cache``: the folder of the content-keyed cache
+    (:mod:`face_model.cache`) that keeps the corpus's features and recognised phones for
+    every task and run; ``figures``: draw the gate's confusion and the trajectories (a grid's
+    tasks write the tables and the confusion's CSV only: the figures would cost them a third
+    of their time, and the report draws the mapping stage's); ``map_fn``: where the methods ×
+    splits train (:func:`mapping.experiment.run_experiment`)."""
     m = cfg.mapping
     corpus = load_corpus(corpus_dir)
     units = MotionUnits.load(units_path)
@@ -58,10 +69,10 @@ def train_and_evaluate(corpus_dir: Path, units_path: Path, out_dir: Path, cfg, *
     t0 = time.perf_counter()
     data = build_dataset(corpus, units, n_mfcc=m.n_mfcc, deltas=m.deltas,
                          recognise_context=recognise_context(m), window_align=m.window_align,
-                         progress=progress)
+                         progress=progress, cache=None if cache is None else ArrayCache(cache))
     feature_seconds = time.perf_counter() - t0
     trained = run_experiment(data, m, n_utterance=units.n_utterance, seed=cfg.seed,
-                             methods=methods, splits=splits, progress=progress)
+                             methods=methods, splits=splits, progress=progress, map_fn=map_fn)
     results = evaluate_experiment(trained, data, units)
     rows = table_rows(results)
     write_csv(out_dir / "tables.csv", rows)
@@ -74,7 +85,7 @@ def train_and_evaluate(corpus_dir: Path, units_path: Path, out_dir: Path, cfg, *
     first = corpus.utterances[0]
     for r in results:
         if r.trained.gate is not None:
-            gate[f"{r.method}/{r.split}"] = _write_gate(out_dir, r)
+            gate[f"{r.method}/{r.split}"] = _write_gate(out_dir, r, figures)
         if r.method == m.method:
             path = out_dir / f"{r.method}_{r.split}.tfmap"
             AudioMapping(r.trained.mapper, sample_rate=first.sample_rate, fps=first.fps,
@@ -83,14 +94,14 @@ def train_and_evaluate(corpus_dir: Path, units_path: Path, out_dir: Path, cfg, *
                          window_align=m.window_align).save(path)
             models[r.split] = str(path.name)
     (out_dir / "gate.json").write_text(json.dumps(gate, indent=1))
-    traj = mup_trajectories(_trajectory_items(data, results, m.method, units.n_utterance),
-                            out_dir / "trajectories.png")
+    traj = (mup_trajectories(_trajectory_items(data, results, m.method, units.n_utterance),
+                             out_dir / "trajectories.png") if figures else None)
     held = next((r for r in results if r.split == "utterance"), None)
     test_utts = ([d.utt_id for d, mk in zip(data, held.trained.masks) if not mk.any()]
                  if held is not None else [])
     return {"rows": rows, "ranking": ranks, "gate": gate, "models": models,
             "test_utterances": test_utts,
-            "feature_seconds": feature_seconds, "trajectories": traj.name,
+            "feature_seconds": feature_seconds, "trajectories": traj.name if traj else None,
             "fit_seconds": {f"{r.method}/{r.split}": r.fit_seconds for r in results},
             "config": to_dict(cfg)}
 
@@ -118,4 +129,7 @@ def _trajectory_items(data, results, primary: str, n_utterance: int) -> list[dic
 
 def train(paths: RunPaths, cfg) -> dict:
     """The mapping and the baselines trained and evaluated on the run's training corpus."""
-    return train_and_evaluate(training_corpus(paths, cfg), paths.units_model, paths.mapping, cfg)
+    map_fn = partial(map_tasks, scheduler=cfg.cluster.scheduler, workers=cfg.mapping.workers,
+                     desc="training")
+    return train_and_evaluate(training_corpus(paths, cfg), paths.units_model, paths.mapping, cfg,
+                              cache=paths.cache, map_fn=map_fn)

@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from analysis.evaluation import database_scale, evaluate_predictions
+from face_model.cache import ArrayCache
 from face_model.corpus import load_corpus
 from face_model.errors import ParameterError
 from face_model.motion_units import MotionUnits
@@ -123,7 +124,7 @@ def train_voices(paths: RunPaths, cfg) -> dict:
     summaries = run_children({name: (corpora[name], paths.units_model, child)
                               for name, child in children.items()}, out,
                              scheduler=cfg.cluster.scheduler, workers=cfg.voices.workers,
-                             desc="voice-robust models")
+                             desc="voice-robust models", cache=paths.cache)
     units = MotionUnits.load(paths.units_model)
     own_corpus = load_corpus(training_corpus(paths, cfg))
     own: dict = {}  # (n_mfcc, deltas) -> (data, masks, scale) of the run's corpus
@@ -137,7 +138,8 @@ def train_voices(paths: RunPaths, cfg) -> dict:
         key = (m.n_mfcc, m.deltas, recognise_context(m), m.window_align)
         if key not in own:
             data = build_dataset(own_corpus, units, n_mfcc=m.n_mfcc, deltas=m.deltas,
-                                 recognise_context=key[2], window_align=m.window_align)
+                                 recognise_context=key[2], window_align=m.window_align,
+                                 cache=ArrayCache(paths.cache))
             own[key] = (data, split_masks(
                 data, "utterance", train_fraction=cfg.mapping.train_fraction,
                 seed=cfg.seed + SPLIT_SEED_OFFSET), database_scale(data, units))

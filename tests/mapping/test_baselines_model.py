@@ -115,7 +115,8 @@ def test_make_mapper():
 # and on which data (the method, the splits, the features, the training copies and the visual
 # source).
 NOT_HYPER_PARAMETERS = {"method", "baselines", "splits", "train_fraction", "n_mfcc", "deltas",
-                        "visual_source", "vtlp_range", "augment", "window_align"}
+                        "visual_source", "vtlp_range", "augment", "window_align",
+                        "workers"}  # where the methods train: the speed only
 
 
 def estimator_parameters(cls) -> set:

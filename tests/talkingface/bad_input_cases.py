@@ -667,6 +667,10 @@ CASES = [
     # -- damaged records
     (["report", "--name", "D"], ["done.json"]),
     (_animate(model="D"), ["done.json"]),
+    # -- the cache beside runs/
+    (["cache", "clean", "--unused-days", "-1"], ["--unused-days", "-1"]),
+    (["cache", "clean", "--unused-days", "nan"], ["--unused-days", "nan"]),
+    (["cache", "wipe"], ["wipe", "info", "clean"]),
 ]
 
 # Inputs the project promises to take: ``(argv, what)``; each must exit 0.
