@@ -10,7 +10,8 @@ core's single-thread GEMM rate, measured in the same run — and the ratio of th
 it prints the fit seconds (GMM regression, VQ and the ridge are no networks: seconds only).
 
 ``--run NAME`` also prints each stage's wall and CPU seconds from ``runs/NAME/*/done.json``
-(what ``replicate`` prints when it ends).
+(what ``replicate`` prints when it ends) and the same per-network table for every training of
+that run (the mapping stage and every grid task record theirs in their summaries).
 
     python bench/bench_profile.py [--run paper] [--json]
 """
@@ -63,6 +64,44 @@ def stage_times(run: Path) -> dict:
     return out
 
 
+def run_costs(run: Path) -> dict:
+    """Per network type, the trainings of a whole run summed: the mapping stage's and every
+    grid task's (the ``fits`` of their summaries, :func:`talkingface.stages.training.
+    network_costs`)."""
+    summaries = [json.loads(f.read_text()) for f in [run / "mapping" / "done.json",
+                 *run.glob("ablations/**/summary.json"), *run.glob("ceiling/**/summary.json"),
+                 *run.glob("voices/**/summary.json")] if f.is_file()]
+    out: dict = defaultdict(lambda: defaultdict(float))
+    for summary in summaries:
+        for net, c in summary.get("fits", {}).items():
+            for k, v in c.items():
+                out[net][k] += v
+    return out
+
+
+def _table(nets: dict, rate: float) -> dict:
+    """Per network type: the summed figures, seconds per member-epoch, GFLOP, the floor at
+    ``rate`` FLOP/s and the ratio of the seconds to it."""
+    networks = {}
+    for name, n in sorted(nets.items()):
+        floor = n["flops"] / rate
+        networks[name] = {"trainings": int(n["trainings"]), "members": int(n["members"]),
+                          "epochs": int(n["epochs"]), "seconds": n["seconds"],
+                          "ms_per_member_epoch": 1e3 * n["seconds"] / max(n["epochs"], 1),
+                          "gflop": n["flops"] / 1e9, "floor_seconds": floor,
+                          "ratio_to_floor": n["seconds"] / floor if floor else float("nan")}
+    return networks
+
+
+def _print_table(networks: dict) -> None:
+    print(f"{'network':<8} {'fits':>5} {'members':>8} {'epochs':>7} {'seconds':>8} "
+          f"{'ms/ep':>7} {'GFLOP':>8} {'floor s':>8} {'ratio':>6}")
+    for name, n in networks.items():
+        print(f"{name:<8} {n['trainings']:>5} {n['members']:>8} {n['epochs']:>7} "
+              f"{n['seconds']:>8.2f} {n['ms_per_member_epoch']:>7.2f} {n['gflop']:>8.2f} "
+              f"{n['floor_seconds']:>8.2f} {n['ratio_to_floor']:>6.1f}")
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
@@ -91,14 +130,7 @@ def main() -> None:
         for k in ("members", "epochs", "seconds", "flops"):
             n[k] += f[k]
         n["trainings"] += 1
-    networks = {}
-    for name, n in sorted(nets.items()):
-        floor = n["flops"] / rate
-        networks[name] = {"trainings": int(n["trainings"]), "members": int(n["members"]),
-                          "epochs": int(n["epochs"]), "seconds": n["seconds"],
-                          "ms_per_member_epoch": 1e3 * n["seconds"] / max(n["epochs"], 1),
-                          "gflop": n["flops"] / 1e9, "floor_seconds": floor,
-                          "ratio_to_floor": n["seconds"] / floor if floor else float("nan")}
+    networks = _table(nets, rate)
     methods = defaultdict(float)
     for r in trained:
         methods[r.method] += r.fit_seconds
@@ -106,25 +138,25 @@ def main() -> None:
                "features_s": feature_s, "train_all_methods_s": train_s,
                "networks": networks, "method_fit_s": dict(methods)}
     if args.run:
+        run = args.runs_dir / args.run
         figures["stages"] = {k: {"wall_s": w, "cpu_s": c}
-                             for k, (w, c) in stage_times(args.runs_dir / args.run).items()}
+                             for k, (w, c) in stage_times(run).items()}
+        figures["run_networks"] = _table(run_costs(run), rate)
     if args.json:
         print(json.dumps(figures))
         return
     print(f"single-thread GEMM: {rate / 1e9:.1f} GFLOP/s; features {feature_s:.1f} s; every "
           f"method on both splits {train_s:.1f} s")
-    print(f"{'network':<8} {'fits':>5} {'members':>8} {'epochs':>7} {'seconds':>8} "
-          f"{'ms/ep':>7} {'GFLOP':>8} {'floor s':>8} {'ratio':>6}")
-    for name, n in networks.items():
-        print(f"{name:<8} {n['trainings']:>5} {n['members']:>8} {n['epochs']:>7} "
-              f"{n['seconds']:>8.2f} {n['ms_per_member_epoch']:>7.2f} {n['gflop']:>8.2f} "
-              f"{n['floor_seconds']:>8.2f} {n['ratio_to_floor']:>6.1f}")
+    _print_table(networks)
     print("fit seconds per method (both splits): "
           + ", ".join(f"{m} {s:.1f}" for m, s in methods.items()))
     if args.run:
         print(f"stages of {args.runs_dir / args.run}:")
         for k, v in figures["stages"].items():
             print(f"  {k:<12} {v['wall_s']:8.1f} s wall {v['cpu_s']:8.1f} s CPU")
+        print(f"every training of {args.runs_dir / args.run} (the mapping stage and every grid "
+              "task, in the workers that ran them) against the floor at this run's GEMM rate:")
+        _print_table(figures["run_networks"])
 
 
 if __name__ == "__main__":

@@ -100,7 +100,9 @@ class _Blocks:
 
 def _forward(blocks: _Blocks, params: list):
     W1, b1, W2, b2 = (p[blocks.member] for p in params)
-    h = torch.baddbmm(b1, blocks.x, W1).tanh_()
+    # tanh(z) = 2 sigmoid(2z) - 1: torch's sigmoid is ~3x faster than its tanh on this CPU
+    # (AVX2) and the two agree to float32 rounding (~1e-7)
+    h = torch.baddbmm(b1, blocks.x, W1, beta=2, alpha=2).sigmoid_().mul_(2).sub_(1)
     return h, torch.baddbmm(b2, h, W2), W2
 
 

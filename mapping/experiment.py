@@ -24,6 +24,7 @@ from mapping.config import MappingConfig
 from mapping.dataset import split_masks, training_copies
 from mapping.gate import gate_accuracy
 from mapping.gated import GatedMLP
+from mapping.nets import record_fits
 
 METHODS = ("gated_mlp", *BASELINES)
 SPLIT_SEED_OFFSET = 17  # the split of a run seed is drawn with seed + 17, the same for every method
@@ -66,6 +67,7 @@ class TrainedMethod:
     predictions: list = field(repr=False, default_factory=list)  # (n_frames, A0 + Ak) each
     masks: list = field(repr=False, default_factory=list)  # training frames of each utterance
     gate: dict | None = None  # gate accuracy and confusion (gated methods)
+    fits: list = field(repr=False, default_factory=list)  # mapping.nets.record_fits' records
 
 
 def augmented_copies(data: list, masks: list, mcfg: MappingConfig, *, seed: int
@@ -88,11 +90,13 @@ def train_method(method: str, data: list, masks: list, mcfg: MappingConfig, *,
     extra, extra_masks = copies if copies is not None else augmented_copies(data, masks, mcfg,
                                                                             seed=seed)
     t0 = time.perf_counter()
-    mapper.fit([*data, *extra], [*masks, *extra_masks])
+    with record_fits() as fits:
+        mapper.fit([*data, *extra], [*masks, *extra_masks])
     seconds = time.perf_counter() - t0
     preds = [predict_utterance(mapper, d) for d in data]
     gate = gate_accuracy(mapper, data, masks) if hasattr(mapper, "gate_") else None
-    return TrainedMethod(method, split, seconds, mapper.reference, mapper, preds, masks, gate)
+    return TrainedMethod(method, split, seconds, mapper.reference, mapper, preds, masks, gate,
+                         fits)
 
 
 def recognise_context(mcfg: MappingConfig) -> tuple | None:

@@ -7,6 +7,8 @@ written here and in :mod:`talkingface.experiment_log`, nowhere below.
 """
 from __future__ import annotations
 
+import time
+
 from face_model.errors import ParameterError
 from talkingface.executor import check_reachable, scheduler_address
 from talkingface.experiment_log import (check_tracking, grid_runs, log_ablations,
@@ -54,6 +56,7 @@ def replicate(name: str, cfg, *, overwrite: bool = False, runs_dir="runs",
     metrics and pyfunc model, the ablations as child runs). Returns the PDF's path."""
     paths = open_run(name, cfg, REPLICATION, overwrite=overwrite, runs_dir=runs_dir,
                      reports_dir=reports_dir)
+    since = time.time()
     grids = {"ablations": ("ablate", "ablations", grid_path(cfg)),
              "ceiling": ("ceiling", "ceiling", ceiling_grid_path(cfg))}
     with mlflow_run(cfg, run_name=name, tags={"stage": "replicate"}) as mlf:
@@ -69,7 +72,7 @@ def replicate(name: str, cfg, *, overwrite: bool = False, runs_dir="runs",
                               load_ceiling_grid(ceiling_grid_path(cfg), cfg),
                               seeds=cfg.ceiling.seeds, stage="ceiling", folder="ceiling")
             log_replication(mlf, paths, done)
-    print("time per stage:", *time_summary(done), sep="\n", flush=True)
+    print("time per stage:", *time_summary(done, paths, since), sep="\n", flush=True)
     return paths.pdf
 
 

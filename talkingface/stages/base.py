@@ -121,12 +121,13 @@ def _cpu_seconds() -> float:
     return t.user + t.system + t.children_user + t.children_system
 
 
-def time_summary(done: dict) -> list[str]:
-    """One line per stage of ``{stage: done.json}``: its wall and CPU seconds, or that it was
-    reused; and the total of the stages that ran."""
+def time_summary(done: dict, paths: RunPaths, since: float) -> list[str]:
+    """One line per stage of ``{stage: done.json}`` of ``paths``: its wall and CPU seconds, or
+    that it was reused (its done.json is older than ``since``, a ``time.time()``); and the
+    total of the stages that ran."""
     lines, wall, cpu = [], 0.0, 0.0
     for name, d in done.items():
-        if d.get("reused"):
+        if (paths.stage(name) / DONE).stat().st_mtime < since:
             lines.append(f"  {name:<12} reused")
             continue
         w, c = float(d.get("seconds", 0.0)), float(d.get("cpu_seconds", float("nan")))
@@ -165,7 +166,7 @@ def run_stage(stage: Stage, stages: dict, paths: RunPaths, cfg) -> dict:
     fp = fingerprint(key)
     done = read_done(out)
     if done is not None and done.get("fingerprint") == fp and not stage.always:
-        return {**done, "reused": True}
+        return done
     if stage.guard is not None and out.exists():
         stage.guard(out)
     partial = fresh_partial_folder(out, keep=lambda p: stage.resumable and _building(p) == fp)

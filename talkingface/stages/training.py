@@ -103,7 +103,22 @@ def train_and_evaluate(corpus_dir: Path, units_path: Path, out_dir: Path, cfg, *
             "test_utterances": test_utts,
             "feature_seconds": feature_seconds, "trajectories": traj.name if traj else None,
             "fit_seconds": {f"{r.method}/{r.split}": r.fit_seconds for r in results},
+            "fits": network_costs(f for r in results for f in r.trained.fits),
             "config": to_dict(cfg)}
+
+
+def network_costs(fits) -> dict:
+    """Per network type, the trainings' ``members``, ``epochs``, ``seconds`` and ``flops``
+    summed (records of :func:`mapping.nets.record_fits`; ``bench/bench_profile.py --run``
+    sets them against the arithmetic floor)."""
+    out: dict = {}
+    for f in fits:
+        n = out.setdefault(f["network"], {"trainings": 0, "members": 0, "epochs": 0,
+                                          "seconds": 0.0, "flops": 0.0})
+        n["trainings"] += 1
+        for k in ("members", "epochs", "seconds", "flops"):
+            n[k] += f[k]
+    return out
 
 
 def _trajectory_items(data, results, primary: str, n_utterance: int) -> list[dict]:
