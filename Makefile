@@ -26,6 +26,7 @@ bench: setup
 	$(PY) bench/bench_streaming.py
 	$(PY) bench/bench_tracker.py
 	$(PY) bench/bench_grid.py
+	$(PY) bench/bench_profile.py
 
 ui: setup
 	$(PY) -m talkingface ui
