@@ -48,6 +48,7 @@ from analysis.evaluation import row_metrics
 from data_synth.generate import synthesize_corpus
 from face_model.atomic import swap_in
 from face_model.errors import ParameterError
+from mapping.experiment import METHOD_COST
 from talkingface.child_runs import artifact_files
 from talkingface.config import apply_overrides, flatten, parse_set, read_yaml, to_dict
 from talkingface.executor import map_tasks
@@ -132,15 +133,9 @@ def child_metrics(summary: dict, method: str) -> dict:
     return out
 
 
-# A task's seconds per split by its method (bench/bench_profile.py's fit seconds per split on
-# the paper-size corpus, plus ~3 s a task spends around the fit); only the order the grid's
-# tasks start in depends on it.
-METHOD_COST = {"mlp_large": 37, "gmm_regression": 23, "gru": 22, "tdnn": 14, "gated_mlp": 7,
-               "vq": 5, "linear": 3}
-
-
 def task_cost(cfg) -> float:
-    """The relative cost of a task of ``cfg``: its method's per split, times its splits."""
+    """The relative cost of a task of ``cfg``: its method's per split
+    (:data:`mapping.experiment.METHOD_COST`), times its splits and training copies."""
     m = cfg.mapping
     return METHOD_COST.get(m.method, 7) * len(m.splits) * (1 + m.augment.copies)
 
