@@ -14,24 +14,22 @@ from face_model.movie import write_mp4
 from study.design import AUDIO, EXPRESSIONS, required_stimuli
 from study.stimuli import COLUMNS, MANIFEST, load_manifest, read_video_frames, write_silent_mp4
 from talkingface.cli import main
-
-TINY = ["--set", "synth.n_sentences=4", "--set", "synth.workers=2", "--set",
-        "mapping.baselines=[]", "--set", "mapping.splits=[utterance]", "--set",
-        "mlflow.enabled=false"]
+from tests.talkingface.bad_input_cases import RUN
 
 
-@pytest.fixture(scope="module")
-def stimuli(tmp_path_factory):
-    import os
+@pytest.fixture(scope="session")
+def stimuli(small_run_dir, shared_build):
+    """The stimuli of the small run with a trained mapping (``small_run_dir``, tests/conftest.py)
+    made again by ``talkingface study stimuli`` in a copy of the run, once per test run; the
+    tests only read them (or copy them first)."""
+    def build(root):
+        shutil.copytree(small_run_dir / "runs", root / "runs")
+        shutil.rmtree(root / "runs" / "R" / "stimuli")  # the stage runs again; the rest is reused
+        with pytest.MonkeyPatch.context() as mp:
+            mp.chdir(root)
+            assert main(["study", "stimuli", "--name", "R", *RUN]) == 0
 
-    root = tmp_path_factory.mktemp("stimuli")
-    old = os.getcwd()
-    os.chdir(root)
-    try:
-        assert main(["study", "stimuli", "--name", "t", *TINY]) == 0
-    finally:
-        os.chdir(old)
-    return root / "runs" / "t" / "stimuli"
+    return shared_build("stimuli_run", build) / "runs" / "R" / "stimuli"
 
 
 def _rows(stim):

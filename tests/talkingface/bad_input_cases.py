@@ -1,9 +1,11 @@
 """The bad-input suite's working folder and its table of cases (used by test_bad_input.py).
 
-:func:`build_world` makes one folder with a small finished run ``R`` (corpus, units, mapping,
-stimuli, study data, report), a corpus ``c`` and the bad inputs the cases name: config files,
+The cases run in one folder with a small finished run ``R`` (corpus, units, mapping, stimuli,
+study data, report) and a corpus ``c`` (:func:`build_run`: only ``replicate`` and one ``synth``
+are computed, once per test run for the whole suite, ``small_run_dir`` in tests/conftest.py),
+copied, and beside them the bad inputs the cases name (:func:`add_bad_inputs`): config files,
 damaged copies of the corpus, of the study data and of the stimuli, WAV files and model files.
-Damaged variants are copies (cheap); only ``replicate`` and one ``synth`` are computed.
+Damaged variants are copies (cheap).
 
 :data:`CASES` are ``(argv, names)``: the command must exit 2 with exactly one line
 ``error: ...`` on stderr that contains every one of ``names``, and change no file that existed.
@@ -41,12 +43,12 @@ class Touch:
 
 
 # -- building the folder ---------------------------------------------------------------------
-def build_world(root: Path, main) -> Path:
-    """Make the run and the corpus with ``main`` (the CLI entry point) in ``root`` (the current
-    folder), then the bad inputs."""
+def build_run(root: Path, main) -> Path:
+    """Make the run ``R`` and the corpus ``c`` with ``main`` (the CLI entry point) in ``root``
+    (the current folder). tests/conftest.py makes this folder once per test run
+    (``small_run_dir``); the tests work on copies of it."""
     assert main(["replicate", "--name", "R", *QUICK]) == 0
     assert main(["synth", "--out", "c", *TINY]) == 0
-    add_bad_inputs(root)
     return root
 
 

@@ -1,5 +1,6 @@
 """``talkingface animate`` and ``stream`` on real WAV files, good and bad."""
 import json
+import shutil
 import subprocess
 import wave
 from pathlib import Path
@@ -8,24 +9,19 @@ import numpy as np
 import pytest
 
 from talkingface.cli import main
-
-TINY = ["--set", "synth.n_sentences=4", "--set", "synth.workers=2", "--set",
-        "mapping.baselines=[]", "--set", "mapping.splits=[utterance]", "--set",
-        "mlflow.enabled=false"]
+from tests.talkingface.bad_input_cases import RUN
 
 
 @pytest.fixture(scope="module")
-def trained(tmp_path_factory):
-    """A run with a trained mapping (runs/t under a module-wide folder)."""
-    import os
-
+def trained(small_run_dir, tmp_path_factory):
+    """A run with a trained mapping (runs/t under a module-wide folder): a copy of the small
+    run the suite shares (tests/conftest.py; 3 sentences, the gated MLP trained on the
+    utterance split), the only run of the folder; ``train`` finds its mapping finished."""
     root = tmp_path_factory.mktemp("animate")
-    old = os.getcwd()
-    os.chdir(root)
-    try:
-        assert main(["train", "--name", "t", *TINY]) == 0
-    finally:
-        os.chdir(old)
+    shutil.copytree(small_run_dir / "runs" / "R", root / "runs" / "t")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.chdir(root)
+        assert main(["train", "--name", "t", *RUN]) == 0
     return root
 
 

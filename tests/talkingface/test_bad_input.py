@@ -29,20 +29,21 @@ from analysis.study_data import read_study
 from face_model.audio import read_wav, write_wav
 from study.data import Allocation
 from talkingface.cli import main
-from tests.talkingface.bad_input_cases import ACCEPTED, CASES, QUICK, RUN, TINY, build_world
+from tests.talkingface.bad_input_cases import ACCEPTED, CASES, QUICK, RUN, TINY, \
+    add_bad_inputs
 
 REPO = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")
-def world(tmp_path_factory):
+def world(small_run_dir, tmp_path_factory):
     """A working folder with a finished small run ``R`` (corpus, units, mapping, study data,
-    report), a corpus ``c`` and the bad inputs of the cases (:mod:`bad_input_cases`), made once
-    for all cases of a worker."""
+    report), a corpus ``c`` and the bad inputs of the cases (:mod:`bad_input_cases`), for all
+    cases of a worker: a copy of the run and corpus made once per test run by
+    :func:`bad_input_cases.build_run` (``small_run_dir``), then the bad inputs beside them."""
     root = tmp_path_factory.mktemp("bad_input")
-    with pytest.MonkeyPatch.context() as mp:
-        mp.chdir(root)
-        build_world(root, main)
+    shutil.copytree(small_run_dir, root, dirs_exist_ok=True)
+    add_bad_inputs(root)
     return root
 
 

@@ -1,16 +1,22 @@
 """The command line and the replicate pipeline on a tiny corpus, with a throw-away MLflow store."""
 import csv
 import json
+import shutil
 
 import pytest
 from pypdf import PdfReader
 
 from talkingface.cli import main
+# for the tests of the pipeline's bookkeeping, not of its figures: 3 sentences, less training
+# (the linear baseline only, 20 epochs), 4 simulated participants, no MLflow, and no ablations,
+# no voice-robust models, no ceiling decomposition. The suite shares one finished run made with
+# these settings (small_run_dir in tests/conftest.py).
+from tests.talkingface.bad_input_cases import QUICK as SMALL_RUN
 
 TINY = ["--set", "synth.n_sentences=3", "--set", "synth.workers=2"]
-# for the tests of the pipeline's bookkeeping, not of its figures: less training
-QUICK = ["--set", "mapping.baselines=[linear]", "--set", "mapping.train.max_epochs=20"]
-# no ablations, no voice-robust models, no ceiling decomposition
+# the tracker's evaluation on 3 utterances (one per expression; 6 by default) and two training
+# seeds per ceiling step (3 by default): every stage and its bookkeeping, with less work
+SMALLER = ["--set", "tracker.n_utterances=3", "--set", "ceiling.seeds=2"]
 # four ceiling steps, small: the run's, one nuisance off (its own corpus), the tracked MUPs
 # (a tracked copy of the run's corpus), the oracle
 CEILING_GRID = """base:
@@ -23,7 +29,6 @@ children:
   tracked: {mapping.visual_source: tracked}
   oracle: {mapping.gate_front_end: labels, mapping.mlp_input: phones}
 """
-SOLO = ["--ablations", "none", "--voices", "none", "--set", "ceiling.grid=none"]
 # two voice-robust configurations, small: the run's voice, and three engines with CMVN
 VOICES_GRID = """model: many
 base:
@@ -51,7 +56,7 @@ def pdf_text(path) -> str:
 def test_replicate_writes_runs_report_and_mlflow(workdir, capsys):
     (workdir / "voices.yaml").write_text(VOICES_GRID)
     (workdir / "ceiling.yaml").write_text(CEILING_GRID)
-    assert main(["replicate", "--name", "tiny", *TINY, "--ablations", "none",
+    assert main(["replicate", "--name", "tiny", *TINY, *SMALLER, "--ablations", "none",
                  "--voices", "voices.yaml", "--set", "ceiling.grid=ceiling.yaml"]) == 0
     run = workdir / "runs" / "tiny"
     for p in ("config.yaml", "corpus/manifest.csv", "corpus/done.json", "units/motion_units.npz",
@@ -161,30 +166,30 @@ def _check_voices_and_real_speech(run, table_rows, text):
     assert "Real speech, unseen speakers" in text and "voices-many is the one" in text
 
 
-def test_replicate_refuses_a_different_config_under_the_same_name(workdir, capsys):
-    assert main(["replicate", "--name", "r", *TINY, *QUICK, *SOLO,
-                 "--set", "mlflow.enabled=false"]) == 0
+def test_replicate_refuses_a_different_config_under_the_same_name(workdir, capsys,
+                                                                  small_run_dir):
+    # the run replicate made with these settings (once per test run, under the name R:
+    # small_run_dir), copied here under the name r
+    shutil.copytree(small_run_dir / "runs" / "R", workdir / "runs" / "r")
+    assert main(["replicate", "--name", "r", *SMALL_RUN]) == 0
     stamp = (workdir / "runs" / "r" / "corpus" / "done.json").read_text()
-    code = main(["replicate", "--name", "r", *TINY, *QUICK, "--set", "mlflow.enabled=false",
-                 "--seed", "5"])
+    code = main(["replicate", "--name", "r", *SMALL_RUN, "--seed", "5"])
     assert code == 2
     assert "was made with a different config" in capsys.readouterr().err
     # nothing was touched
     assert (workdir / "runs" / "r" / "corpus" / "done.json").read_text() == stamp
     # the same config again reuses the finished corpus
-    assert main(["replicate", "--name", "r", *TINY, *QUICK, *SOLO,
-                 "--set", "mlflow.enabled=false"]) == 0
+    assert main(["replicate", "--name", "r", *SMALL_RUN]) == 0
     assert (workdir / "runs" / "r" / "corpus" / "done.json").read_text() == stamp
     # a study setting with --overwrite re-runs the study stages and nothing upstream of them
     run = workdir / "runs" / "r"
     kept = {s: (run / s / "done.json").read_text() for s in ("corpus", "units", "mapping",
                                                             "stimuli")}
-    assert main(["replicate", "--name", "r", *TINY, *QUICK, *SOLO,
-                 "--overwrite", "--set", "mlflow.enabled=false", "--set",
-                 "study.n_participants=4"]) == 0
+    assert main(["replicate", "--name", "r", *SMALL_RUN, "--overwrite", "--set",
+                 "study.n_participants=6"]) == 0
     assert {s: (run / s / "done.json").read_text() for s in kept} == kept
-    assert len(list((run / "study_data").glob("sub-*/sub-*_task-emotion_beh.csv"))) == 4
-    assert json.loads((run / "analysis" / "done.json").read_text())["participants"] == 4
+    assert len(list((run / "study_data").glob("sub-*/sub-*_task-emotion_beh.csv"))) == 6
+    assert json.loads((run / "analysis" / "done.json").read_text())["participants"] == 6
 
 
 def test_synth_then_units_print_the_variance(workdir, capsys):

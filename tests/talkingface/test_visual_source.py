@@ -1,6 +1,9 @@
 """--visual-source tracked: the mapping learns from the corpus as the MU-constrained tracker
 sees it (paper §V), and the setting is validated wherever it is given."""
+import contextlib
+import io
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -15,10 +18,26 @@ TINY = ["--set", "synth.n_sentences=4", "--set", "synth.workers=2"]
 SMALL_TRAIN = ["--set", "mapping.baselines=[linear]", "--set", "mapping.splits=[utterance]"]
 
 
-def test_train_on_tracked_mups(workdir, capsys):
-    assert main(["track", "--name", "v", *TINY, *SMALL_TRAIN]) == 0
-    out = capsys.readouterr().out
+@pytest.fixture(scope="session")
+def tracked_run(shared_build):
+    """A folder with ``runs/v`` made by ``talkingface track`` (its corpus, Motion Units and the
+    tracked copy of the corpus) and what the command printed (``track.out``), made once per test
+    run (tests/conftest.py); read-only, tests that run more commands copy it."""
+    def build(root):
+        out = io.StringIO()
+        with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stdout(out):
+            mp.chdir(root)
+            mp.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{root / 'mlflow.db'}")
+            assert main(["track", "--name", "v", *TINY, *SMALL_TRAIN]) == 0
+        (root / "track.out").write_text(out.getvalue())
+
+    return shared_build("tracked_run", build)
+
+
+def test_train_on_tracked_mups(tracked_run, workdir):
+    out = (tracked_run / "track.out").read_text()  # what `track --name v` printed
     assert "utterances" in out and "marker error mean" in out
+    shutil.copytree(tracked_run / "runs", workdir / "runs")
     run = workdir / "runs" / "v"
     tracked = load_corpus(run / "tracked")
     original = load_corpus(run / "corpus")
@@ -34,15 +53,16 @@ def test_train_on_tracked_mups(workdir, capsys):
     assert model.metadata["corpus_hash"] != corpus_hash(run / "corpus")
 
 
-def test_the_tracked_mups_differ_from_the_marker_mups_by_the_tracking_error(workdir):
+def test_the_tracked_mups_differ_from_the_marker_mups_by_the_tracking_error(tracked_run):
     """Through the same MUs, the tracked corpus gives MUPs close to, not equal to, the
     markers': the large utterance MUPs follow the markers' closely; the small ones carry the
     tracking error (a quarter-pixel is a good part of their range)."""
     from face_model.motion_units import MotionUnits
     from mapping import build_dataset
 
-    assert main(["track", "--name", "w", *TINY]) == 0
-    run = workdir / "runs" / "w"
+    # made by `talkingface track`, which reads no mapping setting: the corpus, units and
+    # tracked copy are those of `track` with TINY alone
+    run = tracked_run / "runs" / "v"
     units = MotionUnits.load(run / "units" / "motion_units.npz")
     a = build_dataset(load_corpus(run / "corpus"), units)
     b = build_dataset(load_corpus(run / "tracked"), units)
