@@ -216,12 +216,15 @@ def record_fits():
     (MLP, TDNN, GRUNet), ``members`` (networks trained together), ``epochs`` (summed over
     members), ``seconds`` and ``flops`` — the arithmetic it could not do without: per epoch a
     forward and backward pass (3 forward passes' worth) over the training frames and a forward
-    pass over the validation frames (:func:`forward_flops`)."""
+    pass over the validation frames (:func:`forward_flops`). Blocks nest: a training inside an
+    inner block is recorded in the enclosing blocks too."""
     global _FIT_LOG
     saved, _FIT_LOG = _FIT_LOG, []
     try:
         yield _FIT_LOG
     finally:
+        if saved is not None:
+            saved.extend(_FIT_LOG)
         _FIT_LOG = saved
 
 

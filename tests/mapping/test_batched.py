@@ -140,3 +140,17 @@ def test_fit_mlps_refuses_mismatched_members(rng):
     (X, Y), = _problems(rng, [20])
     with pytest.raises(ValueError, match="one module, input, target and seed per member"):
         fit_mlps([MLP(12, 4, 4)], [X, X], [Y], TrainSettings(), [0])
+
+
+def test_nested_records_reach_the_enclosing_block(rng):
+    # a method's training records its fits in its own block (mapping.experiment.train_method);
+    # a profile around it (bench/bench_profile.py) must see them too
+    (X, Y), = _problems(rng, [80])
+    settings = TrainSettings(max_epochs=20, patience=5)
+    with nets.record_fits() as outer:
+        NetRegressor(MLP(12, 6, 4), settings, 1).fit(X, Y)
+        with nets.record_fits() as inner:
+            NetRegressor(MLP(12, 7, 4), settings, 2).fit(X, Y)
+        assert [r["network"] for r in inner] == ["MLP"]
+    assert len(outer) == 2 and outer[1] == inner[0]
+    assert outer[0]["epochs"] <= 20 and outer[0]["flops"] > 0
