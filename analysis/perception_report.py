@@ -93,7 +93,8 @@ def analyze_study(study_dir, out_dir, *, seed: int = 0, bootstrap: int = 200,
     out.mkdir(parents=True, exist_ok=True)
     df = study.trials
     tabs = tallies(df)
-    summary = {"study_dir": str(study_dir), "participants": int(df["participant_id"].nunique()),
+    summary = {"study_dir": str(study_dir), "study_path": str(Path(study_dir).resolve()),
+               "participants": int(df["participant_id"].nunique()),
                "incomplete": [asdict(i) for i in study.incomplete],
                "sequences": {s: int(df[df["sequence"] == s]["participant_id"].nunique())
                              for s in ("SR", "RS")},

@@ -9,10 +9,11 @@ Files are read as UTF-8 with or without a byte-order mark (a CSV saved by Excel 
 An incomplete data set is refused too, naming each participant and their number of judgments:
 a participant with fewer than the 27 judgments (a missing block), or whose slot in the
 folder's ``allocation.csv`` is not marked complete (a session that was interrupted), or who
-holds a slot and has no data file (a session that never wrote a judgment, or a lost file).
-With ``allow_incomplete=True`` the complete sessions are analysed and the others are listed
-(:class:`Incomplete`); a participant with fewer than 27 judgments is left out, one with all
-27 is analysed.
+holds a slot and has no data file (a session that never wrote a judgment, or a lost file);
+and a simulation cut between two participants (its allocation list, one slot per simulated
+participant, still has free slots). With ``allow_incomplete=True`` the complete sessions are
+analysed and the others are listed (:class:`Incomplete`); a participant with fewer than 27
+judgments is left out, one with all 27 is analysed.
 
 :func:`tallies` builds the paper's tables in their exact layout, counts of participants:
 
@@ -28,6 +29,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,7 +37,7 @@ import numpy as np
 import pandas as pd
 
 from face_model.errors import ParameterError
-from study.data import COLUMNS, Allocation
+from study.data import COLUMNS, Allocation, sidecar_path
 from study.design import (AUDIO, EXPRESSIONS, FACES, N_TRIALS, RESPONSES, SEQUENCES,
                           check_participant_id)
 
@@ -142,6 +144,12 @@ def read_study(study_dir, *, allow_incomplete: bool = False) -> StudyData:
                   "and has no data file")
         incomplete.append(Incomplete(pid, 0, "", slot["status"], reason, analysed=False))
         problems.append(f"participant {pid} {reason} (0 of {N_TRIALS} judgments)")
+    for slot in _unrun_simulated(root, frames):  # a simulation cut between participants
+        reason = ("planned by the simulation (its allocation.csv has a slot per simulated "
+                  "participant) and not run: `talkingface study simulate` with the same "
+                  "settings goes on")
+        incomplete.append(Incomplete(f"slot {slot}", 0, "", "free", reason, analysed=False))
+        problems.append(f"the participant of slot {slot} was {reason}")
     if incomplete and not allow_incomplete:
         raise ParameterError(
             f"{root} holds incomplete sessions, which are not analysed unless allowed: "
@@ -163,6 +171,25 @@ def load_study_data(study_dir, *, allow_incomplete: bool = False) -> pd.DataFram
     """The judgments of :func:`read_study` (the complete sessions' only, when
     ``allow_incomplete``)."""
     return read_study(study_dir, allow_incomplete=allow_incomplete).trials
+
+
+def _unrun_simulated(root: Path, frames: list) -> list:
+    """The free slots of a simulation's allocation list: ``study simulate`` makes one slot per
+    participant it plans, so a free one is a participant it has not run. A folder is a
+    simulation's when every participant's sidecar says so (``simulation_seed``); a real
+    study's list has spare slots, and is left alone."""
+    alloc = Allocation(root)
+    pids = [str(f["participant_id"].iloc[0]) for f in frames if len(f)]
+    if not pids or not alloc.path.is_file():
+        return []
+    for pid in pids:
+        try:
+            side = json.loads(sidecar_path(root, pid).read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return []
+        if not isinstance(side, dict) or "simulation_seed" not in side:
+            return []
+    return [r["slot"] for r in alloc.rows() if r["status"] == "free"]
 
 
 def _slots(root: Path) -> dict[str, dict]:

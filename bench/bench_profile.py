@@ -32,6 +32,7 @@ import torch  # noqa: E402
 from data_synth.generate import synthesize_corpus  # noqa: E402
 from face_model.corpus import load_corpus  # noqa: E402
 from face_model.motion_units import fit_corpus_units  # noqa: E402
+from face_model.memory import keep_freed_memory  # noqa: E402
 from face_model.threads import limit_threads  # noqa: E402
 from mapping import build_dataset  # noqa: E402
 from mapping.experiment import run_experiment  # noqa: E402
@@ -107,8 +108,12 @@ def main() -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     p.add_argument("--run", help="also print the stage times of runs/RUN")
     p.add_argument("--runs-dir", type=Path, default=Path("runs"))
+    p.add_argument("--plain-malloc", action="store_true", help="glibc's default malloc (every "
+                   "freed large tensor given back to the system), for the comparison")
     args = p.parse_args()
     limit_threads(1)
+    if not args.plain_malloc:
+        keep_freed_memory()
     cfg = Config()
     rate = gemm_rate()
     with tempfile.TemporaryDirectory() as tmp:

@@ -44,7 +44,9 @@ class _Weights:
 
 @dataclass(frozen=True)
 class SynthConfig:
-    """The synthetic audio-visual corpus (paper §IV-A, §VII-A). Units: seconds, pixels, wpm."""
+    """The synthetic audio-visual corpus (paper §IV-A, §VII-A). Units: seconds, pixels, wpm.
+    Sizes in pixels are bounded by what a face of ~200 px can show, so that no setting can
+    make markers that are not finite numbers."""
 
     n_sentences: int = integer(100, ge=0)  # 0: every sentence of the source
     expressions: tuple = subset(EXPRESSIONS, EXPRESSIONS)
@@ -62,8 +64,8 @@ class SynthConfig:
     rate_wpm: int = integer(165, gt=0)
     pitch: int = integer(45, ge=0, le=100)
     pitch_range: int = integer(50, ge=0, le=100)
-    lead_silence_s: float = number(0.20, ge=0)
-    trail_silence_s: float = number(0.20, ge=0)
+    lead_silence_s: float = number(0.20, ge=0, le=10)
+    trail_silence_s: float = number(0.20, ge=0, le=10)
     audio_noise_dbfs: float = number(-66.0, le=0)  # a recording-room noise floor
     # expression prosody (added to the speaker's voice)
     smile_pitch_delta: int = integer(6, ge=-100, le=100)
@@ -71,35 +73,35 @@ class SynthConfig:
     sad_pitch_delta: int = integer(-8, ge=-100, le=100)
     sad_rate_delta: int = integer(-15)
     # coarticulation (Cohen & Massaro 1993)
-    theta_anticipation: float = number(16.0, gt=0)  # 1/s
-    theta_carryover: float = number(25.0, gt=0)  # 1/s
-    dominance_power: float = number(1.0, gt=0)
+    theta_anticipation: float = number(16.0, gt=0, le=1000)  # 1/s
+    theta_carryover: float = number(25.0, gt=0, le=1000)  # 1/s
+    dominance_power: float = number(1.0, gt=0, le=20)
     # articulation → marker displacement gains, pixels at parameter value 1
-    jaw_px: float = number(10.0, ge=0)
-    aperture_px: float = number(6.0, ge=0)
-    spread_px: float = number(7.0, ge=0)
-    protrusion_px: float = number(8.0, ge=0)
-    upper_raise_px: float = number(4.0, ge=0)
-    lower_tuck_px: float = number(6.0, ge=0)
-    brow_px: float = number(2.5, ge=0)
+    jaw_px: float = number(10.0, ge=0, le=100)
+    aperture_px: float = number(6.0, ge=0, le=100)
+    spread_px: float = number(7.0, ge=0, le=100)
+    protrusion_px: float = number(8.0, ge=0, le=100)
+    upper_raise_px: float = number(4.0, ge=0, le=100)
+    lower_tuck_px: float = number(6.0, ge=0, le=100)
+    brow_px: float = number(2.5, ge=0, le=100)
     # expressions: envelope (each utterance draws from these ranges) and interaction with speech
     expression_onset_s: tuple = span((0.25, 0.5), gt=0)
     expression_offset_s: tuple = span((0.3, 0.6), gt=0)
     expression_intensity: tuple = span((0.7, 1.0), ge=0)
     smile_rounding_damping: float = number(0.6, ge=0, le=1)  # fraction of the lip rounding
-    smile_widening: float = number(0.3, ge=0)
+    smile_widening: float = number(0.3, ge=0, le=5)
     sad_jaw_reduction: float = number(0.35, ge=0, le=1)  # fraction of the jaw opening
     # speaker variation (standard deviations)
-    speaker_scale_sd: float = number(0.04, ge=0)
-    speaker_shape_sd_px: float = number(1.5, ge=0)
-    speaker_gain_sd: float = number(0.10, ge=0)
-    speaker_rate_sd: float = number(12.0, ge=0)
-    speaker_pitch_sd: float = number(8.0, ge=0)
+    speaker_scale_sd: float = number(0.04, ge=0, le=0.5)
+    speaker_shape_sd_px: float = number(1.5, ge=0, le=50)
+    speaker_gain_sd: float = number(0.10, ge=0, le=1)
+    speaker_rate_sd: float = number(12.0, ge=0, le=100)
+    speaker_pitch_sd: float = number(8.0, ge=0, le=50)
     # nuisances
-    head_rotation_deg: float = number(2.0, ge=0)
-    head_scale: float = number(0.02, ge=0)
-    head_translation_px: float = number(6.0, ge=0)
-    marker_noise_px: float = number(0.15, ge=0)  # sub-pixel marker localisation
+    head_rotation_deg: float = number(2.0, ge=0, le=45)
+    head_scale: float = number(0.02, ge=0, le=0.5)
+    head_translation_px: float = number(6.0, ge=0, le=200)
+    marker_noise_px: float = number(0.15, ge=0, le=50)  # sub-pixel marker localisation
 
     def __post_init__(self):
         check_fields(self)

@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+import shutil
 from dataclasses import asdict, dataclass
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -184,6 +185,16 @@ def synthesize_corpus(out, cfg, seed: int, *, overwrite: bool = False,
         backends = {"": get_backend(cfg.backend)}
     # built beside the target and swapped in when complete: a failure keeps the old corpus
     out = fresh_partial_folder(final)
+    try:
+        _build_corpus(out, cfg, seed, speakers, plans, backends, progress)
+    except BaseException:  # a full disk, a failed voice, Ctrl-C: no half corpus left behind
+        shutil.rmtree(out, ignore_errors=True)
+        raise
+    return swap_in(out, final)
+
+
+def _build_corpus(out: Path, cfg, seed: int, speakers, plans, backends, progress: bool) -> None:
+    """Every utterance, the manifest and ``corpus.json`` of a corpus, written into ``out``."""
     workers = cfg.workers if cfg.workers > 0 else (os.cpu_count() or 1)
     results: list = [None] * len(plans)
     with tqdm(total=len(plans), desc="speech", unit="utt", disable=not progress) as bar:
@@ -231,4 +242,3 @@ def synthesize_corpus(out, cfg, seed: int, *, overwrite: bool = False,
                            "n_utterances": sum(p.voice == spec for p in plans)}
                           for spec in backends]
     (out / "corpus.json").write_text(json.dumps(info, indent=1))
-    return swap_in(out, final)

@@ -33,6 +33,7 @@ from data_synth.video import INITS, VideoDifficulty, first_frame_markers, render
 from face_model.alignment import speaker_neutrals
 from face_model.corpus import corpus_hash, write_manifest
 from face_model.errors import ParameterError
+from face_model.memory import keep_freed_memory
 from face_model.threads import limit_threads, thread_budget
 from face_model.tracker import MUTracker
 
@@ -71,6 +72,7 @@ _WORKER: dict = {}
 def _init_worker(units, neutrals, noise_sd: float, init: str, threads: int = 1) -> None:
     cv2.setNumThreads(1)  # one core per process: the pool gives the parallelism
     limit_threads(threads)
+    keep_freed_memory()
     _WORKER.update(units=units, neutrals=neutrals, noise_sd=noise_sd, init=init)
 
 

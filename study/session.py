@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -125,7 +126,7 @@ class SessionPlan:
         """This session's entry of the sidecar's ``sessions`` list, as it starts."""
         return {"session": self.session, "start": start, "resumed": self.resume,
                 "rows_at_start": self.start, "dropped_partial_row": self.file.dropped_partial,
-                "end": None, "end_state": "running", "rows_at_end": None,
+                "end": None, "end_state": "running", "rows_at_end": None, "pid": os.getpid(),
                 "versions": versions, "responder_model": self.responder_model,
                 "audio_backend": self.audio_backend, "audio_device": audio_device,
                 "fullscreen": self.fullscreen,
@@ -201,8 +202,17 @@ def check_disk_space(study_dir, need: int | None = None) -> int:
 
 def _running(study_dir, pid: str) -> ParameterError:
     path = sdata.subject_dir(study_dir, pid) / LOCK_NAME
-    return ParameterError(f"a session of participant {pid} is already running (lock {path}); "
-                          "wait for it to end")
+    who = "another process"
+    try:  # the running session's own record says which process runs it
+        side = json.loads(sdata.sidecar_path(study_dir, pid).read_text(encoding="utf-8"))
+        run = [s for s in side.get("sessions", []) if s.get("end_state") == "running"]
+        if run and run[-1].get("pid"):
+            who = f"process {run[-1]['pid']} (session {run[-1]['session']}, started " \
+                  f"{run[-1]['start']})"
+    except (OSError, ValueError, AttributeError, KeyError):
+        pass
+    return ParameterError(f"a session of participant {pid} is already running in {who} "
+                          f"(lock {path}); wait for it to end")
 
 
 def check_not_running(study_dir, pid: str) -> None:
@@ -360,6 +370,7 @@ def check_session(study_dir, stimuli_dir, participant_id: str, *, study_seed: in
         raise ParameterError(f"--study-dir {study_dir} is a file; give a study folder")
     if screenshot is not None and Path(screenshot).is_dir():
         raise ParameterError(f"--screenshot {screenshot} is a folder; give a .png file name")
+    check_not_running(study_dir, pid)  # before the data: a running session is not interrupted
     stimuli = load_manifest(stimuli_dir)  # checksums verified
     held, resume = check_slot(study_dir, pid, study_seed=study_seed, n_slots=n_slots,
                               resume=resume)
@@ -374,7 +385,6 @@ def check_session(study_dir, stimuli_dir, participant_id: str, *, study_seed: in
         raise ParameterError(f"the stimuli in {stimuli_dir} differ from those of {pid}'s earlier "
                              f"session (manifest digest, see {side_path}); resume with the same "
                              "stimulus set")
-    check_not_running(study_dir, pid)
     check_disk_space(study_dir, min_free_bytes)
     return SessionCheck(
         participant_id=pid, study_dir=study_dir, stimuli_dir=Path(stimuli_dir),

@@ -7,6 +7,7 @@ line (``error: ...``) with exit status 2.
 from __future__ import annotations
 
 import argparse
+import errno
 import math
 import os
 import signal
@@ -20,6 +21,8 @@ from data_synth.generate import synthesize_corpus
 from face_model.atomic import check_output_file
 from face_model.corpus import load_corpus
 from face_model.errors import TalkingFaceError
+from face_model.memory import keep_freed_memory
+from face_model.owner import acquire, release_all
 from talkingface import cache_cli, runs, server_cli, study_cli
 from talkingface.animate import animate_file, stream_file, stream_microphone
 from talkingface.cli_args import config_args, resolve_config, run_args, visual_source_arg
@@ -28,7 +31,7 @@ from talkingface.experiment_log import (artifact_root, check_tracking, log_speec
                                         mlflow_run, tracking_uri)
 from talkingface.live import input_devices
 from talkingface.server import check_free
-from talkingface.paths import RunPaths, check_run_name
+from talkingface.paths import RunPaths
 from talkingface.stages import run
 from talkingface.stages.foundation import fit_units_folder
 from talkingface.stages.speech_eval import evaluate_models, find_models, output_files
@@ -142,10 +145,10 @@ def cmd_ablate(args) -> int:
 
 def cmd_report(args) -> int:
     if args.study_data is not None:
-        name = check_run_name(args.name or Path(args.study_data).resolve().name)
         seed = study_cli.monte_carlo_seed(args.seed)
-        print("report: " + str(study_cli.study_report(args.study_data, name, seed=seed,
-                                                      allow_incomplete=args.allow_incomplete)))
+        print("report: " + str(study_cli.study_report(args.study_data, args.name, seed=seed,
+                                                      allow_incomplete=args.allow_incomplete,
+                                                      overwrite=args.overwrite)))
         return 0
     if not args.name:
         raise TalkingFaceError("give --name RUN (a replication's report) or --study-data DIR "
@@ -154,6 +157,7 @@ def cmd_report(args) -> int:
     if not paths.config.is_file():
         raise TalkingFaceError(f"{paths.config} not found: run 'talkingface replicate --name "
                                f"{args.name}' first")
+    acquire(paths.root, "run")
     run(["report"], paths, load_config(paths.config))
     print(f"report: {paths.pdf}")
     return 0
@@ -214,7 +218,10 @@ def cmd_stream(args) -> int:
         raise TalkingFaceError("give a WAV file or --mic (one of them)")
     if args.seconds is not None and not (math.isfinite(args.seconds) and args.seconds > 0):
         raise TalkingFaceError(f"--seconds {args.seconds:g}: allowed: a finite number > 0")
-    show = args.show and bool(os.environ.get("DISPLAY"))
+    if args.show and not os.environ.get("DISPLAY"):
+        raise TalkingFaceError("--show needs an X display and DISPLAY is not set; run without "
+                               "--show, or where a display is (xvfb-run for none)")
+    show = args.show
     if args.mic:
         device = int(args.device) if args.device and args.device.isdigit() else args.device
         res = stream_microphone(expression=args.expression, model=args.model,
@@ -273,7 +280,8 @@ def _corpus_commands(sub) -> None:
     s = sub.add_parser("synth", help="generate the synthetic audio-visual corpus")
     s.add_argument("--out", required=True, type=Path, help="corpus folder to create")
     s.add_argument("--text", type=Path, help="your own sentences, one per line")
-    s.add_argument("--sentences", type=int, help="number of sentences (default: 100)")
+    s.add_argument("--sentences", type=int, help="number of sentences (default: 100; 0: every "
+                   "sentence of the source, 360 built in, or all of --text)")
     s.add_argument("--speakers", type=int, help="number of speakers (default: 1)")
     s.add_argument("--overwrite", action="store_true", help="replace an existing corpus folder")
     config_args(s)
@@ -325,12 +333,15 @@ def _run_commands(sub) -> None:
     s = sub.add_parser("report", help="rebuild reports/<name>.pdf from runs/<name>, or a study "
                        "report from study data alone (--study-data)")
     s.add_argument("--name", help="run name (with --study-data: the PDF's name; default: the "
-                   "data folder's name)")
+                   "data folder's name, with a part of its path when another study has that "
+                   "name)")
     s.add_argument("--study-data", type=Path, help="a study data folder (real or simulated): "
                    "reports/study/<name>.pdf")
     s.add_argument("--allow-incomplete", action="store_true", help="with --study-data: analyse "
                    "the complete sessions of a folder that has incomplete ones (said in the PDF)")
     s.add_argument("--seed", type=int, help="seed of the Monte Carlo parts (default 0)")
+    s.add_argument("--overwrite", action="store_true", help="with --study-data: replace a "
+                   "study report of that name")
     s.set_defaults(func=cmd_report)
 
     s = sub.add_parser("evaluate-speech", help="score trained mappings on the real-speech "
@@ -410,11 +421,17 @@ def main(argv=None) -> int:
         args = build_parser().parse_args(argv)
     except SystemExit as exc:  # --help, or a usage mistake (its line is printed)
         return exc.code
+    keep_freed_memory()  # every epoch's tensors reuse memory (face_model.memory)
     try:
         return args.func(args)
     except TalkingFaceError as exc:
         print(f"error: {exc}", file=sys.stderr)
     except OSError as exc:  # a path that is missing, a folder, unreadable or not writable
+        if exc.errno in OUT_OF_ROOM:  # whatever file it was: what ran out is the news
+            where = f" writing {exc.filename}" if exc.filename else ""
+            print(f"error: {os.strerror(exc.errno)}{where}; nothing finished was replaced: "
+                  "free some space and run the command again", file=sys.stderr)
+            return 2
         if exc.filename is None:
             raise
         print(f"error: {exc.filename}: {_os_problem(exc)}", file=sys.stderr)
@@ -423,7 +440,13 @@ def main(argv=None) -> int:
               "written under their names (a grid's finished tasks are: the same command goes "
               "on from them)", file=sys.stderr)
         return 130
+    finally:
+        release_all()  # the runs and sessions this command held
     return 2
+
+
+# A write that failed for want of room (a full disk, a quota): one line, whatever the file.
+OUT_OF_ROOM = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
 
 
 def _os_problem(exc: OSError) -> str:

@@ -29,8 +29,10 @@ import logging
 import multiprocessing
 import os
 import socket
+import struct
 import sys
 import threading
+import time
 import uuid
 from concurrent.futures import CancelledError, ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
@@ -39,11 +41,14 @@ from contextlib import contextmanager, suppress
 from tqdm import tqdm
 
 from face_model.errors import ParameterError, TalkingFaceError
+from face_model.memory import keep_freed_memory
 from face_model.threads import cores, limit_threads, thread_budget
 
 SCHEDULERS = ("local", "processes")
 CONNECT_TIMEOUT_S = 10
 NO_WORKER_WARN_S = 30
+LOCAL_NO_WORKER_S = 30  # a LocalCluster without a worker this long has lost them for good
+WATCH_EVERY_S = 2
 
 
 def scheduler_address(value: str) -> tuple[str, int] | None:
@@ -67,21 +72,62 @@ def check_scheduler(value: str) -> None:
 
 
 def check_reachable(scheduler: str) -> None:
-    """Refuse a ``tcp://`` scheduler that does not accept a connection (checked before a
-    command starts its work); ``local`` and ``processes`` need nothing."""
+    """Refuse a ``tcp://`` scheduler that does not accept a connection, or that is not a Dask
+    scheduler (checked before a command starts its work, and again when a grid connects: a
+    Dask client would wait forever on a server that speaks another protocol); ``local`` and
+    ``processes`` need nothing."""
     address = scheduler_address(scheduler)
     if address is None:
         return
     try:
-        socket.create_connection(address, timeout=CONNECT_TIMEOUT_S).close()
+        sock = socket.create_connection(address, timeout=CONNECT_TIMEOUT_S)
     except OSError as exc:
         raise ParameterError(f"cluster.scheduler {scheduler}: no Dask scheduler answers there "
                              f"({exc.strerror or type(exc).__name__}); start one (`dask "
                              "scheduler`) or use cluster.scheduler=local") from None
+    with sock:
+        greeting = _first_bytes(sock, 16, CONNECT_TIMEOUT_S)
+    if not _is_dask_greeting(greeting):
+        said = f"it sent {greeting[:16]!r}" if greeting else \
+            f"it sent nothing within {CONNECT_TIMEOUT_S} s"
+        raise ParameterError(f"cluster.scheduler {scheduler}: something accepts connections "
+                             f"there but it is not a Dask scheduler ({said}); check the "
+                             "address and port (`dask scheduler` prints them)")
+
+
+def _first_bytes(sock, n: int, timeout_s: float) -> bytes:
+    """Up to ``n`` bytes a server sends on its own after a connection, waiting at most
+    ``timeout_s`` seconds in all."""
+    deadline = time.monotonic() + timeout_s
+    buf = b""
+    while len(buf) < n:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            break
+        sock.settimeout(left)
+        try:
+            chunk = sock.recv(n - len(buf))
+        except (socket.timeout, OSError):
+            break
+        if not chunk:
+            break
+        buf += chunk
+    return buf
+
+
+def _is_dask_greeting(data: bytes) -> bool:
+    """Whether ``data`` opens a Dask TCP message, as a scheduler sends one on every new
+    connection (its handshake): a little-endian uint64 message length, then the number of
+    frames (``distributed.comm.tcp``)."""
+    if len(data) < 16:
+        return False
+    length, frames = struct.unpack("<QQ", data[:16])
+    return 8 < length < 2**20 and 1 <= frames <= 64
 
 
 def _call(fn, args, threads: int = 1):
     limit_threads(threads)  # processes x threads <= cores (face_model.threads)
+    keep_freed_memory()  # no page faults for every epoch's tensors (face_model.memory)
     return fn(*args)
 
 
@@ -100,6 +146,7 @@ def dask_client(scheduler: str, workers: int):
                                "MKL_NUM_THREADS": t}) as cluster, Client(cluster) as client:
             yield client
         return
+    check_reachable(scheduler)  # a server that is not Dask's would hang the client
     try:
         client = Client(scheduler, timeout=f"{CONNECT_TIMEOUT_S}s")
     except (OSError, TimeoutError) as exc:
@@ -142,25 +189,51 @@ def _pool_result(fut, key):
 
 
 class _WorkerWatch:
-    """Warn once (on stderr) when a running scheduler has had no worker for
-    ``NO_WORKER_WARN_S`` seconds: its tasks wait (workers still queued as batch jobs?)."""
+    """Watch a grid's workers while its tasks run. A running scheduler (``tcp://``) that has
+    had no worker for ``NO_WORKER_WARN_S`` seconds gets one warning on stderr: its tasks wait
+    for workers that may still be queued as batch jobs. A ``LocalCluster`` that has had no
+    worker for ``LOCAL_NO_WORKER_S`` seconds (its processes and their nannies are gone: killed,
+    out of memory) will never get one: the grid's tasks are cancelled and :attr:`failed` says
+    why, so that the grid ends in one line instead of waiting forever."""
 
-    def __init__(self, client, scheduler: str):
+    def __init__(self, client, scheduler: str, futures):
         self._stop = threading.Event()
-        if scheduler == "local":
-            return
-        self._thread = threading.Thread(target=self._run, args=(client, scheduler),
+        self.failed: str | None = None
+        target = self._local if scheduler == "local" else self._remote
+        self._thread = threading.Thread(target=target, args=(client, scheduler, futures),
                                         daemon=True)
         self._thread.start()
 
-    def _run(self, client, scheduler):
+    @staticmethod
+    def _has_workers(client) -> bool:
+        return bool(client.scheduler_info().get("workers"))
+
+    def _remote(self, client, scheduler, futures):
         if self._stop.wait(NO_WORKER_WARN_S):
             return
         with suppress(Exception):  # a warning only: the scheduler's own errors are reported
-            if not client.scheduler_info().get("workers"):
+            if not self._has_workers(client):
                 print(f"warning: cluster.scheduler {scheduler} has no worker; the tasks wait "
                       "until one joins (`dask worker tcp://HOST:PORT`, or the batch jobs of "
                       "dask-jobqueue)", file=sys.stderr, flush=True)
+
+    def _local(self, client, scheduler, futures):
+        since = None
+        while not self._stop.wait(WATCH_EVERY_S):
+            try:
+                alive = self._has_workers(client)
+            except Exception:  # the cluster is closing: the grid's own end reports it
+                return
+            now = time.monotonic()
+            since = None if alive else (since or now)
+            if since is not None and now - since >= LOCAL_NO_WORKER_S:
+                self.failed = (f"cluster.scheduler local: every worker process of this "
+                               f"machine's Dask cluster is gone (for {LOCAL_NO_WORKER_S} s: "
+                               "killed, or out of memory?) and none restarts; the finished "
+                               "tasks' folders are kept: run the command again to go on")
+                with suppress(Exception):
+                    client.cancel(list(futures))
+                return
 
     def stop(self):
         self._stop.set()
@@ -203,9 +276,11 @@ def map_tasks(fn, tasks: dict, *, scheduler: str = "local", workers: int = 0,
             futs = {client.submit(_call, fn, args, threads, key=f"{desc}-{tag}-{i}",
                                   pure=False): key
                     for i, (key, args) in enumerate(tasks.items())}
-            watch = _WorkerWatch(client, scheduler)
+            watch = _WorkerWatch(client, scheduler, futs)
             try:
                 for fut in dask_completed(futs):
+                    if watch.failed:
+                        raise TalkingFaceError(watch.failed)
                     out[futs[fut]] = _dask_result(fut, futs[fut], scheduler)
                     bar.update()
             finally:

@@ -41,11 +41,29 @@ def tracking_uri(cfg) -> str:
 _CREDENTIALS = ("MLFLOW_TRACKING_USERNAME", "MLFLOW_TRACKING_PASSWORD", "MLFLOW_TRACKING_TOKEN")
 
 
+# The stores a run may log to: a local SQLite file, a tracking server, a database server.
+TRACKING_SCHEMES = ("sqlite", "http", "https", "postgresql", "mysql", "mssql")
+# MLflow's own waits on a tracking server (its defaults retry for minutes); a user's
+# MLFLOW_HTTP_REQUEST_* variables are kept.
+HTTP_WAIT = {"MLFLOW_HTTP_REQUEST_TIMEOUT": "30", "MLFLOW_HTTP_REQUEST_MAX_RETRIES": "2"}
+
+
 def check_tracking(cfg) -> None:
-    """Refuse a tracking server (``http(s)://`` URI) that does not answer, before a command
-    starts its work: one line, not minutes of MLflow's retries and a traceback."""
+    """Refuse a tracking store that cannot be used, before a command writes anything: a URI of
+    another kind, an SQLite file that is not a database, a tracking server (``http(s)://``)
+    that does not answer — one line, not minutes of MLflow's retries and a traceback."""
+    if not cfg.mlflow.enabled:
+        return
     uri = tracking_uri(cfg)
-    if not cfg.mlflow.enabled or not uri.startswith(("http://", "https://")):
+    scheme = uri.split("://", 1)[0].split("+", 1)[0].lower() if "://" in uri else ""
+    if scheme not in TRACKING_SCHEMES:
+        raise TalkingFaceError(f"mlflow.uri {uri}: not a tracking store this project logs to; "
+                               f"allowed: {', '.join(s + '://' for s in TRACKING_SCHEMES)} "
+                               "(empty: ./mlflow.db)")
+    if scheme == "sqlite":
+        _check_sqlite(uri)
+        return
+    if scheme not in ("http", "https"):
         return
     try:
         with urllib.request.urlopen(uri.rstrip("/") + "/health", timeout=10) as r:
@@ -69,6 +87,26 @@ def check_tracking(cfg) -> None:
                                "for ./mlflow.db") from None
 
 
+def _check_sqlite(uri: str) -> None:
+    """Refuse an SQLite store whose file exists but is not a readable SQLite database
+    (``sqlite:///relative.db``, ``sqlite:////absolute.db``: SQLAlchemy's forms)."""
+    import sqlite3
+
+    path = Path(uri.split(":///", 1)[1]) if ":///" in uri else None
+    if path is None or not path.is_file():
+        return
+    try:
+        db = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True, timeout=10)
+        try:
+            db.execute("SELECT name FROM sqlite_master LIMIT 1").fetchall()
+        finally:
+            db.close()
+    except sqlite3.DatabaseError as exc:
+        raise TalkingFaceError(f"mlflow.uri {uri}: {path} is not a usable SQLite database "
+                               f"({exc}); move it away, or set mlflow.uri to another "
+                               "store") from None
+
+
 def artifact_root() -> str:
     return (Path.cwd() / "mlartifacts").as_uri()
 
@@ -87,6 +125,8 @@ def mlflow_run(cfg, *, run_name: str, tags: dict | None = None, nested: bool = F
 
     # Alembic prints every schema migration of a fresh SQLite store at INFO.
     logging.getLogger("alembic").setLevel(logging.WARNING)
+    for key, value in HTTP_WAIT.items():
+        os.environ.setdefault(key, value)
     mlflow.set_tracking_uri(tracking_uri(cfg))
     client = mlflow.tracking.MlflowClient()
     exp = client.get_experiment_by_name(cfg.mlflow.experiment)

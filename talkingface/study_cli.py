@@ -13,11 +13,15 @@ The study seed is the run seed (``--seed``/``--set seed=``); the study folder de
 """
 from __future__ import annotations
 
+import hashlib
 import json
+import shutil
+from contextlib import contextmanager
 from pathlib import Path
 
 from analysis.perception_report import analyze_study, perception_section
 from analysis.report import Report
+from face_model.atomic import fresh_partial_folder, swap_in
 from face_model.errors import ParameterError
 from study.classifier import observer_classifier, visual_evidence
 from study.data import Allocation, data_path, read_rows
@@ -28,6 +32,7 @@ from study.stimuli import load_manifest
 from talkingface import runs
 from talkingface.cli_args import config_args, resolve_config, run_args
 from talkingface.config import MAX_SEED
+from talkingface.paths import check_run_name
 from talkingface.provenance import git_commit
 
 DEFAULT_STUDY_DIR = Path("study_data")
@@ -53,29 +58,81 @@ def monte_carlo_seed(seed) -> int:
     return seed
 
 
-def study_report(study_dir, name: str, *, seed: int = 0, reports_dir="reports",
-                 allow_incomplete: bool = False) -> Path:
+def study_report(study_dir, name: str | None = None, *, seed: int = 0, reports_dir="reports",
+                 allow_incomplete: bool = False, overwrite: bool = False) -> Path:
     """``reports/study/<name>.pdf`` from a study's data alone: the analysis and how it was made
     (``allow_incomplete``: analyse the complete sessions of a folder that has incomplete ones;
     the report says so). Study reports have a folder of their own, so one never replaces a
-    replication's ``reports/<name>.pdf``."""
-    out = Path(reports_dir) / "study" / f"{name}_analysis"
-    summary = analyze_study(study_dir, out, seed=seed, allow_incomplete=allow_incomplete)
-    rep = Report(f"talkingface perception study: {name}",
-                 "Emotion judgments of a synthetic and a real talking face (Hong, Wen &amp; "
-                 "Huang 2002, §VII-C)")
-    perception_section(rep, summary, out)
-    rep.heading("Methods")
-    rep.paragraph(f"Analysed by talkingface (source commit {git_commit()}) from {study_dir}; "
-                  f"Monte Carlo and bootstrap seed {seed}. Participants: {summary['participants']}"
-                  f" ({'simulated' if summary['simulated'] else 'real'}).")
-    return rep.build(Path(reports_dir) / "study" / f"{name}.pdf")
+    replication's ``reports/<name>.pdf``; the default name (:func:`study_report_name`) is never
+    another study's, and an existing report is replaced only with ``overwrite``."""
+    folder = Path(reports_dir) / "study"
+    name = study_report_name(study_dir, folder) if name is None else check_run_name(name)
+    pdf, out = folder / f"{name}.pdf", folder / f"{name}_analysis"
+    for made in (pdf, out):
+        if made.exists() and not overwrite:
+            raise ParameterError(f"{made} already exists (from {_source_of(out) or 'a study'});"
+                                 " pass --overwrite to replace it, or --name for another name")
+    with _analysis_folder(out) as partial:
+        summary = analyze_study(study_dir, partial, seed=seed, allow_incomplete=allow_incomplete)
+        rep = Report(f"talkingface perception study: {name}",
+                     "Emotion judgments of a synthetic and a real talking face (Hong, Wen &amp; "
+                     "Huang 2002, §VII-C)")
+        perception_section(rep, summary, partial)
+        rep.heading("Methods")
+        rep.paragraph(f"Analysed by talkingface (source commit {git_commit()}) from {study_dir}; "
+                      f"Monte Carlo and bootstrap seed {seed}. Participants: "
+                      f"{summary['participants']} "
+                      f"({'simulated' if summary['simulated'] else 'real'}).")
+        rep.build(pdf)
+    return pdf
+
+
+def study_report_name(study_dir, folder) -> str:
+    """The default name of a study's report in ``folder``: the study folder's name, unless a
+    report of that name is another study's; then that name and 8 hex digits of the study
+    folder's full path (the same for every report of one study)."""
+    path = Path(study_dir).resolve()
+    name = check_run_name(path.name)
+    source = _source_of(Path(folder) / f"{name}_analysis")
+    if source is None or source == str(path):
+        return name
+    return f"{name}-{hashlib.sha256(str(path).encode()).hexdigest()[:8]}"
+
+
+def _source_of(analysis_dir: Path) -> str | None:
+    """The full path of the study folder an analysis folder was made from (None: none there)."""
+    try:
+        summary = json.loads((analysis_dir / "analysis.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    source = summary.get("study_path") if isinstance(summary, dict) else None
+    return str(source) if source else "a study of unknown folder"
+
+
+@contextmanager
+def _analysis_folder(out: Path):
+    """Build an analysis folder beside ``out`` and swap it in when the block ends without an
+    error (removed otherwise): no half analysis under the name, the old one kept until then."""
+    partial = fresh_partial_folder(out)
+    try:
+        yield partial
+    except BaseException:
+        shutil.rmtree(partial, ignore_errors=True)
+        raise
+    swap_in(partial, out)
 
 
 def cmd_analyze(args) -> int:
     out = args.out or Path(args.study_data) / "analysis"
-    summary = analyze_study(args.study_data, out, seed=monte_carlo_seed(args.seed),
-                            allow_incomplete=args.allow_incomplete)
+    if out.exists() and not out.is_dir():
+        raise ParameterError(f"--out {out} is a file; give a folder")
+    if out.is_dir() and any(out.iterdir()) and not args.overwrite:
+        raise ParameterError(f"--out {out} already holds files (an analysis of "
+                             f"{_source_of(out) or 'something else'}); pass --overwrite to "
+                             "replace them, or another --out")
+    with _analysis_folder(out) as partial:
+        summary = analyze_study(args.study_data, partial, seed=monte_carlo_seed(args.seed),
+                                allow_incomplete=args.allow_incomplete)
     for k, t in summary["tallies"].items():
         print(f"Table {k}: {t['counts']}")
     print(f"{summary['participants']} participants; tables, statistics and fits in {out}")
@@ -175,6 +232,8 @@ def add_parser(sub) -> None:
     a.add_argument("--allow-incomplete", action="store_true",
                    help="analyse the complete sessions of a folder that also holds incomplete "
                    "ones (refused otherwise); the summary lists them")
+    a.add_argument("--overwrite", action="store_true", help="replace an analysis that is "
+                   "there")
     a.set_defaults(func=cmd_analyze)
 
     p = sub.add_parser("study", help="the perception study: stimuli, allocation, PsychoPy "

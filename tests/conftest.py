@@ -25,6 +25,8 @@ if str(REPO_ROOT) not in sys.path:
 
 from data_synth.generate import synthesize_corpus  # noqa: E402
 from face_model.corpus import load_corpus  # noqa: E402
+from face_model.memory import keep_freed_memory  # noqa: E402
+from face_model.owner import release_all  # noqa: E402
 from talkingface.config import Config  # noqa: E402
 
 # The test workers share the cores: each sets its torch and BLAS threads so that workers x
@@ -32,6 +34,7 @@ from talkingface.config import Config  # noqa: E402
 from face_model.threads import limit_threads, thread_budget  # noqa: E402
 
 limit_threads(thread_budget(int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))))
+keep_freed_memory()  # as every process of the project (face_model.memory)
 
 # Property tests: reproducible examples (derandomize), no wall-clock deadline, no example database.
 settings.register_profile("talkingface", derandomize=True, deadline=None, database=None,
@@ -63,6 +66,14 @@ def pytest_collection_modifyitems(session, config, items):
     rank = {nodeid: i for i, nodeid in enumerate(RUN_FIRST)}
     first = sorted((it for it in items if it.nodeid in rank), key=lambda it: rank[it.nodeid])
     items[:] = first + [it for it in items if it.nodeid not in rank]
+
+
+@pytest.fixture(autouse=True)
+def _release_held_folders():
+    """What a test that calls the run layer directly (not through the CLI, which releases at
+    its end) left held: released after each test (face_model.owner)."""
+    yield
+    release_all()
 
 
 def small_synth_config(**changes):

@@ -24,6 +24,7 @@ import csv
 import hashlib
 import json
 import os
+import shutil
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -32,6 +33,7 @@ from pathlib import Path
 
 from face_model.atomic import atomic_file, fresh_partial_folder, swap_in
 from face_model.errors import ParameterError
+from face_model.owner import acquire
 from talkingface.config import dump_config, read_yaml, select, to_dict
 from talkingface.paths import RunPaths
 
@@ -173,7 +175,14 @@ def run_stage(stage: Stage, stages: dict, paths: RunPaths, cfg) -> dict:
     if stage.resumable:
         (partial / BUILDING).write_text(json.dumps({"fingerprint": fp}))
     t0, c0 = time.perf_counter(), _cpu_seconds()
-    results = stage.run(paths.building_in(stage.name, partial), cfg)
+    try:
+        results = stage.run(paths.building_in(stage.name, partial), cfg)
+    except BaseException:
+        # a full disk or a bug: the unfinished folder goes, unless the stage goes on from its
+        # finished parts when the same command runs again (a grid's finished tasks)
+        if not stage.resumable:
+            shutil.rmtree(partial, ignore_errors=True)
+        raise
     record = {"stage": stage.name, "fingerprint": fp, "key": key,
               "seconds": time.perf_counter() - t0, "cpu_seconds": _cpu_seconds() - c0,
               **results}
@@ -227,16 +236,20 @@ def stale_stages(names, stages: dict, paths: RunPaths, cfg) -> list[str]:
     return stale
 
 
-# Settings that change neither results nor outputs: a run made with other values is the same run.
-RUN_INDEPENDENT = ("synth.workers", "tracker.workers", "mapping.workers", "mlflow", "ablations")
+# Settings that change neither results nor outputs: a run made with other values is the same run
+# (every section's ``workers``: how many processes; ``cluster``: where the grids' tasks run;
+# ``mlflow``: where runs are logged). The stages key what they read (``Stage.config``).
+RUN_INDEPENDENT = ("cluster", "mlflow", "ablations")
+SPEED_ONLY_LEAF = "workers"
 
 
 def _result_settings(tree: dict) -> dict:
     tree = json.loads(json.dumps(tree))
     for key in RUN_INDEPENDENT:
-        section, _, leaf = key.rpartition(".")
-        node = tree.get(section, {}) if section else tree
-        node.pop(leaf, None)
+        tree.pop(key, None)
+    for node in tree.values():
+        if isinstance(node, dict):
+            node.pop(SPEED_ONLY_LEAF, None)
     return tree
 
 
@@ -253,6 +266,7 @@ def prepare_run(paths: RunPaths, cfg, *, overwrite: bool, check=None) -> None:
                 f"pass --overwrite to re-run the stages it changes (compare {paths.config})")
     if check is not None:
         check()
+    acquire(paths.root, "run")  # one command builds a run at a time, until it ends
     paths.root.mkdir(parents=True, exist_ok=True)
     with atomic_file(paths.config) as tmp:
         dump_config(cfg, tmp)

@@ -245,10 +245,12 @@ def run_grid(jobs: dict, out_dir: Path, *, seeds: int = 1, scheduler: str = "loc
                                 None if cache is None else str(cache))
     # the dearest tasks first, so that no long task starts last while the other workers idle
     first = sorted(tasks, key=lambda key: -task_cost(tasks[key][5]))
-    results = map_tasks(run_child, {key: tasks[key] for key in first}, scheduler=scheduler,
-                        workers=workers, desc=desc, progress=progress)
-    for left in out_dir.rglob(f"*{PARTIAL}*"):  # what attempts killed with their workers left
-        shutil.rmtree(left, ignore_errors=True)
+    try:
+        results = map_tasks(run_child, {key: tasks[key] for key in first}, scheduler=scheduler,
+                            workers=workers, desc=desc, progress=progress)
+    finally:  # what attempts killed with their workers, or failed (a full disk), left
+        for left in out_dir.rglob(f"*{PARTIAL}*"):
+            shutil.rmtree(left, ignore_errors=True)
     return {key: results[key] for key in tasks}
 
 

@@ -130,7 +130,7 @@ def test_the_sidecar_metadata(study, stimuli_dir):
     p.release()
     this = p.record(start="t0", versions=VERSIONS, audio_device="null")
     assert list(this) == ["session", "start", "resumed", "rows_at_start", "dropped_partial_row",
-                          "end", "end_state", "rows_at_end", "versions", "responder_model",
+                          "end", "end_state", "rows_at_end", "pid", "versions", "responder_model",
                           "audio_backend", "audio_device", "fullscreen", "window_size",
                           "practice"]
     assert (this["end_state"], this["audio_backend"], this["fullscreen"],

@@ -94,6 +94,16 @@ def _drop(column: str):
     return edit
 
 
+def _free_slot(pid: str):
+    """An edit of allocation.csv: ``pid``'s slot free again, as before anyone took it."""
+    def edit(header, rows):
+        for r in rows:
+            if r[header.index("participant_id")] == pid:
+                r[header.index("participant_id")] = r[header.index("updated")] = ""
+                r[header.index("status")] = "free"
+    return edit
+
+
 def _write_wav_raw(path: Path, data: np.ndarray, sr: int, fmt: int) -> None:
     """A WAV file of ``data`` (n_samples, n_channels) as it is, PCM (fmt 1) or float (fmt 3)."""
     n_ch = data.shape[1]
@@ -330,6 +340,22 @@ def add_bad_inputs(root: Path) -> None:
     video.write_bytes(video.read_bytes()[:-10])
     # -- answers for study run --inject
     (root / "answers_bad.csv").write_text("stimulus_id,response\naudio-normal,maybe\n")
+    # -- a simulation cut between two participants: its last one never ran (slot free again)
+    cut = _copy(root, sd, "sd_cut")
+    last = sorted(cut.glob("sub-SIM*"))[-1]
+    shutil.rmtree(last)
+    pid = last.name.removeprefix("sub-")
+    _rewrite_csv(cut / "allocation.csv", _free_slot(pid))
+    # -- outputs that are there already: an analysis folder, the run's study report
+    (root / "an_full").mkdir()
+    (root / "an_full" / "table_III.csv").write_text("another study's table\n")
+    made = root / "reports" / "study" / "study_data_analysis"
+    made.mkdir(parents=True)
+    (made / "analysis.json").write_text(json.dumps(
+        {"study_path": str((root / sd).resolve())}))
+    (root / "reports" / "study" / "study_data.pdf").write_bytes(b"%PDF of runs/R/study_data")
+    # -- a tracking store that is not a database
+    (root / "bad_mlflow.db").write_bytes(b"not a database " * 100)
 
 
 # -- the cases -------------------------------------------------------------------------------
@@ -669,6 +695,19 @@ CASES = [
     # -- damaged records
     (["report", "--name", "D"], ["done.json"]),
     (_animate(model="D"), ["done.json"]),
+    # -- issue 25: writes, outputs, owners and waits
+    ([*SYNTH, *TINY, "--set", "synth.marker_noise_px=1e308"],
+     ["synth.marker_noise_px", "1e+308", "[0, 50]"]),
+    (["analyze", "sd_cut", "--out", "an_new"], ["slot", "study simulate", "--allow-incomplete"]),
+    (["analyze", "runs/R/study_data", "--out", "an_full"], ["an_full", "--overwrite"]),
+    (["report", "--study-data", "runs/R/study_data"],
+     ["reports/study/study_data.pdf", "already exists", "--overwrite"]),
+    (["train", "--name", "R", *RUN, "--set", "mlflow.enabled=true", "--set",
+      "mlflow.uri=sqlite:///bad_mlflow.db"], ["bad_mlflow.db", "not a usable SQLite database"]),
+    (["train", "--name", "R", *RUN, "--set", "mlflow.enabled=true", "--set",
+      "mlflow.uri=bogus://x"], ["bogus://x", "sqlite://"]),
+    (["train", "--name", "R", *RUN, "--set", "mlflow.enabled=true", "--set",
+      "mlflow.uri=file:///tmp/mlruns"], ["file:///tmp/mlruns", "http://"]),
     # -- the cache beside runs/
     (["cache", "clean", "--unused-days", "-1"], ["--unused-days", "-1"]),
     (["cache", "clean", "--unused-days", "nan"], ["--unused-days", "nan"]),

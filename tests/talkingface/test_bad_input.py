@@ -272,3 +272,219 @@ def test_permissions_are_one_line_naming_the_path(world, tmp_path, argv, names):
     for n in names:
         assert n in lines[0], (n, lines[0])
     assert state() == before  # nothing written, nothing changed
+
+
+# -- a full disk --------------------------------------------------------------------------------
+# The disk is a real one: a small tmpfs mounted for the command, in a mount namespace of its
+# own (`unshare`: as root, or as a user where user namespaces are allowed), so the test needs no
+# privilege over the machine and leaves no mount behind. The command sees the disk fill up as it
+# writes; after it, the shell lists and hashes what is on the disk, for the test to read.
+FULL_DISK = r"""
+set -e
+mount -t tmpfs -o size={size_k}k tmpfs "$DISK"
+{prepare}
+# fill the disk, then free all but {free_k} KB of it
+dd if=/dev/zero of="$DISK/.fill" bs=4k 2>/dev/null || true
+truncate -s -{free_k}K "$DISK/.fill"
+set +e
+"$PY" -m talkingface "$@" 2> "$OUT/stderr" > /dev/null
+echo $? > "$OUT/status"
+cd "$DISK" && find . -type f ! -name .fill -exec sha256sum {{}} + | sort > "$OUT/files"
+find . -mindepth 1 ! -name .fill | sort > "$OUT/names"
+"""
+
+
+def _on_a_full_disk(tmp_path, cwd, argv, *, prepare="", size_k=4096, free_k=8):
+    """Run ``talkingface argv`` in ``cwd`` with a tmpfs of ``size_k`` KB at ``tmp_path/disk``
+    (``prepare``: shell lines run first, e.g. copying files to it), filled up to ``free_k`` KB;
+    returns (exit status, error lines, {name: sha256} of the disk before and after, names)."""
+    disk, out = tmp_path / "disk", tmp_path / "out"
+    disk.mkdir()
+    out.mkdir()
+    script = tmp_path / "full_disk.sh"
+    script.write_text(FULL_DISK.format(size_k=size_k, free_k=free_k, prepare=prepare))
+    env = {**os.environ, "PYTHONPATH": str(REPO), "DISK": str(disk), "OUT": str(out),
+           "PY": sys.executable}
+    proc = subprocess.run(["unshare", "--mount", "--map-root-user", "sh", str(script), *argv],
+                          cwd=cwd, env=env, capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stderr  # the shell itself (mount) worked
+    err = (out / "stderr").read_text()
+    lines = [ln for ln in err.splitlines() if ln.strip() and "%|" not in ln]
+    files = dict(ln.split()[::-1] for ln in (out / "files").read_text().splitlines())
+    names = (out / "names").read_text().split()
+    return int((out / "status").read_text()), lines, err, files, names
+
+
+def _one_line_about_room(status, lines, err):
+    assert status == 2, err
+    assert len(lines) == 1 and lines[0].startswith("error: ") and "Traceback" not in err, err
+    assert "No space left on device" in lines[0] or "ffmpeg" in lines[0], lines[0]
+
+
+def test_animate_on_a_full_disk_keeps_the_previous_mp4(world, tmp_path):
+    """ffmpeg runs out of room: exit 2, one line; the MP4 there before is byte-identical and no
+    partial file is left (ffmpeg's exit status and the MP4's boxes are checked)."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.chdir(world)
+        assert main(["animate", "speech.wav", "-o", str(tmp_path / "keep.mp4"), "--model", "R",
+                     "--overwrite"]) == 0
+    keep = hashlib.sha256((tmp_path / "keep.mp4").read_bytes()).hexdigest()
+    status, lines, err, files, names = _on_a_full_disk(
+        tmp_path, world, ["animate", "speech.wav", "-o", str(tmp_path / "disk" / "keep.mp4"),
+                          "--model", "R", "--overwrite"],
+        prepare=f'cp "{tmp_path / "keep.mp4"}" "$DISK/keep.mp4"',
+        size_k=4096, free_k=8)
+    _one_line_about_room(status, lines, err)
+    assert "keep.mp4" in lines[0]
+    assert files == {"./keep.mp4": keep}  # the old video as it was
+    assert names == ["./keep.mp4"]  # and nothing half-written beside it
+
+
+def test_synth_on_a_full_disk_leaves_no_partial_corpus(world, tmp_path):
+    status, lines, err, files, names = _on_a_full_disk(
+        tmp_path, world, ["synth", "--out", str(tmp_path / "disk" / "c2"), *TINY],
+        size_k=2048, free_k=64)
+    _one_line_about_room(status, lines, err)
+    assert files == {} and names == []  # the partial corpus was removed
+
+
+# -- two commands on one run -----------------------------------------------------------------
+
+def test_a_second_command_on_a_run_being_built_is_refused_naming_the_first(world, monkeypatch,
+                                                                         capsys):
+    """One builds (``replicate`` in another process), the other (``train``, here) is refused in
+    one line naming the first process, which goes on as the owner (the first writes its run
+    meanwhile, so the files are not compared here: the second is refused before it writes)."""
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    first = subprocess.Popen([sys.executable, "-m", "talkingface", "replicate", "--name", "Two",
+                              *QUICK], cwd=world, env=env, stdout=subprocess.DEVNULL,
+                             stderr=subprocess.DEVNULL)
+    owner = world / "runs" / ".Two.owner"
+    try:
+        for _ in range(1200):
+            if owner.is_file() or first.poll() is not None:
+                break
+            time.sleep(0.05)
+        assert owner.is_file(), f"the first command never took the run (exit {first.poll()})"
+        monkeypatch.chdir(world)
+        capsys.readouterr()
+        code = main(["train", "--name", "Two", *RUN])
+        err = capsys.readouterr().err
+        lines = [ln for ln in err.splitlines() if ln.strip() and "%|" not in ln]
+        assert code == 2 and len(lines) == 1 and "Traceback" not in err, err
+        for part in ("error: run runs/Two is in use by process", f"process {first.pid} (",
+                     "replicate --name Two", "wait for it to end"):
+            assert part in lines[0], (part, lines[0])
+        assert first.poll() is None  # the first goes on, still the owner
+        assert f'"pid": {first.pid}' in owner.read_text()
+    finally:
+        first.send_signal(signal.SIGKILL)
+        first.wait(timeout=60)
+
+
+# -- waits, displays, settings that change nothing, names that are another study's ---------------
+
+def test_a_scheduler_address_where_no_dask_scheduler_listens_is_one_line(world, monkeypatch,
+                                                                      capsys):
+    """Something accepts connections there (a web server, ssh) but speaks another protocol: a
+    Dask client would wait on it forever. Refused before any work, in one line."""
+    import socket
+    import threading
+    from contextlib import suppress
+
+    server = socket.create_server(("127.0.0.1", 0))
+    port = server.getsockname()[1]
+
+    def banner():  # what an ssh server says first; a silent one is refused after 10 s
+        with suppress(OSError):
+            while True:
+                conn, _ = server.accept()
+                conn.sendall(b"SSH-2.0-OpenSSH_9.6\r\n")
+                conn.close()
+
+    threading.Thread(target=banner, daemon=True).start()
+    try:
+        line = refused(world, monkeypatch, capsys,
+                       ["replicate", "--name", "R", *QUICK, "--scheduler",
+                        f"tcp://127.0.0.1:{port}"], f"tcp://127.0.0.1:{port}",
+                       "not a Dask scheduler", "SSH-2.0")
+        assert "check the address and port" in line
+    finally:
+        server.close()
+
+
+def test_show_without_a_display_is_refused(world, monkeypatch, capsys):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    refused(world, monkeypatch, capsys, ["stream", "speech.wav", "--fast", "--model", "R",
+                                         "--show"], "--show", "DISPLAY")
+
+
+def test_sentences_zero_means_every_sentence_and_help_says_so(capsys):
+    assert main(["synth", "--help"]) == 0
+    assert "0: every sentence" in " ".join(capsys.readouterr().out.split())
+
+
+def test_settings_that_change_nothing_refuse_nothing_and_rerun_nothing(world, monkeypatch,
+                                                                      capsys):
+    """Another scheduler, other worker counts, another tracking setting: the same run (no
+    "different config"), and no stage runs again."""
+    monkeypatch.chdir(world)
+    done = {p.parent.name: p.read_bytes() for p in (world / "runs" / "R").glob("*/done.json")}
+    assert main(["train", "--name", "R", *RUN, "--scheduler", "processes", "--workers", "1",
+                 "--set", "synth.workers=1", "--set", "tracker.workers=1",
+                 "--set", "mapping.workers=1", "--set", "voices.workers=1",
+                 "--set", "ceiling.workers=1", "--set", "mlflow.experiment=other"]) == 0
+    err = capsys.readouterr().err
+    assert "error:" not in err
+    after = {p.parent.name: p.read_bytes() for p in (world / "runs" / "R").glob("*/done.json")}
+    assert after == done
+
+
+def test_a_study_report_never_takes_another_studys_name(world, monkeypatch, capsys):
+    """``report --study-data B/study_data`` where reports/study/study_data.pdf is the report of
+    runs/R/study_data: a name of its own (the folder's name and 8 hex digits of its path); the
+    other study's report and analysis are as they were. Asked again, it is refused."""
+    monkeypatch.chdir(world)
+    other = world / "B" / "study_data"
+    shutil.copytree(world / "runs" / "R" / "study_data", other)
+    before = _hashes(world / "reports")
+    assert main(["report", "--study-data", str(other)]) == 0
+    out = capsys.readouterr().out
+    made = sorted((world / "reports" / "study").glob("study_data-*.pdf"))
+    assert len(made) == 1 and len(made[0].stem) == len("study_data-") + 8, out
+    assert f"report: {Path('reports') / 'study' / made[0].name}" in out
+    after = _hashes(world / "reports")
+    assert {k: after[k] for k in before} == before  # runs/R/study_data's report untouched
+    summary = json.loads((made[0].parent / f"{made[0].stem}_analysis" /
+                          "analysis.json").read_text())
+    assert summary["study_path"] == str(other.resolve())
+    refused(world, monkeypatch, capsys, ["report", "--study-data", str(other)],
+            made[0].name, "already exists", "--overwrite")
+
+
+def test_a_tracking_server_that_never_answers_is_one_line(world, monkeypatch, capsys):
+    """It accepts the connection and then says nothing: refused after the health check's
+    timeout, before the run is touched (MLflow's own client would retry for minutes)."""
+    import socket
+    import threading
+    from contextlib import suppress
+
+    server = socket.create_server(("127.0.0.1", 0))
+    port = server.getsockname()[1]
+    held = []
+
+    def silent():
+        with suppress(OSError):
+            while True:
+                held.append(server.accept()[0])  # kept open, never answered
+
+    threading.Thread(target=silent, daemon=True).start()
+    try:
+        refused(world, monkeypatch, capsys,
+                ["train", "--name", "R", *RUN, "--set", "mlflow.enabled=true", "--set",
+                 f"mlflow.uri=http://127.0.0.1:{port}"], f"http://127.0.0.1:{port}",
+                "no tracking server answers there", "timed out")
+    finally:
+        server.close()
+        for conn in held:
+            conn.close()

@@ -334,6 +334,27 @@ def test_the_tracked_corpus_on_dask_is_the_process_pools_byte_for_byte(small_cor
     assert _children_alive() == []
 
 
+def _kill_worker_and_nanny(code: int) -> None:
+    """A task that kills its Dask worker's nanny (its parent) and then the worker itself."""
+    os.kill(os.getppid(), signal.SIGKILL)
+    os._exit(code)
+
+
+def test_a_local_cluster_that_lost_every_worker_ends_in_one_line(monkeypatch):
+    """No worker and no nanny to restart one: the grid cannot go on, and says so (it used to
+    wait forever)."""
+    from face_model.errors import TalkingFaceError
+    import talkingface.executor as executor
+
+    monkeypatch.setattr(executor, "LOCAL_NO_WORKER_S", 3)
+    with pytest.raises(TalkingFaceError, match=r"^cluster.scheduler local: every worker process "
+                                               r"of this machine's Dask cluster is gone") as info:
+        map_tasks(_kill_worker_and_nanny, {"x": (3,), "y": (4,)}, scheduler="local",
+                  workers=1, progress=False)
+    assert "\n" not in str(info.value) and "run the command again" in str(info.value)
+    assert _children_alive() == []
+
+
 def test_a_task_that_kills_every_worker_it_runs_on_is_one_line():
     from face_model.errors import TalkingFaceError
 

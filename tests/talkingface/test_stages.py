@@ -246,3 +246,29 @@ def test_study_data_with_real_participants_is_never_replaced(tmp_path):
         keep_real_participants(folder)
     (folder / "sub-P01" / "sub-P01_task-emotion_beh.csv").unlink()
     keep_real_participants(folder)  # simulated only: may be remade
+
+
+def test_a_stage_that_fails_leaves_its_previous_folder_and_no_partial(toy):
+    """A full disk (or any error) in a stage: the finished folder of the previous build as it
+    was, no ``.<stage>.partial`` left filling the disk; a resumable stage keeps its partial
+    folder, whose finished parts the same command goes on from."""
+    import errno
+
+    stages, paths, calls, _ = toy
+    run_stages(["mapping"], stages, paths, Config())
+    before = (paths.stage("mapping") / "out.txt").read_text()
+
+    def full(p, cfg):
+        (p.stage("mapping") / "half.txt").write_text("half")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    for resumable in (False, True):
+        failing = {**stages, "mapping": dataclasses.replace(stages["mapping"], run=full,
+                                                            always=True, resumable=resumable)}
+        with pytest.raises(OSError):
+            run_stages(["mapping"], failing, paths, Config())
+        assert (paths.stage("mapping") / "out.txt").read_text() == before
+        partial = paths.root / ".mapping.partial"
+        assert partial.exists() == resumable
+        if resumable:
+            assert (partial / "half.txt").is_file()
