@@ -47,7 +47,6 @@ from __future__ import annotations
 import functools
 import re
 import shutil
-import subprocess
 import tempfile
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -56,7 +55,8 @@ from pathlib import Path
 import numpy as np
 
 from data_synth.flite import FLITE_TO_CLASS
-from data_synth.speech import RawPhone, SpeechBackend, SynthRequest, SynthResult
+from data_synth.speech import (RawPhone, SpeechBackend, SynthRequest, SynthResult,
+                               run_program)
 from data_synth.text import is_speakable, to_ascii
 from face_model.audio import read_wav, resample
 from face_model.errors import ParameterError
@@ -108,8 +108,8 @@ def _listed_voices(program: str) -> tuple[str, ...]:
     with tempfile.TemporaryDirectory(prefix="talkingface-festival-") as tmp:
         script = Path(tmp) / "voices.scm"
         script.write_text("(print (voice.list))\n")
-        proc = subprocess.run([program, "-b", str(script)], capture_output=True, text=True,
-                              stdin=subprocess.DEVNULL, cwd=tmp)
+        proc = run_program([program, "-b", str(script)], what=f"{program} (voice list)",
+                           cwd=tmp)
     m = re.search(r"\(([^()]*)\)", proc.stdout)
     return tuple(m.group(1).split()) if m else ()
 
@@ -226,8 +226,8 @@ def _run_chunk(voice: str, chunk, tmp: Path) -> list[SynthResult]:
     jobs = [(text, ctl, tmp / f"{i:06d}.wav", tmp / f"{i:06d}.seg") for i, text, ctl in chunk]
     script = tmp / f"batch{chunk[0][0]:06d}.scm"
     script.write_text(build_script(voice, jobs))
-    proc = subprocess.run([FESTIVAL, "-b", str(script)], capture_output=True, text=True,
-                          stdin=subprocess.DEVNULL, cwd=tmp)
+    proc = run_program([FESTIVAL, "-b", str(script)], what=f"festival ({voice})",
+                       utterances=len(jobs), cwd=tmp)
     out = []
     for text, _, wav, seg in jobs:
         if proc.returncode != 0 or not wav.is_file() or not seg.is_file():
@@ -261,8 +261,7 @@ class FestivalBackend(SpeechBackend):
 
     def version(self) -> str:
         """E.g. ``"festival 2.5.0 (voice kal_diphone)"``, from ``festival --version``."""
-        proc = subprocess.run([FESTIVAL, "--version"], capture_output=True, text=True,
-                              stdin=subprocess.DEVNULL)
+        proc = run_program([FESTIVAL, "--version"], what="festival --version")
         m = re.search(r"System: (\d+(?:\.\d+)*)", proc.stdout + proc.stderr)
         return f"festival {m.group(1) if m else 'unknown'} (voice {self.voice})"
 

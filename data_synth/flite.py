@@ -42,7 +42,6 @@ from __future__ import annotations
 import functools
 import re
 import shutil
-import subprocess
 import tempfile
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
@@ -50,7 +49,8 @@ from pathlib import Path
 
 import numpy as np
 
-from data_synth.speech import RawPhone, SpeechBackend, SynthRequest, SynthResult
+from data_synth.speech import (RawPhone, SpeechBackend, SynthRequest, SynthResult,
+                               run_program)
 from data_synth.text import to_ascii
 from face_model.audio import read_wav, resample
 from face_model.errors import ParameterError
@@ -102,8 +102,7 @@ FLITE_TO_CLASS = {**{p: p for p in _ARPABET},
 
 @functools.lru_cache(maxsize=8)
 def _listed_voices(program: str) -> tuple[str, ...]:
-    proc = subprocess.run([program, "-lv"], capture_output=True, text=True,
-                          stdin=subprocess.DEVNULL)
+    proc = run_program([program, "-lv"], what=f"{program} -lv")
     _, _, names = (proc.stdout + proc.stderr).partition("Voices available:")
     return tuple(names.split())
 
@@ -198,7 +197,7 @@ def _synthesize_one(req: SynthRequest, wav: Path, voice: str) -> SynthResult:
     for name, value in flite_features(req, voice).items():
         cmd += ["--setf", f"{name}={value:.6g}"]
     cmd += ["-psdur", "-o", str(wav), "-t", to_ascii(req.text)]
-    proc = subprocess.run(cmd, capture_output=True, text=True, stdin=subprocess.DEVNULL)
+    proc = run_program(cmd, what=f"flite ({voice})")
     if proc.returncode != 0 or not wav.is_file():
         why = f"exit status {proc.returncode}" if proc.returncode else "no WAV written"
         raise ParameterError(f"flite failed ({why}) on text {req.text!r}: "
@@ -239,8 +238,7 @@ class FliteBackend(SpeechBackend):
 
     def version(self) -> str:
         """E.g. ``"flite 2.2 (voice slt)"``, from ``flite --version`` (which exits with 1)."""
-        proc = subprocess.run([FLITE, "--version"], capture_output=True, text=True,
-                              stdin=subprocess.DEVNULL)
+        proc = run_program([FLITE, "--version"], what="flite --version")
         m = re.search(r"flite-(\d+(?:\.\d+)*)", proc.stdout + proc.stderr)
         return f"flite {m.group(1) if m else 'unknown'} (voice {self.voice})"
 

@@ -9,6 +9,7 @@ and festival when installed) live in their own modules and are looked up by name
 """
 from __future__ import annotations
 
+import subprocess
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
@@ -46,6 +47,25 @@ class SynthResult:
     audio: np.ndarray  # int16, (n_samples,)
     sample_rate: int
     phones: list  # list[RawPhone], in time order
+
+
+# The longest a speech program may take per utterance it speaks (a hung program is an error,
+# not a wait without end); a query (version, voice list) gets one utterance's time.
+PROGRAM_TIMEOUT_S = 120
+
+
+def run_program(cmd: list, *, what: str, utterances: int = 1, **kwargs):
+    """``subprocess.run(cmd)`` (output captured as text, no stdin) bounded in time:
+    :data:`PROGRAM_TIMEOUT_S` per utterance; a program that does not finish is killed and is
+    one line (``what``: the program, for the message)."""
+    timeout = PROGRAM_TIMEOUT_S * max(1, int(utterances))
+    try:
+        return subprocess.run(cmd, capture_output=True, text=True, stdin=subprocess.DEVNULL,
+                              timeout=timeout, **kwargs)
+    except subprocess.TimeoutExpired:
+        raise ParameterError(f"{what} did not finish within {timeout} s ({utterances} "
+                             f"utterance{'s' if utterances != 1 else ''}); it was stopped: "
+                             "is the program stuck waiting for a sound device?") from None
 
 
 class SpeechBackend(ABC):

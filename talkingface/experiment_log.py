@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import sqlite3
 import urllib.error
 import urllib.request
 from contextlib import contextmanager
@@ -90,8 +91,6 @@ def check_tracking(cfg) -> None:
 def _check_sqlite(uri: str) -> None:
     """Refuse an SQLite store whose file exists but is not a readable SQLite database
     (``sqlite:///relative.db``, ``sqlite:////absolute.db``: SQLAlchemy's forms)."""
-    import sqlite3
-
     path = Path(uri.split(":///", 1)[1]) if ":///" in uri else None
     if path is None or not path.is_file():
         return

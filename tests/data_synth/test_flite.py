@@ -165,3 +165,16 @@ def test_corpus_with_the_flite_backend_loads(tmp_path):
         assert phones <= set(PHONE_INDEX) and len(phones - {"sil"}) > 5
         assert utt.phones[0].start_s == 0.0
         assert utt.phones[-1].end_s == pytest.approx(len(utt.audio) / SR, abs=1e-4)
+
+
+def test_a_speech_program_that_never_finishes_is_stopped_and_one_line(monkeypatch):
+    """A hung program (waiting on a sound device, say) is killed after its time, not waited on
+    for ever."""
+    from data_synth import speech
+    from face_model.errors import ParameterError
+
+    monkeypatch.setattr(speech, "PROGRAM_TIMEOUT_S", 1)
+    with pytest.raises(ParameterError, match=r"^sleeper did not finish within 2 s \(2 "
+                                             r"utterances\); it was stopped"):
+        speech.run_program(["sleep", "30"], what="sleeper", utterances=2)
+    assert speech.run_program(["echo", "ok"], what="echo").stdout == "ok\n"

@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from face_model.owner import lock_path
+
 TINY = ["--set", "synth.n_sentences=3", "--set", "synth.workers=2", "--set", "mlflow.enabled=false"]
 QUICK = [*TINY, "--set", "mapping.baselines=[linear]", "--set", "mapping.train.max_epochs=20",
          "--set", "study.n_participants=4", "--set", "voices.grid=none",
@@ -275,6 +277,9 @@ def add_bad_inputs(root: Path) -> None:
     damaged = _copy(root, "runs/R", "runs/D")
     for done in damaged.glob("*/done.json"):
         done.write_text('{"fingerprint": ')
+    # every run a command built has its lock file beside it (face_model.owner): so do these
+    for name in ("D", "P"):
+        shutil.copy(lock_path(run), lock_path(root / "runs" / name))
     nomodel = root / "runs" / "NOMODEL" / "mapping"  # its models deleted by hand
     nomodel.mkdir(parents=True)
     shutil.copy(run / "mapping" / "done.json", nomodel)

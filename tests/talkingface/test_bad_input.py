@@ -430,7 +430,7 @@ def test_settings_that_change_nothing_refuse_nothing_and_rerun_nothing(world, mo
     "different config"), and no stage runs again."""
     monkeypatch.chdir(world)
     done = {p.parent.name: p.read_bytes() for p in (world / "runs" / "R").glob("*/done.json")}
-    assert main(["train", "--name", "R", *RUN, "--scheduler", "processes", "--workers", "1",
+    assert main(["train", "--name", "R", *RUN, "--set", "cluster.scheduler=processes",
                  "--set", "synth.workers=1", "--set", "tracker.workers=1",
                  "--set", "mapping.workers=1", "--set", "voices.workers=1",
                  "--set", "ceiling.workers=1", "--set", "mlflow.experiment=other"]) == 0
@@ -488,3 +488,34 @@ def test_a_tracking_server_that_never_answers_is_one_line(world, monkeypatch, ca
         server.close()
         for conn in held:
             conn.close()
+
+
+def test_a_second_session_of_a_participant_whose_session_runs_is_refused(world, monkeypatch,
+                                                                        capsys):
+    """Not told that the running session "was interrupted" (and to use --resume): told that
+    it runs, and in which process; nothing changes."""
+    from filelock import FileLock
+
+    from study.data import sidecar_path, subject_dir
+    from study.session import LOCK_NAME
+
+    study = world / "sd_running"
+    if not study.exists():
+        shutil.copytree(world / "runs" / "R" / "study_data", study)
+    side_path = sidecar_path(study, "SIM01")
+    side = json.loads(side_path.read_text())
+    side["sessions"] = [{"session": 2, "start": "2026-11-25T10:00:00", "end_state": "running",
+                         "pid": os.getpid()}]  # as a session that runs now records itself
+    side_path.write_text(json.dumps(side))
+    lock = FileLock(str(subject_dir(study, "SIM01") / LOCK_NAME))
+    lock.acquire(timeout=0)  # held by the running session
+    try:
+        for extra in ([], ["--resume"]):
+            line = refused(world, monkeypatch, capsys,
+                           ["study", "run", "--participant", "SIM01", "--study-dir",
+                            "sd_running", "--stimuli", "runs/R/stimuli", *extra],
+                           "participant SIM01 is already running in process "
+                           f"{os.getpid()} (session 2, started 2026-11-25T10:00:00)")
+            assert "interrupted" not in line and "wait for it to end" in line
+    finally:
+        lock.release()

@@ -225,7 +225,7 @@ def test_every_section_has_a_bad_value_in_the_table():
 
 @pytest.mark.parametrize("assignment, message", [
     ("synth.rate_wpm=-100", "synth.rate_wpm is -100; allowed: an integer > 0"),
-    ("synth.marker_noise_px=-1", "synth.marker_noise_px is -1.0; allowed: a finite number >= 0"),
+    ("synth.marker_noise_px=-1", "synth.marker_noise_px is -1.0; allowed: a finite number in [0, 50]"),
     ("mapping.train_fraction=1", "mapping.train_fraction is 1.0; allowed: a finite number in "
                                  "(0, 1)"),
     ("mapping.hidden_min=30", "mapping.hidden_min is 30; allowed: at most mapping.hidden_max "
