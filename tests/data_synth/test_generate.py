@@ -111,7 +111,7 @@ def test_overwrite_refuses_a_folder_that_is_not_a_corpus(synth_config, tmp_path)
     ({"expressions": ()}, r"expressions is \[\]"),
     ({"speakers": 0}, "speakers is 0; allowed: an integer >= 1"),
     ({"n_sentences": 1000}, "synth.n_sentences=1000, but the built-in set has only 360 sentences"),
-    ({"marker_noise_px": -0.1}, "marker_noise_px is -0.1; allowed: a finite number in [0, 50]"),
+    ({"marker_noise_px": -0.1}, r"marker_noise_px is -0.1; allowed: a finite number in \[0, 50\]"),
 ])
 def test_bad_settings_are_refused_before_any_work(synth_config, tmp_path, changes, message):
     with pytest.raises(ParameterError, match=message):

@@ -19,10 +19,10 @@ torch.set_num_threads(1)
 from mapping.config import TrainSettings
 from mapping.nets import MLP, NetRegressor
 rng = np.random.default_rng(0)
-X = rng.normal(size=(8000, 70)).astype(np.float32)
+X = rng.normal(size=(20000, 110)).astype(np.float32)  # the large MLP's size: 48 MB a layer
 Y = np.tanh(X[:, :9]).astype(np.float32)
 before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
-NetRegressor(MLP(70, 300, 9), TrainSettings(max_epochs=20, patience=100), 0).fit(X, Y)
+NetRegressor(MLP(110, 600, 9), TrainSettings(max_epochs=24, patience=100), 0).fit(X, Y)
 print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
 """
 
@@ -36,7 +36,7 @@ def _faults(mode: str) -> int:
 
 def test_a_training_faults_in_far_fewer_pages_with_freed_memory_kept():
     plain, kept = _faults("plain"), _faults("kept")
-    assert kept * 2 < plain, (plain, kept)  # measured here: 93,000 against 33,000
+    assert kept * 4 < plain, (plain, kept)  # measured here: 1.2 million against ~100,000
 
 
 def test_the_processes_it_starts_keep_freed_memory_too(monkeypatch):

@@ -429,14 +429,17 @@ def test_settings_that_change_nothing_refuse_nothing_and_rerun_nothing(world, mo
     """Another scheduler, other worker counts, another tracking setting: the same run (no
     "different config"), and no stage runs again."""
     monkeypatch.chdir(world)
-    done = {p.parent.name: p.read_bytes() for p in (world / "runs" / "R").glob("*/done.json")}
-    assert main(["train", "--name", "R", *RUN, "--set", "cluster.scheduler=processes",
+    run = world / "runs" / "Same"  # a copy of R, whatever other tests of this folder made of R
+    shutil.copytree(world / "runs" / "R", run)
+    done = {p.parent.name: p.read_bytes() for p in run.glob("*/done.json")}
+    assert main(["train", "--name", "Same", "--config", str(run / "config.yaml"),
+                 "--set", "cluster.scheduler=processes",
                  "--set", "synth.workers=1", "--set", "tracker.workers=1",
                  "--set", "mapping.workers=1", "--set", "voices.workers=1",
                  "--set", "ceiling.workers=1", "--set", "mlflow.experiment=other"]) == 0
     err = capsys.readouterr().err
     assert "error:" not in err
-    after = {p.parent.name: p.read_bytes() for p in (world / "runs" / "R").glob("*/done.json")}
+    after = {p.parent.name: p.read_bytes() for p in run.glob("*/done.json")}
     assert after == done
 
 
