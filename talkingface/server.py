@@ -53,6 +53,7 @@ DB_ROLE = "talkingface"
 RUN_AS = "postgres"  # the unprivileged user of Debian's postgresql package
 SET_UP = "run `make server` or `bash tools/setup.sh server`"
 PG_SEARCH = "/usr/lib/postgresql/*/bin"  # Debian's layout: one folder per major version
+PG_PROGRAM_TIMEOUT_S = 300  # initdb, pg_ctl (which waits for the server itself), psql, createdb
 
 
 def postgres_bin(version: str | None = None, *, search: str = PG_SEARCH) -> Path:
@@ -88,7 +89,8 @@ def postgres_bin(version: str | None = None, *, search: str = PG_SEARCH) -> Path
 
 
 def _major(initdb: Path) -> str:
-    out = subprocess.run([str(initdb), "--version"], capture_output=True, text=True).stdout
+    out = subprocess.run([str(initdb), "--version"], capture_output=True, text=True,
+                         timeout=PG_PROGRAM_TIMEOUT_S).stdout
     m = re.search(r"(\d+)", out)
     return m.group(1) if m else ""
 
@@ -296,7 +298,7 @@ class LabServer:
         if self._user is not None:
             uid, gid = self._user.pw_uid, self._user.pw_gid
             reach = subprocess.run(["test", "-x", str(self.folder)], user=uid, group=gid,
-                                   extra_groups=[])
+                                   extra_groups=[], timeout=PG_PROGRAM_TIMEOUT_S)
             if reach.returncode != 0:
                 raise TalkingFaceError(
                     f"--folder {self.folder}: the '{RUN_AS}' user that runs PostgreSQL (it "
@@ -316,9 +318,14 @@ class LabServer:
         if self._user is not None:
             kw = dict(user=self._user.pw_uid, group=self._user.pw_gid, extra_groups=[])
         env = {**os.environ, "LC_ALL": "C.UTF-8", **self._password_env()}
-        done = subprocess.run([str(self._bin / args[0]), *args[1:]], cwd=self.logs, env=env,
-                              stdin=subprocess.DEVNULL, capture_output=True, text=True,
-                              start_new_session=True, **kw)
+        try:
+            done = subprocess.run([str(self._bin / args[0]), *args[1:]], cwd=self.logs, env=env,
+                                  stdin=subprocess.DEVNULL, capture_output=True, text=True,
+                                  start_new_session=True, timeout=PG_PROGRAM_TIMEOUT_S, **kw)
+        except subprocess.TimeoutExpired:
+            raise TalkingFaceError(f"PostgreSQL's {args[0]} did not finish within "
+                                   f"{PG_PROGRAM_TIMEOUT_S} s for {self.pgdata}; see the logs in "
+                                   f"{self.logs}") from None
         if check and done.returncode != 0:
             out = " | ".join(x for x in (done.stdout + done.stderr).splitlines() if x.strip())
             raise TalkingFaceError(f"PostgreSQL's {args[0]} failed (exit status "
