@@ -164,7 +164,9 @@ def cmd_report(args) -> int:
 
 
 def cmd_ui(args) -> int:
-    uri = tracking_uri(load_config(args.config, args.overrides))
+    cfg = load_config(args.config, args.overrides)
+    check_tracking(cfg)  # a store of another kind, or a file that is not a database: one line
+    uri = tracking_uri(cfg)
     check_free("127.0.0.1", args.port)  # a bad port, or one in use: one line, before MLflow
     cmd = [sys.executable, "-m", "mlflow", "server", "--backend-store-uri", uri,
            "--host", "127.0.0.1", "--port", str(args.port)]

@@ -413,6 +413,8 @@ CASES = [
     (["ui", "--port", "70000", "--set", "mlflow.enabled=false"], ["70000"]),
     (["ui", "--port", "-1"], ["-1"]),
     (["ui", "--set", "mlflow.uri=3"], ["mlflow.uri"]),
+    (["ui", "--set", "mlflow.uri=bogus://x"], ["bogus://x", "sqlite://"]),
+    (["ui", "--set", "mlflow.uri=sqlite:///bad_mlflow.db"], ["bad_mlflow.db", "not a usable"]),
     (["ui", "--set", "bogus"], ["bogus"]),
     (_animate("--expression", "angry"), ["angry"]),
     (["animate", "speech.wav", "--model", "R"], ["-o"]),
