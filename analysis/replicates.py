@@ -51,9 +51,10 @@ def paired_tests(by_setting: dict, reference: str, *, alpha: float = 0.05) -> di
     Returns
     -------
     dict
-        ``{setting: {"diff", "n", "p", "p_holm", "differs"}}`` for every other setting with at
-        least two paired seeds: the mean difference (setting − reference), the number of pairs,
-        the raw and the Holm-corrected p-value, and whether it is below ``alpha``.
+        ``{setting: {"diff", "diff_ci95", "n", "p", "p_holm", "differs"}}`` for every other
+        setting with at least two paired seeds: the mean difference (setting − reference), the
+        half-width of its 95 % t-interval over the pairs, the number of pairs, the raw and the
+        Holm-corrected p-value, and whether it is below ``alpha``.
     """
     if reference not in by_setting:
         return {}
@@ -66,7 +67,8 @@ def paired_tests(by_setting: dict, reference: str, *, alpha: float = 0.05) -> di
         ok = np.isfinite(a) & np.isfinite(b)
         if name == reference or ok.sum() < 2:
             continue
-        out[name] = {"diff": float(np.mean(a[ok] - b[ok])), "n": int(ok.sum()),
+        out[name] = {"diff": float(np.mean(a[ok] - b[ok])),
+                     "diff_ci95": interval(a[ok] - b[ok])[1], "n": int(ok.sum()),
                      "p": _paired_p(a[ok], b[ok])}
     if out:
         names = list(out)
@@ -88,8 +90,9 @@ def summarise_replicates(reps: list[dict], *, reference: str, key: str = "settin
     and for each split the setting was evaluated on: ``<split>_<figure>_ci95``, the half-width of
     the 95 % t-interval of each figure of :data:`INTERVAL_FIGURES` (:func:`interval`), and the
     paired test of R against ``reference`` over their common seeds (:func:`paired_tests`,
-    Holm-corrected over the settings of that split): ``<split>_R_diff``, ``<split>_R_p_holm``
-    and ``<split>_R_differs`` (``True``/``False``, ``reference`` on the reference's row, empty
+    Holm-corrected over the settings of that split): ``<split>_R_diff``, ``<split>_R_diff_ci95``
+    (the half-width of the difference's 95 % interval), ``<split>_R_p_holm`` and
+    ``<split>_R_differs`` (``True``/``False``, ``reference`` on the reference's row, empty
     when there is nothing to pair with). Settings may differ in their splits and columns.
     """
     names = list(dict.fromkeys(r[key] for r in reps))
@@ -115,6 +118,7 @@ def summarise_replicates(reps: list[dict], *, reference: str, key: str = "settin
                         [float(r.get(f"{s}_{fig}", np.nan)) for r in mine[n]])
             t = tests[s].get(n, {})
             row[f"{s}_R_diff"] = t.get("diff", float("nan"))
+            row[f"{s}_R_diff_ci95"] = t.get("diff_ci95", float("nan"))
             row[f"{s}_R_p_holm"] = t.get("p_holm", float("nan"))
             row[f"{s}_R_differs"] = ("reference" if n == reference else
                                      t["differs"] if t else "")

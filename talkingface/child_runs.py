@@ -60,9 +60,10 @@ class ChildLog:
             f"tags.`{KEY_TAG}` = '{key}'")
 
     def log(self, name: str, seed: int, *, tags: dict, params: dict, metrics: dict,
-            files=(), config: dict | None = None) -> str:
-        """Log one child (setting ``name``, ``seed``) unless a finished child run with its key
-        is already there; returns the id of the child run that stays.
+            files=(), config: dict | None = None, run_name: str | None = None) -> str:
+        """Log one child (setting ``name``, ``seed``; named ``run_name``, by default its key)
+        unless a finished child run with its key is already there; returns the id of the child
+        run that stays.
 
         Two attempts of one task may log at once (a scheduler that lost a worker's heartbeat
         runs its task again while the first attempt still lives): each finishes its own run,
@@ -76,7 +77,7 @@ class ChildLog:
         done = _finished(self._with_key(client, key))
         if done:
             return done[0].info.run_id
-        run = client.create_run(self.experiment_id, run_name=key, tags={
+        run = client.create_run(self.experiment_id, run_name=run_name or key, tags={
             "mlflow.parentRunId": self.parent_run_id, KEY_TAG: key,
             **{k: str(v) for k, v in tags.items()}})
         rid, now = run.info.run_id, int(time.time() * 1000)

@@ -10,6 +10,8 @@ import json
 import logging
 import os
 import sqlite3
+import tempfile
+import time
 import urllib.error
 import urllib.request
 from contextlib import contextmanager
@@ -17,12 +19,14 @@ from dataclasses import replace
 from pathlib import Path
 
 from analysis.evaluation import row_metrics
+from analysis.grid_summary import (best, forest_figure, grid_summary, read_replicates,
+                                   summary_markdown, write_summary)
 from face_model.errors import TalkingFaceError
 from talkingface.config import flatten
 from talkingface.paths import RunPaths
 from talkingface.provenance import git_commit
 from talkingface.child_runs import ChildLog, logging_to
-from talkingface.stages.grid import log_child, replicate_folder, replicate_seed
+from talkingface.stages.grid import GRID_KINDS, log_child, replicate_folder, replicate_seed
 
 
 # The UI opens an experiment on its GenAI pages (traces, tokens) unless it is tagged as model
@@ -180,18 +184,23 @@ def log_train(mlf, summary: dict, out_dir: Path, cfg) -> None:
         log_mapping_model(mlf, out_dir / models[split], name="mapping")
 
 
+GRID_TITLES = {"ablate": "Ablations", "ceiling": "Where Table II stands: the ceiling steps",
+               "voices": "Voice-robust models"}
+
+
 def _grid_parent(mlf, cfg, stage: str, folder: str, grid: Path, nested: bool) -> ChildLog:
     """The parent run of a grid stage: a new child of the active run (``nested``) or the active
-    run itself, as a :class:`ChildLog` the stage's tasks log their child runs under."""
+    run itself, as a :class:`ChildLog` the stage's tasks log their child runs under. Its tags:
+    ``stage``, ``grid`` (the kind: ablations, ceiling, voices) and ``grid_file``."""
     active = mlf.active_run()
     exp = active.info.experiment_id
+    tags = {"stage": stage, "grid": GRID_KINDS.get(stage, stage), "grid_file": str(grid)}
     if nested:
         client = mlf.tracking.MlflowClient()
-        pid = client.create_run(exp, run_name=f"{folder}:{grid.stem}", tags={
-            "mlflow.parentRunId": active.info.run_id, "stage": stage,
-            "grid": str(grid)}).info.run_id
+        pid = client.create_run(exp, run_name=folder, tags={
+            "mlflow.parentRunId": active.info.run_id, **tags}).info.run_id
     else:
-        mlf.set_tags({"stage": stage, "grid": str(grid)})
+        mlf.set_tags(tags)
         pid = active.info.run_id
     return ChildLog(tracking_uri(cfg), exp, pid)
 
@@ -219,11 +228,14 @@ def grid_runs(mlf, cfg, grids: dict, *, nested: bool = True):
 
 
 def log_ablations(mlf, log: ChildLog, out_dir: Path, grid: dict, *, seeds: int = 1,
-                  stage: str = "ablate", folder: str = "ablations", nested: bool = True) -> None:
+                  stage: str = "ablate", folder: str = "ablations", nested: bool = True,
+                  reference: str | None = None) -> None:
     """A grid stage (the ablations, or the ceiling steps: ``stage`` tag, ``folder`` of its
     results.csv) under its parent run ``log``: every child and seed (``grid``: name → config)
     that its task did not log yet (a reused stage, a task without MLflow) logged from its
-    folder, exactly once; the stage's tables on the parent, which is then finished."""
+    folder, exactly once; the stage's tables and its summary on the parent
+    (:func:`log_grid_summary`, against ``reference``: by default the grid's first child, or
+    ``paper``), which is then finished."""
     for name, cfg in grid.items():
         for k in range(seeds):
             ck = replace(cfg, seed=replicate_seed(cfg.seed, k))
@@ -235,8 +247,53 @@ def log_ablations(mlf, log: ChildLog, out_dir: Path, grid: dict, *, seeds: int =
     for table in ("results.csv", "replicates.csv"):
         if (out_dir / table).is_file():
             client.log_artifact(log.parent_run_id, str(out_dir / table), folder)
+    if reference is None:
+        reference = "paper" if "paper" in grid else next(iter(grid))
+    log_grid_summary(client, log.parent_run_id, out_dir, stage=stage, reference=reference,
+                     key="step" if stage == "ceiling" else "setting")
     if nested:
         client.set_terminated(log.parent_run_id, "FINISHED")
+
+
+def log_grid_summary(client, run_id: str, out_dir: Path, *, stage: str, reference: str,
+                     key: str = "setting") -> list[dict]:
+    """The answer of a grid on its parent run, where the run's page shows it: per setting the
+    mean test R with its 95 % interval, Δ against ``reference`` with its interval, the Holm-
+    corrected p and a verdict (:func:`analysis.grid_summary.grid_summary`, from the stage's
+    ``replicates.csv``) as ``summary.csv`` and the forest plot ``forest.png`` at the top of its
+    artifacts, in words and as a table in the run's description, and the reference's figures
+    as its metrics (``reference.test.<split>.R`` and ``…R_ci95``). Returns the summary."""
+    from mlflow.entities import Metric, Param
+
+    reps = read_replicates(out_dir / "replicates.csv")
+    summary = grid_summary(reps, reference=reference, key=key)
+    title = GRID_TITLES.get(stage, stage)
+    with tempfile.TemporaryDirectory(prefix="talkingface-summary-") as tmp:
+        client.log_artifact(run_id, str(write_summary(summary, Path(tmp) / "summary.csv")))
+        client.log_artifact(run_id, str(forest_figure(
+            summary, Path(tmp) / "forest.png", reference=reference,
+            title=f"{title}: each {key} against {reference}", what=key)))
+    text = summary_markdown(summary, title=title, reference=reference, what=key)
+    client.set_tag(run_id, "mlflow.note.content",
+                   text + "\nArtifacts: `summary.csv` (this table), `forest.png` (the "
+                   "differences with their intervals), `results.csv` (every figure).")
+    metrics, params = {}, {"reference": reference, "settings": len(
+        {r["setting"] for r in summary}), "seeds": max(r["seeds"] for r in summary)}
+    for r in summary:
+        if r["verdict"] == "reference":
+            metrics[f"reference.test.{r['split']}.R"] = r["R"]
+            if r["R_ci95"] == r["R_ci95"]:
+                metrics[f"reference.test.{r['split']}.R_ci95"] = r["R_ci95"]
+    for split in dict.fromkeys(r["split"] for r in summary):
+        part = [r for r in summary if r["split"] == split]
+        metrics[f"differ.{split}.better"] = sum(r["verdict"] == "better" for r in part)
+        metrics[f"differ.{split}.worse"] = sum(r["verdict"] == "worse" for r in part)
+        top = best(summary, split)
+        params[f"best.{split}"] = top["setting"]
+    now = int(time.time() * 1000)
+    client.log_batch(run_id, metrics=[Metric(k, float(v), now, 0) for k, v in metrics.items()],
+                     params=[Param(k, str(v)) for k, v in params.items()])
+    return summary
 
 
 def log_replication(mlf, paths: RunPaths, done: dict) -> None:

@@ -68,9 +68,10 @@ def replicate(name: str, cfg, *, overwrite: bool = False, runs_dir="runs",
                 log_ablations(mlf, logs["ablations"], paths.ablations,
                               load_grid(grid_path(cfg), cfg), seeds=cfg.ablations.seeds)
             if "ceiling" in done:
-                log_ablations(mlf, logs["ceiling"], paths.stage("ceiling"),
-                              load_ceiling_grid(ceiling_grid_path(cfg), cfg),
-                              seeds=cfg.ceiling.seeds, stage="ceiling", folder="ceiling")
+                steps = load_ceiling_grid(ceiling_grid_path(cfg), cfg)
+                log_ablations(mlf, logs["ceiling"], paths.stage("ceiling"), steps,
+                              seeds=cfg.ceiling.seeds, stage="ceiling", folder="ceiling",
+                              reference=next(iter(steps)))
             log_replication(mlf, paths, done)
     print("time per stage:", *time_summary(done, paths, since), sep="\n", flush=True)
     return paths.pdf

@@ -150,16 +150,45 @@ def replicate_folder(out_dir: Path, name: str, seed: int, k: int) -> Path:
     return out_dir / name if k == 0 else out_dir / "replicates" / f"seed-{seed}" / name
 
 
+# The ``grid`` tag of a grid stage's child runs (its ``stage`` tag → the kind of grid).
+GRID_KINDS = {"ablate": "ablations", "ceiling": "ceiling", "voices": "voices"}
+
+
+def mlflow_child_metrics(metrics: dict) -> dict:
+    """:func:`child_metrics` under the names a child run logs them, test figures first in
+    MLflow's alphabetical lists (and so its default chart axes): ``test.<split>.<figure>`` for
+    the means over expressions (``R``, ``MSE``, ``LVE``, ``R_lips``, ``closure``),
+    ``<part>.<split>.<expression>.<figure>`` per expression (part ``test`` or ``train``),
+    ``<part>.<split>.gate.<scope>`` for the gate's accuracy, ``time.<split>.fit_seconds``."""
+    out = {}
+    for k, v in metrics.items():
+        split, _, rest = k.partition(".")
+        if rest.startswith("mean_test_"):
+            out[f"test.{split}.{rest[len('mean_test_'):]}"] = v
+        elif rest.startswith("gate."):
+            scope, _, part = rest[5:].rpartition("_")
+            out[f"{part}.{split}.gate.{scope}"] = v
+        elif rest == "fit_seconds":
+            out[f"time.{split}.fit_seconds"] = v
+        else:
+            expr, part, figure = rest.split(".", 2)
+            out[f"{part}.{split}.{expr}.{figure}"] = v
+    return out
+
+
 def log_child(log, stage: str, name: str, k: int, folder: Path, cfg, summary: dict) -> str:
     """Log one replicate of a child as an MLflow child run (``log``: a
-    :class:`talkingface.child_runs.ChildLog`); idempotent."""
+    :class:`talkingface.child_runs.ChildLog`); idempotent. The run is named ``<setting>/<seed>``;
+    the setting is a param (``setting``, so it can be a chart axis) and a tag, and the tag
+    ``grid`` says which grid it belongs to (:data:`GRID_KINDS`)."""
     m = cfg.mapping
-    return log.log(name, cfg.seed,
-                   tags={"ablation.setting": name, "ablation.seed": cfg.seed,
-                         "ablation.replicate": k, "ablation.stage": stage,
-                         "mapping.method": m.method},
-                   params=flatten(cfg),
-                   metrics={**child_metrics(summary, m.method), "seconds": summary["seconds"]},
+    return log.log(name, cfg.seed, run_name=f"{name}/{cfg.seed}",
+                   tags={"grid": GRID_KINDS.get(stage, stage), "ablation.setting": name,
+                         "ablation.seed": cfg.seed, "ablation.replicate": k,
+                         "ablation.stage": stage, "mapping.method": m.method},
+                   params={"setting": name, **flatten(cfg)},
+                   metrics={**mlflow_child_metrics(child_metrics(summary, m.method)),
+                            "time.seconds": summary["seconds"]},
                    files=artifact_files(folder), config=to_dict(cfg))
 
 

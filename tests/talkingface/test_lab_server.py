@@ -33,7 +33,7 @@ from talkingface.server import PG_SEARCH, lab_server, postgres_bin, warn_trustin
 from tests.talkingface.browser import (alive, alive_processes, headless_chromium,
                                        processes_mentioning, save_png, wait_gone)
 
-METRIC = "utterance.mean_test_R"
+METRIC = "test.utterance.R"
 
 
 def _free_ports(n: int) -> list[int]:
@@ -397,7 +397,7 @@ def test_an_ablation_logged_to_the_server_compares_in_the_browser(lab_folder, tm
         assert {c.info.status for c in children} == {"FINISHED"}
         # named by setting and seed, so the compare page tells the replicates apart
         assert [c.info.run_name for c in children] == [
-            "classes-1/seed-2002", "classes-1/seed-3002", "paper/seed-2002", "paper/seed-3002"]
+            "classes-1/2002", "classes-1/3002", "paper/2002", "paper/3002"]
         # the children's files went through the server into the folder's artifact store
         assert len(list((lab_folder / "artifacts").rglob("tables.csv"))) == len(children)
 

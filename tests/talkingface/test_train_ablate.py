@@ -130,8 +130,15 @@ def test_ablate_leaves_a_parent_run_with_one_child_per_setting(workdir, capsys):
     for r in children:
         assert r.info.status == "FINISHED" and r.data.params["seed"] == \
             r.data.tags["ablation.seed"]
-        assert "utterance.mean_test_R" in r.data.metrics
-        assert "utterance.mean_test_LVE" in r.data.metrics
+        assert "test.utterance.R" in r.data.metrics
+        assert "test.utterance.LVE" in r.data.metrics
+        assert "train.utterance.neutral.R" in r.data.metrics
+        # a short name, the setting as a param (a chart axis) and the kind of grid as a tag
+        assert r.info.run_name == f"{r.data.tags['ablation.setting']}/{r.data.params['seed']}"
+        assert r.data.params["setting"] == r.data.tags["ablation.setting"]
+        assert r.data.tags["grid"] == "ablations"
+        # the test figures come first in MLflow's alphabetical lists of metrics
+        assert sorted(r.data.metrics)[0].startswith("test.")
     by = {(r.data.tags["ablation.setting"], int(r.data.tags["ablation.seed"])): r
           for r in children}
     assert by["classes-1", 2002].data.params["mapping.n_classes"] == "1"
@@ -144,7 +151,7 @@ def test_ablate_leaves_a_parent_run_with_one_child_per_setting(workdir, capsys):
     from analysis.replicates import interval
 
     for r in rows:
-        seeds = [by[r["setting"], s].data.metrics["utterance.mean_test_R"] for s in (2002, 3002)]
+        seeds = [by[r["setting"], s].data.metrics["test.utterance.R"] for s in (2002, 3002)]
         mean, half = interval(seeds)
         assert r["n_seeds"] == "2"
         assert float(r["utterance_R"]) == pytest.approx(mean)
@@ -153,7 +160,7 @@ def test_ablate_leaves_a_parent_run_with_one_child_per_setting(workdir, capsys):
     # the paired tests of results.csv are those of the logged figures, paired by seed
     from analysis.replicates import paired_tests
 
-    tests = paired_tests({n: {s: by[n, s].data.metrics["utterance.mean_test_R"]
+    tests = paired_tests({n: {s: by[n, s].data.metrics["test.utterance.R"]
                               for s in (2002, 3002)} for n in (r["setting"] for r in rows)},
                          "paper")
     for r in rows[1:]:
@@ -168,7 +175,7 @@ def test_ablate_leaves_a_parent_run_with_one_child_per_setting(workdir, capsys):
     assert len(reps) == 8
     for r in reps:
         assert float(r["utterance_R"]) == pytest.approx(
-            by[r["setting"], int(r["seed"])].data.metrics["utterance.mean_test_R"])
+            by[r["setting"], int(r["seed"])].data.metrics["test.utterance.R"])
     # one class means one MLP, so the gate is always right
     assert float(rows[1]["utterance_gate_acc"]) == 1.0
     # the look-ahead curve: the paper's 3 frames + the centred window's 275 samples at 22050 Hz,
@@ -176,6 +183,31 @@ def test_ablate_leaves_a_parent_run_with_one_child_per_setting(workdir, capsys):
     assert float(rows[0]["latency_ms"]) == pytest.approx(100 + 1000 * 275 / 22050)
     assert float(rows[3]["latency_ms"]) == 0.0 and rows[3]["window_align"] == "right"
     assert (workdir / "runs" / "a" / "ablations" / "lookahead.png").is_file()
+    # the parent answers: its description, summary table and forest plot, the reference's
+    # figures as its metrics, each equal to results.csv's
+    parent = mlflow.get_run(parents[0].info.run_id)
+    assert parent.data.tags["grid"] == "ablations"
+    assert parent.data.metrics["reference.test.utterance.R"] == pytest.approx(
+        float(rows[0]["utterance_R"]), abs=1e-12)
+    assert parent.data.params["reference"] == "paper"
+    best = max(rows, key=lambda r: float(r["utterance_R"]))["setting"]
+    assert parent.data.params["best.utterance"] == best
+    note = parent.data.tags["mlflow.note.content"]
+    assert f"best: `{best}`" in note or best == "paper"
+    for r in rows:
+        assert f"| {r['setting']} | 2 | {float(r['utterance_R']):.3f} ± " in note
+    top = {a.path for a in mlflow.MlflowClient().list_artifacts(parents[0].info.run_id)}
+    assert {"summary.csv", "forest.png"} <= top
+    with open(mlflow.artifacts.download_artifacts(run_id=parents[0].info.run_id,
+                                                  artifact_path="summary.csv",
+                                                  dst_path=str(workdir / "dl")),
+              newline="") as f:
+        summary = {r["setting"]: r for r in csv.DictReader(f)}
+    for r in rows:
+        assert float(summary[r["setting"]]["R"]) == pytest.approx(float(r["utterance_R"]))
+        if r["setting"] != "paper":
+            assert float(summary[r["setting"]]["p_holm"]) == pytest.approx(
+                float(r["utterance_R_p_holm"]))
 
 
 @pytest.mark.parametrize("grid_text, message", [

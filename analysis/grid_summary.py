@@ -1,0 +1,229 @@
+"""A grid stage's answer at a glance: which setting is best, and does it really differ?
+
+From the seed replicates of a grid (the ablations, the ceiling steps: one row per setting and
+seed, as ``replicates.csv`` holds them), :func:`grid_summary` gives one row per setting and split:
+the mean test R over seeds with its 95 % interval, the difference from the reference setting with
+the interval of the paired differences, the Holm-corrected p of the paired test (all from
+:func:`analysis.replicates.summarise_replicates`, so every figure equals ``results.csv``'s), and a
+verdict. :func:`forest_figure` draws the differences with their intervals, the significant ones
+marked; :func:`summary_markdown` says it in words, with the table. These are what the MLflow
+parent run of a grid and the report show.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+from analysis.replicates import summarise_replicates
+
+VERDICTS = ("reference", "better", "worse", "no difference", "not tested")
+# The columns of a summary row, in order.
+COLUMNS = ("split", "setting", "seeds", "R", "R_ci95", "delta", "delta_ci95", "p_holm",
+           "verdict")
+
+
+def read_replicates(path) -> list[dict]:
+    """``replicates.csv`` as rows: numbers as floats (``seed`` and ``replicate`` as ints), the
+    rest as text; a file that is missing or empty is an error naming it."""
+    path = Path(path)
+    with open(path, newline="", encoding="utf-8-sig") as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        raise ValueError(f"{path}: no replicate rows")
+    out = []
+    for r in rows:
+        row = {}
+        for k, v in r.items():
+            if k in ("seed", "replicate"):
+                row[k] = int(v)
+                continue
+            try:
+                row[k] = float(v)
+            except (TypeError, ValueError):
+                row[k] = v
+        out.append(row)
+    return out
+
+
+def _num(v) -> float:
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def verdict(row: dict, split: str, reference: str, key: str) -> str:
+    """``reference``, ``better``/``worse`` (Holm-corrected paired test below 0.05, by the sign
+    of the difference), ``no difference``, or ``not tested`` (fewer than two paired seeds)."""
+    if row[key] == reference:
+        return "reference"
+    differs = row.get(f"{split}_R_differs")
+    if differs in (True, "True"):
+        return "better" if _num(row.get(f"{split}_R_diff")) > 0 else "worse"
+    if differs in (False, "False"):
+        return "no difference"
+    return "not tested"
+
+
+def grid_summary(reps: list[dict], *, reference: str, key: str = "setting",
+                 splits: tuple = ("utterance", "random_frames")) -> list[dict]:
+    """One row per split and setting (:data:`COLUMNS`), the reference first, then the others
+    by their difference from it (largest first); only the ``splits`` the grid was evaluated on.
+    ``reps``: one row per setting and seed (:func:`read_replicates`)."""
+    rows = summarise_replicates(reps, reference=reference, key=key)
+    out = []
+    for split in splits:
+        have = [r for r in rows if math.isfinite(_num(r.get(f"{split}_R")))]
+        if not have:
+            continue
+        part = []
+        for r in have:
+            part.append({
+                "split": split, "setting": r[key], "seeds": int(r["n_seeds"]),
+                "R": _num(r[f"{split}_R"]), "R_ci95": _num(r.get(f"{split}_R_ci95")),
+                "delta": 0.0 if r[key] == reference else _num(r.get(f"{split}_R_diff")),
+                "delta_ci95": math.nan if r[key] == reference
+                else _num(r.get(f"{split}_R_diff_ci95")),
+                "p_holm": math.nan if r[key] == reference else _num(r.get(f"{split}_R_p_holm")),
+                "verdict": verdict(r, split, reference, key)})
+        part.sort(key=lambda x: (x["verdict"] != "reference",
+                                 -x["delta"] if math.isfinite(x["delta"]) else math.inf))
+        out += part
+    return out
+
+
+def best(summary: list[dict], split: str) -> dict | None:
+    """The setting of ``split`` with the highest mean test R (the reference included)."""
+    part = [r for r in summary if r["split"] == split and math.isfinite(r["R"])]
+    return max(part, key=lambda r: r["R"]) if part else None
+
+
+def fmt(x, digits: int = 3, *, sign: bool = False) -> str:
+    """A figure as the report and the MLflow summary print it (NaN: an en dash)."""
+    x = _num(x)
+    if not math.isfinite(x):
+        return "–"
+    return f"{x:+.{digits}f}" if sign else f"{x:.{digits}f}"
+
+
+def fmt_p(p) -> str:
+    p = _num(p)
+    if not math.isfinite(p):
+        return "–"
+    return "< 0.001" if p < 0.001 else f"{p:.3f}"
+
+
+def table_rows(summary: list[dict], split: str) -> list[list[str]]:
+    """The printed rows of one split: setting, seeds, R ± CI, Δ ± CI, p (Holm), verdict."""
+    out = []
+    for r in summary:
+        if r["split"] != split:
+            continue
+        ci = "" if not math.isfinite(r["R_ci95"]) else f" ± {fmt(r['R_ci95'])}"
+        dci = "" if not math.isfinite(r["delta_ci95"]) else f" ± {fmt(r['delta_ci95'])}"
+        delta = "–" if r["verdict"] == "reference" else fmt(r["delta"], sign=True) + dci
+        out.append([r["setting"], str(r["seeds"]), fmt(r["R"]) + ci, delta, fmt_p(r["p_holm"]),
+                    r["verdict"]])
+    return out
+
+
+TABLE_HEADER = ["setting", "seeds", "test R ± 95 % CI", "Δ R vs reference ± 95 % CI",
+                "p (Holm)", "verdict"]
+
+
+def summary_markdown(summary: list[dict], *, title: str, reference: str,
+                     what: str = "setting") -> str:
+    """The summary in words (the reference, the best, which differ), then its table, as
+    Markdown (an MLflow run's description)."""
+    lines = [f"### {title}", ""]
+    for split in dict.fromkeys(r["split"] for r in summary):
+        part = [r for r in summary if r["split"] == split]
+        ref = next((r for r in part if r["verdict"] == "reference"), None)
+        top = best(summary, split)
+        seeds = sorted({r["seeds"] for r in part})
+        lines.append(f"**{split} split** — mean test R over {'/'.join(map(str, seeds))} seeds "
+                     f"per {what}; each {what} against `{reference}`, paired by seed, "
+                     f"Holm-corrected over {len(part) - 1} comparisons (α 0.05).")
+        lines.append("")
+        if ref is not None:
+            lines.append(f"- reference `{reference}`: R {fmt(ref['R'])} ± {fmt(ref['R_ci95'])}")
+        if top is not None and top["verdict"] != "reference":
+            lines.append(f"- best: `{top['setting']}`: R {fmt(top['R'])} ± "
+                         f"{fmt(top['R_ci95'])}, Δ {fmt(top['delta'], sign=True)} ± "
+                         f"{fmt(top['delta_ci95'])}, p (Holm) {fmt_p(top['p_holm'])}: "
+                         + ("**significantly better**" if top["verdict"] == "better"
+                            else f"{top['verdict']} from the reference"))
+        elif top is not None:
+            lines.append(f"- best: the reference `{reference}` itself")
+        for v in ("better", "worse"):
+            names = [f"`{r['setting']}` ({fmt(r['delta'], sign=True)})" for r in part
+                     if r["verdict"] == v]
+            lines.append(f"- significantly {v}: " + (", ".join(names) if names else "none"))
+        lines += ["", "| " + " | ".join(TABLE_HEADER) + " |",
+                  "|" + "---|" * len(TABLE_HEADER)]
+        lines += ["| " + " | ".join(row) + " |" for row in table_rows(summary, split)]
+        lines.append("")
+    return "\n".join(lines)
+
+
+def forest_figure(summary: list[dict], path, *, reference: str, title: str = "",
+                  what: str = "setting") -> Path:
+    """Δ test R against the reference with its 95 % interval, one row per setting and a panel
+    per split; filled markers: significantly better (blue) or worse (red) after Holm's
+    correction; hollow grey: no difference. Drawn at the report's text width (6.7 in)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    splits = list(dict.fromkeys(r["split"] for r in summary))
+    n = max(sum(1 for r in summary if r["split"] == s and r["verdict"] != "reference")
+            for s in splits)
+    fig, axes = plt.subplots(1, len(splits), figsize=(6.7, 1.1 + 0.17 * max(n, 3)),
+                             sharey=False, squeeze=False)
+    colours = {"better": "#1f5fbf", "worse": "#c62828"}
+    for ax, split in zip(axes[0], splits):
+        part = [r for r in summary if r["split"] == split and r["verdict"] != "reference"]
+        part = part[::-1]  # the largest difference at the top
+        y = list(range(len(part)))
+        for yi, r in zip(y, part):
+            err = r["delta_ci95"] if math.isfinite(r["delta_ci95"]) else 0.0
+            c = colours.get(r["verdict"], "0.45")
+            filled = r["verdict"] in colours
+            ax.errorbar(r["delta"], yi, xerr=err, fmt="o", color=c, ecolor=c, capsize=2,
+                        markersize=4, markerfacecolor=c if filled else "white", lw=1)
+        ax.axvline(0, color="k", lw=0.8)
+        ax.set_yticks(y, [r["setting"] for r in part], fontsize=7)
+        ax.tick_params(axis="x", labelsize=7)
+        ax.set_xlabel(f"Δ test R vs {reference} (95 % CI over seeds)", fontsize=7.5)
+        ax.set_title(f"{split} split", fontsize=8)
+        ax.grid(axis="x", alpha=0.3)
+        ax.set_ylim(-0.7, len(part) - 0.3)
+    handles = [plt.Line2D([], [], marker="o", ls="none", color=colours["better"],
+                          label="better (Holm p < 0.05)"),
+               plt.Line2D([], [], marker="o", ls="none", color=colours["worse"],
+                          label="worse (Holm p < 0.05)"),
+               plt.Line2D([], [], marker="o", ls="none", color="0.45", markerfacecolor="white",
+                          label="no difference")]
+    fig.legend(handles=handles, loc="lower center", ncol=3, fontsize=7, frameon=False,
+               bbox_to_anchor=(0.5, 0.0))
+    if title:
+        fig.suptitle(title, fontsize=8.5)
+    fig.tight_layout(rect=(0, 0.06 if n > 8 else 0.12, 1, 1))
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=150)
+    plt.close(fig)
+    return path
+
+
+def write_summary(summary: list[dict], path) -> Path:
+    """The summary as a CSV of :data:`COLUMNS` (figures in full, as results.csv has them)."""
+    path = Path(path)
+    with open(path, "w", newline="", encoding="utf-8") as f:
+        w = csv.writer(f)
+        w.writerow(COLUMNS)
+        for r in summary:
+            w.writerow([repr(r[c]) if isinstance(r[c], float) else r[c] for c in COLUMNS])
+    return path

@@ -1,0 +1,92 @@
+"""The grid summary: its figures are results.csv's (summarise_replicates), its difference
+intervals the paired t-intervals, its verdicts follow the Holm-corrected test."""
+import math
+
+import numpy as np
+import pytest
+from PIL import Image
+from scipy import stats
+
+from analysis.grid_summary import (best, fmt, forest_figure, grid_summary, read_replicates,
+                                   summary_markdown, table_rows, write_summary)
+from analysis.replicates import summarise_replicates
+from talkingface.stages.base import write_csv
+
+SEEDS = (2002, 3002, 4002, 5002, 6002)
+
+
+def _reps(rng) -> list[dict]:
+    """Five seeds of four settings: one clearly better, one clearly worse, one the same as the
+    reference up to noise, paired by seed (a shared per-seed offset)."""
+    offset = rng.normal(0, 0.02, len(SEEDS))
+    shift = {"paper": 0.0, "tdnn": 0.03, "classes-1": -0.05, "same": 0.0}
+    rows = []
+    for name, d in shift.items():
+        for k, seed in enumerate(SEEDS):
+            noise = rng.normal(0, 0.004 if name != "same" else 0.01)
+            rows.append({"setting": name, "method": "m", "replicate": k, "seed": seed,
+                         "utterance_R": 0.65 + d + offset[k] + noise,
+                         "utterance_MSE": 0.1, "seconds": 1.0})
+    return rows
+
+
+def test_summary_equals_results_and_paired_intervals(tmp_path):
+    reps = _reps(np.random.default_rng(1))
+    write_csv(tmp_path / "replicates.csv", reps)
+    back = read_replicates(tmp_path / "replicates.csv")
+    assert [r["seed"] for r in back] == [r["seed"] for r in reps]
+    assert all(math.isclose(a["utterance_R"], b["utterance_R"], rel_tol=1e-12)
+               for a, b in zip(back, reps))
+    summary = grid_summary(back, reference="paper")
+    results = {r["setting"]: r for r in summarise_replicates(reps, reference="paper")}
+    assert [r["split"] for r in summary] == ["utterance"] * 4  # no random_frames figures
+    assert summary[0]["setting"] == "paper" and summary[0]["verdict"] == "reference"
+    deltas = [r["delta"] for r in summary[1:]]
+    assert deltas == sorted(deltas, reverse=True)
+    for r in summary:
+        res = results[r["setting"]]
+        assert r["R"] == pytest.approx(res["utterance_R"], abs=1e-12)
+        assert r["R_ci95"] == pytest.approx(res["utterance_R_ci95"], abs=1e-12)
+        assert r["seeds"] == 5
+        if r["setting"] == "paper":
+            continue
+        assert r["delta"] == pytest.approx(res["utterance_R_diff"], abs=1e-12)
+        assert r["p_holm"] == pytest.approx(res["utterance_R_p_holm"], abs=1e-12)
+        d = np.array([x["utterance_R"] for x in reps if x["setting"] == r["setting"]]) - \
+            np.array([x["utterance_R"] for x in reps if x["setting"] == "paper"])
+        half = stats.t.ppf(0.975, 4) * d.std(ddof=1) / np.sqrt(5)
+        assert r["delta_ci95"] == pytest.approx(half, rel=1e-9)
+    verdicts = {r["setting"]: r["verdict"] for r in summary}
+    assert verdicts == {"paper": "reference", "tdnn": "better", "classes-1": "worse",
+                        "same": "no difference"}
+    assert best(summary, "utterance")["setting"] == "tdnn"
+    out = write_summary(summary, tmp_path / "summary.csv")
+    assert out.read_text().splitlines()[0] == \
+        "split,setting,seeds,R,R_ci95,delta,delta_ci95,p_holm,verdict"
+
+
+def test_markdown_states_the_best_with_the_tables_figures():
+    summary = grid_summary(_reps(np.random.default_rng(2)), reference="paper")
+    text = summary_markdown(summary, title="Ablations", reference="paper")
+    top = best(summary, "utterance")
+    assert f"best: `{top['setting']}`: R {fmt(top['R'])} ± {fmt(top['R_ci95'])}" in text
+    assert "**significantly better**" in text
+    assert "significantly worse: `classes-1`" in text
+    rows = table_rows(summary, "utterance")
+    for row in rows:  # every printed row is in the description's table
+        assert "| " + " | ".join(row) + " |" in text
+    assert rows[0][3] == "–" and rows[0][5] == "reference"
+
+
+def test_forest_figure_at_text_width(tmp_path):
+    summary = grid_summary(_reps(np.random.default_rng(3)), reference="paper")
+    path = forest_figure(summary, tmp_path / "forest.png", reference="paper", title="t")
+    w, h = Image.open(path).size
+    assert w == round(6.7 * 150) and h > 100
+
+
+def test_unreplicated_grid_is_not_tested():
+    reps = [r for r in _reps(np.random.default_rng(4)) if r["seed"] == SEEDS[0]]
+    summary = grid_summary(reps, reference="paper")
+    assert {r["verdict"] for r in summary[1:]} == {"not tested"}
+    assert all(math.isnan(r["R_ci95"]) for r in summary)
