@@ -112,7 +112,7 @@ def make_figures(corpus, units, summary: dict, out_dir) -> dict:
     expr_units, titles = [], []
     for k in units.expressions_:
         expr_units.append(unflatten(units.expression_mean_[k][None])[0])
-        titles.append(f"{k}: mean m_k0")
+        titles.append(f"{k}: mean $m_{{k0}}$")
         for j in range(units.n_expression):
             sd_k = np.sqrt(units.expression_variance_[k][j])
             expr_units.append(unflatten(units.expression_components_[k][j][None])[0] * sd_k)
@@ -120,7 +120,7 @@ def make_figures(corpus, units, summary: dict, out_dir) -> dict:
     if expr_units:
         figs["expression_mus"] = figures.motion_unit_arrows(
             neutral, expr_units, titles, out / "expression_mus.png",
-            ncols=units.n_expression + 1, colour="#1f77b4")
+            ncols=units.n_expression + 1, colour="#1f77b4", width=0.8)
     items = []
     by_text = {}
     for u in corpus.utterances:
@@ -140,7 +140,7 @@ def _pct(x) -> str:
 
 def corpus_section(report, corpus_summary: dict, figs: dict) -> None:
     s = corpus_summary
-    report.heading("1. The synthetic audio-visual corpus")
+    report.heading("The synthetic audio-visual corpus", stage="corpus", key="corpus")
     report.paragraph(
         f"{s['n_sentences']} sentences read by {s['n_speakers']} synthetic speaker(s), neutral and "
         f"with expressions: {s['n_utterances']} utterances, {s['n_frames']} frames at 30 fps "
@@ -161,11 +161,11 @@ def corpus_section(report, corpus_summary: dict, figs: dict) -> None:
 
 def units_section(report, units_summary: dict, figs: dict) -> None:
     s = units_summary
-    report.heading("2. Motion Units")
+    report.heading("Motion Units", stage="units", key="units")
     report.paragraph(
         "Deformations are aligned marker positions minus the speaker's neutral face. Utterance "
         f"MUs: PCA of the neutral deformations (A0 = {s['n_utterance']}). Expression MUs: PCA of "
-        f"the residual beyond the utterance MUs, per expression (A_k = {s['n_expression']}).")
+        f"the residual beyond the utterance MUs, per expression (A<sub>k</sub> = {s['n_expression']}).")
     noise = s["noise_share"]
     rows = [["Utterance MUs (neutral speech)", s["n_utterance"], _pct(s["explained"]["neutral"]),
              _pct(s["paper"]["neutral"]), _pct(noise["neutral"])]]
@@ -185,5 +185,5 @@ def units_section(report, units_summary: dict, figs: dict) -> None:
     report.figure(figs["utterance_mus"], "The utterance MUs as displacement arrows on the "
                   "neutral face: each MU times one standard deviation of its MUP (common scale).")
     if "expression_mus" in figs:
-        report.figure(figs["expression_mus"], "Expression MUs: the residual mean m_k0 and the "
+        report.figure(figs["expression_mus"], "Expression MUs: the residual mean m<sub>k0</sub> and the "
                       "principal axes (times one standard deviation), per expression.", width=0.8)

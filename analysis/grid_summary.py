@@ -15,6 +15,9 @@ import csv
 import math
 from pathlib import Path
 
+from matplotlib.lines import Line2D
+
+from analysis.figures import report_figure
 from analysis.replicates import summarise_replicates
 
 VERDICTS = ("reference", "better", "worse", "no difference", "not tested")
@@ -171,51 +174,39 @@ def forest_figure(summary: list[dict], path, *, reference: str, title: str = "",
                   what: str = "setting") -> Path:
     """Δ test R against the reference with its 95 % interval, one row per setting and a panel
     per split; filled markers: significantly better (blue) or worse (red) after Holm's
-    correction; hollow grey: no difference. Drawn at the report's text width (6.7 in)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    correction; hollow grey: no difference. Drawn at the report's text width, type ≥ 7 pt
+    (:func:`analysis.figures.report_figure`)."""
     splits = list(dict.fromkeys(r["split"] for r in summary))
     n = max(sum(1 for r in summary if r["split"] == s and r["verdict"] != "reference")
             for s in splits)
-    fig, axes = plt.subplots(1, len(splits), figsize=(6.7, 1.1 + 0.17 * max(n, 3)),
-                             sharey=False, squeeze=False)
     colours = {"better": "#1f5fbf", "worse": "#c62828"}
-    for ax, split in zip(axes[0], splits):
-        part = [r for r in summary if r["split"] == split and r["verdict"] != "reference"]
-        part = part[::-1]  # the largest difference at the top
-        y = list(range(len(part)))
-        for yi, r in zip(y, part):
-            err = r["delta_ci95"] if math.isfinite(r["delta_ci95"]) else 0.0
-            c = colours.get(r["verdict"], "0.45")
-            filled = r["verdict"] in colours
-            ax.errorbar(r["delta"], yi, xerr=err, fmt="o", color=c, ecolor=c, capsize=2,
-                        markersize=4, markerfacecolor=c if filled else "white", lw=1)
-        ax.axvline(0, color="k", lw=0.8)
-        ax.set_yticks(y, [r["setting"] for r in part], fontsize=7)
-        ax.tick_params(axis="x", labelsize=7)
-        ax.set_xlabel(f"Δ test R vs {reference} (95 % CI over seeds)", fontsize=7.5)
-        ax.set_title(f"{split} split", fontsize=8)
-        ax.grid(axis="x", alpha=0.3)
-        ax.set_ylim(-0.7, len(part) - 0.3)
-    handles = [plt.Line2D([], [], marker="o", ls="none", color=colours["better"],
+    with report_figure(path, width=1.0, height_in=1.3 + 0.17 * max(n, 3)) as fig:
+        axes = fig.subplots(1, len(splits), squeeze=False)[0]
+        for ax, split in zip(axes, splits):
+            part = [r for r in summary if r["split"] == split and r["verdict"] != "reference"]
+            part = part[::-1]  # the largest difference at the top
+            for yi, r in enumerate(part):
+                err = r["delta_ci95"] if math.isfinite(r["delta_ci95"]) else 0.0
+                c = colours.get(r["verdict"], "0.45")
+                ax.errorbar(r["delta"], yi, xerr=err, fmt="o", color=c, ecolor=c, capsize=2,
+                            markersize=4, lw=1,
+                            markerfacecolor=c if r["verdict"] in colours else "white")
+            ax.axvline(0, color="k", lw=0.8)
+            ax.set_yticks(range(len(part)), [r["setting"] for r in part])
+            ax.set_xlabel(f"Δ test R vs {reference} (95 % CI over seeds)")
+            ax.set_title(f"{split} split")
+            ax.grid(axis="x", alpha=0.3)
+            ax.set_ylim(-0.7, len(part) - 0.3)
+        handles = [Line2D([], [], marker="o", ls="none", color=colours["better"],
                           label="better (Holm p < 0.05)"),
-               plt.Line2D([], [], marker="o", ls="none", color=colours["worse"],
+                   Line2D([], [], marker="o", ls="none", color=colours["worse"],
                           label="worse (Holm p < 0.05)"),
-               plt.Line2D([], [], marker="o", ls="none", color="0.45", markerfacecolor="white",
-                          label="no difference")]
-    fig.legend(handles=handles, loc="lower center", ncol=3, fontsize=7, frameon=False,
-               bbox_to_anchor=(0.5, 0.0))
-    if title:
-        fig.suptitle(title, fontsize=8.5)
-    fig.tight_layout(rect=(0, 0.06 if n > 8 else 0.12, 1, 1))
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=150)
-    plt.close(fig)
-    return path
+                   Line2D([], [], marker="o", ls="none", color="0.45",
+                          markerfacecolor="white", label=f"no difference from {reference}")]
+        fig.legend(handles=handles, loc="outside lower center", ncol=3, frameon=False)
+        if title:
+            fig.suptitle(title)
+    return Path(path)
 
 
 def write_summary(summary: list[dict], path) -> Path:

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.grid_summary import TABLE_HEADER, best, grid_summary, read_replicates, table_rows
 from analysis.metrics import PAPER_TABLES
 from analysis.report import escape
 
@@ -32,9 +33,12 @@ def ci_cell(row: dict, key: str, digits: int = 3) -> str:
 
 def r_cell(row: dict, split: str) -> str:
     """Mean test R of an ablation row with its 95 % interval over seeds (``± half-width``) and
-    ``*`` when the paired test against the reference setting finds a difference."""
+    ``↑`` (higher) or ``↓`` (lower) when the paired test against the reference setting finds a
+    difference."""
     text = ci_cell(row, f"{split}_R")
-    return text + " *" if row.get(f"{split}_R_differs") == "True" else text
+    if row.get(f"{split}_R_differs") != "True":
+        return text
+    return text + (" ↑" if _num(row.get(f"{split}_R_diff")) > 0 else " ↓")
 
 
 def seeds_note(rows: list[dict], split: str) -> str:
@@ -51,8 +55,9 @@ def seeds_note(rows: list[dict], split: str) -> str:
     ref = repr(ref[0]) if ref else "the grid's reference setting"
     return (f"Figures: mean over {'/'.join(map(str, n))} training seeds ± the half-width of its "
             "95 % t-interval. " + (
-                f"* marks a row whose R differs from {ref} in a paired t-test over the same "
-                "seeds, Holm-corrected over all the grid's settings (family-wise 5 %): "
+                f"↑ (↓) marks a row whose R is higher (lower) than {ref}'s in a paired t-test "
+                "over the same seeds, Holm-corrected over all the grid's settings (family-wise "
+                "5 %): "
                 f"{marked} of the {len(tested)} rows tested here. " if tested else "") +
             "Replicate k trains with the run seed + 1000 k (its split, initialisation, batches "
             "and augmentation); the corpus is the run's.")
@@ -97,17 +102,25 @@ def _num(v):
         return float("nan")
 
 
-def lookahead_section(report, ab: list[dict], figure: Path, split: str = "utterance") -> None:
-    """Accuracy against look-ahead: the ablation rows of the curve (``lookahead-*`` children
-    and the paper's setting beside them), by method and algorithmic latency."""
+def lookahead_rows_for_report(ab: list[dict], split: str = "utterance") -> list[dict]:
+    """The rows of the look-ahead table: the ablation rows of the curve (``lookahead-*``) and
+    the paper's setting of the same methods, by method and latency; none without a curve."""
     curve = [r for r in ab if str(r["setting"]).startswith("lookahead-")]
     if not curve or f"{split}_R" not in curve[0]:
-        return
+        return []
     methods = {r["method"] for r in curve}
     rows = curve + [r for r in ab if r["setting"] in ("paper", "baseline-gru")
                     and r["method"] in methods]
-    rows.sort(key=lambda r: (r["method"], _num(r.get("latency_ms"))))
-    report.heading("Accuracy against look-ahead")
+    return sorted(rows, key=lambda r: (r["method"], _num(r.get("latency_ms"))))
+
+
+def lookahead_section(report, ab: list[dict], figure: Path, split: str = "utterance") -> None:
+    """Accuracy against look-ahead: the ablation rows of the curve (``lookahead-*`` children
+    and the paper's setting beside them), by method and algorithmic latency."""
+    rows = lookahead_rows_for_report(ab, split)
+    if not rows:
+        return
+    report.heading("Accuracy against look-ahead", level=2, stage="ablations")
     report.paragraph(
         "How much the paper's 100 ms of look-ahead buys: the same mapping trained with 0 to 5 "
         "frames of future context and its analysis window ending at the frame instant, so the "
@@ -125,10 +138,10 @@ def lookahead_section(report, ab: list[dict], figure: Path, split: str = "uttera
                    ci_cell(r, f"{split}_LVE", 2), ci_cell(r, f"{split}_closure", 2)]
                   for r in rows],
                  note="Mean over expressions of the test-set figures. " +
-                      seeds_note(rows, split))
+                      seeds_note(rows, split), key="lookahead")
     if figure.is_file():
         report.figure(figure, "Test R and closure on /p b m/ against algorithmic latency; "
-                      "stars: the paper's setting (centred window).")
+                      "stars: the paper's setting (centred window).", key="lookahead_fig")
 
 
 def ceiling_section(report, ceiling_dir: Path) -> None:
@@ -142,7 +155,7 @@ def ceiling_section(report, ceiling_dir: Path) -> None:
     if not rows:
         return
     paper = float(np.mean([v[0] for v in PAPER_TABLES["test"].values()]))
-    report.heading("Where Table II stands: from our R to the ceiling")
+    report.heading("Where Table II stands: from our R to the ceiling", stage="ceiling")
     report.paragraph(
         f"The paper reports a mean test R of {paper:.3f}. Each row below is one measured run: "
         "the run's own corpus, then each nuisance of the corpus switched off in turn (a corpus "
@@ -164,11 +177,11 @@ def ceiling_section(report, ceiling_dir: Path) -> None:
                   for r in rows] + [["paper (Table II)", "their corpus, frame split", "–",
                                      _f(paper), "–", "–", "–"]],
                  note=seeds_note(rows, "utterance") + " Each step is an "
-                      "MLflow child run of the ceiling parent run.")
+                      "MLflow child run of the ceiling parent run.", key="ceiling")
     fig = ceiling_dir / "ceiling.png"
     if fig.is_file():
-        report.figure(fig, "Mean test R per step on both splits; the dashed line is the paper's "
-                           "Table II.")
+        report.figure(fig, "Mean test R per step on both splits with their 95 % intervals over "
+                           "seeds; the dashed line is the paper's Table II.", key="ceiling_fig")
 
 
 def split_gap(rows: list[dict], method: str) -> float | None:
@@ -201,12 +214,14 @@ def _visual_source_text(cfg: dict, tracked_dir: Path) -> str:
     return text + ". Ground truth below is the tracked MUP sequence."
 
 
-def mapping_section(report, summary: dict, mapping_dir: Path, ablations_csv: Path | None) -> None:
+def mapping_section(report, summary: dict, mapping_dir: Path, ablations_csv: Path | None,
+                    forest: Path | None = None) -> None:
     cfg = summary["config"]["mapping"]
     method = cfg["method"]
     rows = summary["rows"]
-    report.heading("3. Audio-to-MUP mapping (§VI) and its evaluation (§VII-A)")
-    expressions = (f"the cascade Upsilon_k with {cfg['cascade_hidden']} hidden units"
+    report.heading("Audio-to-MUP mapping (§VI) and its evaluation (§VII-A)", stage="mapping",
+                   key="mapping")
+    expressions = (f"the cascade Υ<sub>k</sub> with {cfg['cascade_hidden']} hidden units"
                    if cfg["expression_model"] == "cascade" else "a bank retrained per expression")
     report.paragraph(
         f"Features: {cfg['n_mfcc']} MFCC per 30 fps frame{' with deltas' if cfg['deltas'] else ''}"
@@ -220,13 +235,14 @@ def mapping_section(report, summary: dict, mapping_dir: Path, ablations_csv: Pat
         "displacement in the database. Splits: random_frames (the paper's, 80 % of frames drawn "
         "at random) and utterance (80 % of the sentences; no sentence on both sides).")
     report.paragraph(_visual_source_text(summary["config"], mapping_dir.parent / "tracked"))
-    header = ["split", "expression", "R", "R paper", "nu_d", "nu_d paper", "nu_d'", "nu_d' paper",
-              "MSE", "MSE paper"]
+    header = ["split", "expression", "R", "R paper", "ν<sub>d</sub>", "ν<sub>d</sub> paper",
+              "ν<sub>d</sub>′", "ν<sub>d</sub>′ paper", "MSE", "MSE paper"]
     for part in ("train", "test"):
         report.table(f"{_TABLE_NAME[part]}: {method} on the {_PART_NAME[part]}, ours vs the "
                      "paper's", header, paper_table_rows(rows, method, part),
                      note="Paper: Hong, Wen &amp; Huang (2002), Tables I and II (their split "
-                          "draws frames at random).")
+                          "draws frames at random).",
+                     key="table_ii" if part == "test" else "table_i")
     lip_rows = lip_table_rows(rows, method)
     if lip_rows:
         report.table(f"Lips and face beside Table II: {method} on the testing set",
@@ -266,28 +282,51 @@ def mapping_section(report, summary: dict, mapping_dir: Path, ablations_csv: Pat
                        _f(x["MSE"], 4), _f(x.get("LVE"), 2), _f(x.get("R_lips")),
                        _f(x.get("closure"), 2), f"{x['fit_seconds']:.1f}"] for x in rk],
                      note="Mean over expressions of the test-set figures. Baselines are trained "
-                          "per expression on the same frames and evaluated the same way.")
-    if ablations_csv is not None:
-        with open(ablations_csv, newline="", encoding="utf-8-sig") as f:
-            ab = list(csv.DictReader(f))
-        splits = [s for s in ("utterance", "random_frames") if ab and f"{s}_R" in ab[0]]
-        head = ["setting", "method", "classes", "context", "MFCC", "hidden", "expressions"]
-        body = []
-        for r in ab:
-            line = [r["setting"], r["method"], r["n_classes"], r["context"],
-                    r["n_mfcc"] + (" +delta" if r["deltas"] == "True" else ""), r["hidden"],
-                    r["expression_model"]]
-            for s in splits:
-                line += [r_cell(r, s), ci_cell(r, f"{s}_MSE", 4)]
-            body.append(line)
-        for s in splits:
-            head += [f"R ({s})", f"MSE ({s})"]
-        report.table("Ablations: mean test figures per setting over training seeds", head,
-                     body, note=seeds_note(ab, splits[0]) + " Every setting "
-                     "and seed is an MLflow child run of the ablation parent run (tags "
-                     "ablation.setting, ablation.seed).")
-        lookahead_section(report, ab, ablations_csv.parent / "lookahead.png")
+                          "per expression on the same frames and evaluated the same way.",
+                     key=f"ranking_{split}")
     traj = mapping_dir / summary["trajectories"]
     if traj.is_file():
         report.figure(traj, "Predicted vs true MUPs of a test sentence per expression: the first "
                       "three utterance MUPs and the first expression MUP.")
+    if ablations_csv is not None:
+        with open(ablations_csv, newline="", encoding="utf-8-sig") as f:
+            ab = list(csv.DictReader(f))
+        ablation_section(report, ab, ablations_csv.parent, forest)
+        lookahead_section(report, ab, ablations_csv.parent / "lookahead.png")
+
+
+def ablation_section(report, ab: list[dict], ab_dir: Path, forest: Path | None) -> None:
+    """Which setting is best, and does it really differ: the grid summary of the ablations
+    (:func:`analysis.grid_summary.grid_summary` of replicates.csv, the figures of results.csv)
+    as a table, and its forest plot."""
+    reps = ab_dir / "replicates.csv"
+    if not reps.is_file():
+        return
+    reference = next((r["setting"] for r in ab if str(r.get("utterance_R_differs",
+                                                            r.get("random_frames_R_differs")))
+                      == "reference"), ab[0]["setting"])
+    summary = grid_summary(read_replicates(reps), reference=reference)
+    split = summary[0]["split"]
+    methods = {r["setting"]: r["method"] for r in ab}
+    report.heading("Ablations: which setting is best, and does it really differ?", level=2,
+                   stage="ablations", key="ablations_section")
+    top = best(summary, split)
+    report.paragraph(
+        f"Every setting of configs/ablations.yaml trained with {summary[0]['seeds']} seeds and "
+        f"compared with <b>{escape(reference)}</b> seed by seed (paired t-test of test R on the "
+        f"{split} split, Holm-corrected over the {len(methods) - 1} comparisons). The best "
+        f"setting is <b>{escape(top['setting'])}</b>"
+        + ("." if top["verdict"] == "reference" else
+           f" ({top['verdict']} than the reference)." if top["verdict"] in ("better", "worse")
+           else f" ({top['verdict']} from the reference)."))
+    report.table(f"Ablations: mean test R per setting ({split} split) against "
+                 f"{escape(reference)}", ["setting", "method", *TABLE_HEADER[1:]],
+                 [[row[0], methods.get(row[0], ""), *row[1:]]
+                  for row in table_rows(summary, split)], key="ablations",
+                 note=seeds_note(ab, split) + " Verdict: better or worse when the "
+                 "Holm-corrected p is below 0.05. Every setting and seed is an MLflow child run "
+                 "of the ablation parent run, whose description holds this table.")
+    if forest is not None and forest.is_file():
+        report.figure(forest, "The ablations' differences from the reference with their 95 % "
+                      "intervals over paired seeds; filled: significant after Holm's "
+                      "correction.", key="forest")

@@ -11,7 +11,7 @@ from analysis.report import escape
 
 def motion_section(report, keyframes_dir: Path, render_dir: Path | None,
                    tracking_dir: Path | None = None) -> None:
-    report.heading("4. The face in motion")
+    report.heading("The face in motion", stage="keyframes", key="motion")
     kf = json.loads((keyframes_dir / "done.json").read_text())
     samples = ", ".join(f"{k} {v}" for k, v in kf["samples"].items())
     report.paragraph(

@@ -8,26 +8,24 @@ import json
 from dataclasses import asdict
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib.patches import Patch
+from statsmodels.stats.proportion import proportion_confint
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from statsmodels.stats.proportion import proportion_confint  # noqa: E402
-
-from analysis.perception_models import face_counts  # noqa: E402
-from analysis.perception_stats_report import models_section, stats_section  # noqa: E402
-from analysis.planning import fit_study  # noqa: E402
-from analysis.report import escape  # noqa: E402
-from analysis.stats import summary as stats_summary  # noqa: E402
-from analysis.study_data import (  # noqa: E402
+from analysis.figures import report_figure
+from analysis.perception_models import face_counts
+from analysis.perception_stats_report import models_section, stats_section
+from analysis.planning import fit_study
+from analysis.report import escape
+from analysis.stats import summary as stats_summary
+from analysis.study_data import (
     PAPER_TALLIES,
     RESPONSE_LABEL,
     Tally,
     read_study,
     tallies,
 )
-from study.design import N_TRIALS  # noqa: E402
+from study.design import N_TRIALS
 
 TITLES = {"III": "TABLE III: emotion inference based on the animation sequences without audio",
           "IV": "TABLE IV: emotion inference based on the audio",
@@ -51,31 +49,62 @@ def tally_rows(t, paper: np.ndarray | None) -> tuple[list, list]:
     return header, rows
 
 
-def tally_figure(tabs: dict, path: Path) -> Path:
-    """Proportions of each response with Wilson 95 % intervals, synthetic vs real."""
-    fig, axes = plt.subplots(1, 4, figsize=(13, 3.4), sharey=True)
+def tally_figure(tabs: dict, path: Path, *, width: float = 1.0) -> Path:
+    """Tables III–VII as the proportion of each response per column, with Wilson 95 %
+    intervals; synthetic (S) beside real (R) face. A column without responses draws neither
+    bar nor whisker (it says n = 0); a response nobody gave in a column with responses draws
+    its whisker up from 0."""
     colors = {"neutral": "#8c8c8c", "happy": "#e0a030", "sad": "#3b6fb6", "not_sure": "#c04040"}
-    for ax, name in zip(axes, ("III", "V", "VI", "VII")):
-        t = tabs[name]
-        n = t.column_totals()
-        width = 0.2
-        x = np.arange(len(t.columns))
-        for k, r in enumerate(t.rows):
-            p = t.counts[k] / np.maximum(n, 1)
-            lo, hi = proportion_confint(t.counts[k], np.maximum(n, 1), method="wilson")
-            ax.bar(x + (k - 1.5) * width, p, width, color=colors[r], label=RESPONSE_LABEL[r],
-                   yerr=[np.clip(p - lo, 0, 1), np.clip(hi - p, 0, 1)], capsize=2,
-                   error_kw={"lw": 0.7})
-        ax.set_xticks(x, [f"{e[:3]}\n{f}" for e, f in t.columns], fontsize=8)
-        ax.set_title(f"Table {name}", fontsize=10)
-        ax.set_ylim(0, 1.05)
-    axes[0].set_ylabel("proportion of participants")
-    handles, labels = axes[0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=8, frameon=False)
-    fig.tight_layout(rect=(0, 0.07, 1, 1))
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
-    return path
+    panels = {"III": "face only", "IV": "audio only", "V": "bimodal, audio 1",
+              "VI": "bimodal, audio 2", "VII": "bimodal, audio 3"}
+    with report_figure(path, width=width, height_in=4.4) as fig:
+        grid = fig.add_gridspec(2, 3)
+        slots = {"III": grid[0, 0], "IV": grid[0, 1], "V": grid[1, 0], "VI": grid[1, 1],
+                 "VII": grid[1, 2]}
+        first = None
+        for name, slot in slots.items():
+            ax = fig.add_subplot(slot, sharey=first)
+            first = first or ax
+            t = tabs[name]
+            n = t.column_totals()
+            seen = n > 0
+            x = np.arange(len(t.columns))
+            bar_w = 0.8 / len(t.rows)
+            for k, r in enumerate(t.rows):
+                xs = x[seen] + (k - (len(t.rows) - 1) / 2) * bar_w
+                counts = t.counts[k][seen]
+                if not len(xs):
+                    continue
+                p = counts / n[seen]
+                lo, hi = proportion_confint(counts, n[seen], method="wilson")
+                ax.bar(xs, p, bar_w, color=colors[r],
+                       yerr=[np.clip(p - lo, 0, 1), np.clip(hi - p, 0, 1)],
+                       error_kw={"lw": 0.7, "capsize": 1.5})
+            for j in x[~seen]:
+                ax.text(j, 0.03, "n = 0", ha="center", va="bottom", rotation=90, fontsize=7.5,
+                        color="0.35")
+            if name == "IV":
+                ax.set_xticks(x, [AUDIO_LABEL[a] for a in t.columns])
+                ax.set_xlabel("audio track")
+            else:
+                ax.set_xticks(x, [f"{e[:3]}\n{f}" for e, f in t.columns])
+                ax.set_xlabel("expression, face")
+            ax.set_title(f"Table {name}: {panels[name]}")
+            ax.set_xlim(-0.5, len(x) - 0.5)
+            ax.set_ylim(0, 1.05)
+            ax.grid(axis="y", alpha=0.3)
+            if name in ("III", "V"):
+                ax.set_ylabel("proportion of participants")
+            else:
+                ax.tick_params(labelleft=False)
+        key = fig.add_subplot(grid[0, 2])
+        key.axis("off")
+        key.legend([Patch(color=colors[r]) for r in colors],
+                   [RESPONSE_LABEL[r] for r in colors], title="response", loc="center left",
+                   frameon=False)
+        key.text(0, 0.02, "S synthetic face, R real face;\nwhiskers: Wilson 95 % intervals",
+                 fontsize=7.5, va="bottom", transform=key.transAxes)
+    return Path(path)
 
 
 def analyze_study(study_dir, out_dir, *, seed: int = 0, bootstrap: int = 200,
@@ -162,7 +191,8 @@ def perception_section(report, summary: dict, out_dir: Path) -> None:
     who = ("simulated participants (FLMP observers, study/simulate.py)" if summary["simulated"]
            else "participants (real)" if not summary["any_simulated"]
            else "participants, some of them simulated")
-    report.heading("6. Perception study results (Tables III–VII)")
+    report.heading("Perception study results (Tables III–VII)", stage="analysis",
+                   key="perception")
     report.paragraph(
         f"{n} {who}: {seqs['SR']} saw the synthetic face first in the bimodal blocks (SR), "
         f"{seqs['RS']} the real face first (RS). Each cell below is our count and, in "

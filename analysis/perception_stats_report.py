@@ -4,11 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from analysis.figures import report_figure
 
 
 def _p(p) -> str:
@@ -75,26 +73,26 @@ def stats_section(report, s: dict) -> None:
                  "hit rate", "Hu", "chance"], rows)
 
 
-def fit_figure(models: dict, path: Path) -> Path:
+def fit_figure(models: dict, path: Path, *, width: float = 0.8) -> Path:
     """Observed vs predicted response proportions for each face and model."""
-    fig, axes = plt.subplots(1, 2, figsize=(8, 3.8), sharey=True)
-    for ax, face in zip(axes, ("synthetic", "real")):
-        f = models["faces"][face]
-        obs = np.asarray(f["observed"]["bimodal"], dtype=float) if "observed" in f else None
-        for model, marker in (("flmp", "o"), ("wtav", "x")):
-            pred = np.asarray(f[model]["predicted"]["bimodal"], dtype=float).ravel()
-            if obs is not None:
-                ax.scatter(obs.ravel(), pred, marker=marker, s=14,
-                           label=f"{model.upper()} (RMSD {f[model]['rmsd']:.3f})")
-        ax.plot([0, 1], [0, 1], color="0.6", lw=0.8)
-        ax.set_title(f"{face} face", fontsize=10)
-        ax.set_xlabel("observed proportion")
-        ax.legend(fontsize=7)
-    axes[0].set_ylabel("predicted proportion")
-    fig.tight_layout()
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
-    return path
+    with report_figure(path, width=width, height_in=2.9) as fig:
+        axes = fig.subplots(1, 2, sharey=True)
+        for ax, face in zip(axes, ("synthetic", "real")):
+            f = models["faces"][face]
+            obs = np.asarray(f["observed"]["bimodal"], dtype=float) if "observed" in f else None
+            for model, marker in (("flmp", "o"), ("wtav", "x")):
+                pred = np.asarray(f[model]["predicted"]["bimodal"], dtype=float).ravel()
+                if obs is not None:
+                    ax.scatter(obs.ravel(), pred, marker=marker, s=12,
+                               label=f"{model.upper()} (RMSD {f[model]['rmsd']:.3f})")
+            ax.plot([0, 1], [0, 1], color="0.6", lw=0.8)
+            ax.set(xlim=(-0.03, 1.03), ylim=(-0.03, 1.03), aspect="equal")
+            ax.set_title(f"{face} face")
+            ax.set_xlabel("observed proportion")
+            ax.grid(alpha=0.3)
+            ax.legend(loc="upper left")
+        axes[0].set_ylabel("predicted proportion")
+    return Path(path)
 
 
 def models_section(report, m: dict, out_dir: Path) -> None:
@@ -114,7 +112,7 @@ def models_section(report, m: dict, out_dir: Path) -> None:
                          f"{c['cv_loglik'][model]:.1f}" if "cv_loglik" in c else "",
                          "yes" if c["preferred"] == model else ""])
     report.table("Model comparison", ["face", "model", "parameters", "RMSD", "G2 (df)", "BIC",
-                                      "CV log-lik", "preferred"], rows)
+                                      "CV log-lik", "preferred"], rows, key="models")
     b = m["bootstrap"]
     d = b["own_difference"]["flmp"]
     w = b["w"]

@@ -48,6 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.figures import phone_labels, report_figure
 from analysis.speech_set import PARTS
 from data_synth.articulation import coarticulate
 from data_synth.backends import ESPEAK_SPEAKER, voice_speaker
@@ -340,33 +341,25 @@ def score_model(name: str, mapping, units, items, seen_sources=frozenset()) -> M
     return ModelScores(name, threshold, files, summary)
 
 
-def opening_figure(scores: FileScores, segments, path, *, title: str = "") -> Path:
+def opening_figure(scores: FileScores, segments, path, *, title: str = "",
+                   width: float = 1.0) -> Path:
     """Predicted vs reference lip opening over time on one recording, its phones written
     along the top and its /p b m/ and /f v/ segments shaded."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     tr = scores.tracks
     t = np.arange(len(tr["opening"])) / tr["fps"]
-    fig, ax = plt.subplots(figsize=(10, 3.4))
-    for s in segments:
-        if s.phone in BILABIALS or s.phone in LABIODENTALS:
-            ax.axvspan(s.start_s, s.end_s, color="#d62728" if s.phone in BILABIALS
-                       else "#2ca02c", alpha=0.15, lw=0)
-        if s.phone != "sil":
-            ax.text(0.5 * (s.start_s + s.end_s), 1.01, s.phone, ha="center", va="bottom",
-                    fontsize=7, transform=ax.get_xaxis_transform())
-    ax.plot(t, tr["reference"], c="0.4", lw=1.4, ls="--",
-            label="reference (generator's coarticulation of the real labels)")
-    ax.plot(t, tr["opening"], c="#1f77b4", lw=1.6, label="predicted from the audio")
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("inner-lip opening (px)")
-    ax.set_title(title or scores.id, pad=16, fontsize=10)
-    ax.legend(fontsize=7, loc="upper right")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=150, bbox_inches="tight")
-    plt.close(fig)
-    return path
+    with report_figure(path, width=width, height_in=2.7) as fig:
+        ax = fig.subplots()
+        for s in segments:
+            if s.phone in BILABIALS or s.phone in LABIODENTALS:
+                ax.axvspan(s.start_s, s.end_s, color="#d62728" if s.phone in BILABIALS
+                           else "#2ca02c", alpha=0.15, lw=0)
+        phone_labels(ax, [(s.start_s, s.end_s, s.phone) for s in segments], y=1.01, dy=0.08)
+        ax.plot(t, tr["reference"], c="0.4", lw=1.3, ls="--",
+                label="reference (generator's coarticulation of the real labels)")
+        ax.plot(t, tr["opening"], c="#1f77b4", lw=1.4, label="predicted from the audio")
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel("inner-lip opening (px)")
+        ax.set_title(title or scores.id, pad=22, wrap=True)
+        ax.grid(alpha=0.3)
+        fig.legend(loc="outside lower center", ncol=2)
+    return Path(path)

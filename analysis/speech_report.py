@@ -61,7 +61,7 @@ def speech_section(rep, speech_dir: Path, voices_rows: list, *, table_ii_R: floa
     results = _rows(speech_dir / "results.csv")
     if not results:
         return
-    rep.heading("Real speech")
+    rep.heading("Real speech", stage="speech_eval", key="speech")
     in_domain = {f"voices-{r['model']}": r for r in voices_rows}
     robust = f"voices-{default_model}" if default_model else None
     rep.paragraph(
@@ -120,7 +120,8 @@ def speech_section(rep, speech_dir: Path, voices_rows: list, *, table_ii_R: floa
                   note="The recogniser row is pocketsphinx's phone recogniser (trained on real "
                        "speech), the bar a synthetic-trained gate has to reach; it draws no "
                        "face, so only its accuracies are given. In-domain R: test R on the run's "
-                       "single-voice corpus, utterance split, as in Table II. " + TARGETS)
+                       "single-voice corpus, utterance split, as in Table II. " + TARGETS,
+                  key=f"speech_{split}")
     figure_model = robust or "gated_mlp_utterance"
     for model in dict.fromkeys([figure_model, "gated_mlp_utterance"]):
         fig = speech_dir / f"opening_{model}.png"

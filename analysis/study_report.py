@@ -9,7 +9,8 @@ from pathlib import Path
 
 
 def study_section(report, stimuli_dir: Path, study_dir: Path | None) -> None:
-    report.heading("5. Perception study (§VII-C): stimuli and participants")
+    report.heading("Perception study (§VII-C): stimuli and participants", stage="stimuli",
+                   key="study")
     info = json.loads((stimuli_dir / "stimuli.json").read_text())
     sentences = ", ".join(f"\"{t}\"" for t in info["sentences"].values())
     report.paragraph(

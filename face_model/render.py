@@ -210,22 +210,37 @@ class FaceRenderer:
         return np.stack([self.render(f) for f in m])
 
 
-def face_grid(images: list, titles: list, path, *, ncols: int = 5) -> Path:
+GRID_WIDTH_IN = 4.5  # narrower than the narrowest a report draws a grid (0.7 x 17 cm = 4.69 in)
+GRID_CELL_IN = 1.9  # a face's width when few columns leave room
+GRID_TITLE_PT = 7.5
+
+
+def face_grid(images: list, titles: list, path, *, ncols: int = 5,
+              width_in: float | None = None) -> Path:
     """Rendered faces (RGB arrays) in a grid with a title under each (Figs. 4, 6, 7 style),
-    written as a PNG (150 dpi) to ``path``; returns the path."""
+    written as a PNG (200 dpi) to ``path``; returns the path.
+
+    The grid is ``width_in`` wide (by default :data:`GRID_CELL_IN` a column, at most
+    :data:`GRID_WIDTH_IN`), and a report draws it at least that wide, so its titles print at
+    :data:`GRID_TITLE_PT` or more.
+    """
     from matplotlib.figure import Figure  # the figure alone: no pyplot, no backend to choose
 
     n = len(images)
     nrows = int(np.ceil(n / ncols))
     h, w = images[0].shape[:2]
-    fig = Figure(figsize=(1.9 * ncols, 1.9 * nrows * h / w + 0.3), layout="constrained")
+    width_in = min(GRID_CELL_IN * ncols, GRID_WIDTH_IN) if width_in is None else width_in
+    cell = width_in / ncols
+    fig = Figure(figsize=(width_in, nrows * (cell * h / w + 0.2)), layout="constrained")
+    fig.get_layout_engine().set(w_pad=1 / 72, h_pad=1 / 72, wspace=0.01, hspace=0.01)
     axes = fig.subplots(nrows, ncols, squeeze=False)
     for ax in axes.ravel():
         ax.axis("off")
     for ax, img, title in zip(axes.ravel(), images, titles):
         ax.imshow(img)
-        ax.set_title(title, fontsize=8, y=-0.12)
+        ax.text(0.5, -0.03, title, fontsize=GRID_TITLE_PT, ha="center", va="top",
+                transform=ax.transAxes)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=150, bbox_inches="tight")
+    fig.savefig(path, dpi=200, bbox_inches="tight", pad_inches=0.03)
     return path

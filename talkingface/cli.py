@@ -13,6 +13,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import traceback
 from pathlib import Path
 
@@ -30,6 +31,8 @@ from talkingface.config import apply_overrides, dump_config, load_config
 from talkingface.experiment_log import (artifact_root, check_tracking, log_speech_eval_model,
                                         mlflow_run, tracking_uri)
 from talkingface.live import input_devices
+from talkingface.mlflow_app import (APP_NAME, check_installed, find_experiment,
+                                    link_text)
 from talkingface.server import check_free
 from talkingface.paths import RunPaths
 from talkingface.stages import run
@@ -168,12 +171,36 @@ def cmd_ui(args) -> int:
     check_tracking(cfg)  # a store of another kind, or a file that is not a database: one line
     uri = tracking_uri(cfg)
     check_free("127.0.0.1", args.port)  # a bad port, or one in use: one line, before MLflow
+    check_installed()  # the app below is registered in this environment
+    # MLflow's server with this project's app: a browser that has not chosen MLflow's GenAI
+    # or model-training view opens experiments on their runs table (talkingface/mlflow_app.py)
     cmd = [sys.executable, "-m", "mlflow", "server", "--backend-store-uri", uri,
-           "--host", "127.0.0.1", "--port", str(args.port)]
+           "--host", "127.0.0.1", "--port", str(args.port), "--app-name", APP_NAME]
     if uri.startswith("sqlite:"):
         cmd += ["--default-artifact-root", artifact_root()]
-    print(f"MLflow UI on http://127.0.0.1:{args.port} (store: {uri}); Ctrl-C stops it")
-    return serve(cmd)
+    base = f"http://127.0.0.1:{args.port}"
+    print(f"MLflow UI on {base} (store: {uri}); Ctrl-C stops it", flush=True)
+    up = threading.Event()
+    announce = threading.Thread(target=_print_link_when_up, daemon=True,
+                                args=(base, cfg.mlflow.experiment, up))
+    announce.start()
+    try:
+        return serve(cmd)
+    finally:
+        up.set()  # the server stopped: no link to wait for
+        announce.join(timeout=15)
+
+
+def _print_link_when_up(base: str, experiment: str, stop: threading.Event) -> None:
+    """Once the server answers: the link to the experiment's runs (looked up through the
+    server, read only), or to the front page when the store has no such experiment yet."""
+    while not stop.wait(0.5):
+        try:
+            found = find_experiment(base, experiment, timeout=5)
+        except (OSError, ValueError):  # not up yet (or still migrating the store)
+            continue
+        print(f"MLflow UI: {link_text(base, experiment, found)}", flush=True)
+        return
 
 
 def serve(cmd: list) -> int:
@@ -359,7 +386,9 @@ def _run_commands(sub) -> None:
     config_args(s)
     s.set_defaults(func=cmd_evaluate_speech)
 
-    s = sub.add_parser("ui", help="start the MLflow UI on 127.0.0.1 against the same store")
+    s = sub.add_parser("ui", help="start the MLflow UI on 127.0.0.1 against the same store "
+                       "(it opens experiments on their runs table) and print the link to the "
+                       "runs of the experiment (mlflow.experiment)")
     s.add_argument("--port", type=int, default=5000)
     s.add_argument("--config", metavar="FILE")
     s.add_argument("--set", dest="overrides", action="append", default=[])

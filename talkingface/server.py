@@ -38,10 +38,12 @@ import subprocess
 import sys
 import time
 import urllib.error
+import urllib.parse
 import urllib.request
 from pathlib import Path
 
 from face_model.errors import ParameterError, TalkingFaceError
+from talkingface.mlflow_app import APP_NAME, check_installed
 
 DEFAULT_FOLDER = Path("mlflow-server")
 DEFAULT_HOST = "127.0.0.1"
@@ -395,11 +397,26 @@ class LabServer:
             self.created = True
 
     def _start_mlflow(self) -> None:
+        check_installed()  # the app below is registered in this environment
+        # this project's app: MLflow's, opening experiments on their runs table in a browser
+        # that has not chosen MLflow's GenAI view (talkingface/mlflow_app.py)
         cmd = [sys.executable, "-m", "mlflow", "server", "--backend-store-uri",
                self.backend_uri, "--artifacts-destination", str(self.artifacts),
-               "--host", self.host, "--port", str(self.port), "--workers", "1"]
+               "--host", self.host, "--port", str(self.port), "--workers", "1",
+               "--app-name", APP_NAME]
         if self.allowed_hosts:
-            cmd += ["--allowed-hosts", self.allowed_hosts]
+            # MLflow matches the Host header, port included ("name:5000" from a browser), and
+            # accepts only the names listed once any are (its defaults, localhost and private
+            # addresses, are dropped): a bare name is given with this port too, and the
+            # addresses this server is reached by on this machine (its own wait and look-ups)
+            # and the one it gives colleagues are added
+            names = []
+            for h in filter(None, (h.strip() for h in self.allowed_hosts.split(","))):
+                bare = ":" not in h and "*" not in h
+                names += [h, f"{h}:{self.port}"] if bare else [h]
+            own = [urllib.parse.urlsplit(u).netloc for u in (self.uri, self.share_uri)]
+            cmd += ["--allowed-hosts",
+                    ",".join(dict.fromkeys([*names, *own, f"localhost:{self.port}"]))]
         self.progress(f"starting the MLflow server on {self.uri} (up to a minute)")
         env = {**os.environ, "MLFLOW_SERVER_ENABLE_JOB_EXECUTION": str(self.jobs).lower(),
                **self._password_env()}

@@ -2,6 +2,9 @@
 
     talkingface server [--folder mlflow-server] [--host 127.0.0.1] [--port 5000] [--db-port 5433]
 
+It prints the address colleagues log to, and the link to the runs of the project's experiment
+in the UI (:mod:`talkingface.mlflow_app`).
+
 The library is :mod:`talkingface.server`; this module only parses, prints and waits.
 """
 from __future__ import annotations
@@ -10,8 +13,14 @@ import signal
 from pathlib import Path
 
 from face_model.errors import TalkingFaceError
+from talkingface.config import MlflowConfig
+from talkingface.mlflow_app import find_experiment, link_text
 from talkingface.server import (DEFAULT_DB_PORT, DEFAULT_FOLDER, DEFAULT_HOST, DEFAULT_PORT,
                                 LabServer)
+
+
+# the experiment the project's commands log to by default (``mlflow.experiment``)
+EXPERIMENT = MlflowConfig().experiment
 
 
 class _Stop(Exception):
@@ -38,7 +47,7 @@ def cmd_server(args) -> int:
     old = _stop_on_signals()
     try:
         with server:
-            print(_banner(server), flush=True)
+            print(_banner(server, _ui_link(server)), flush=True)
             code = server.wait()
         raise TalkingFaceError(f"the MLflow server stopped by itself (exit status {code}); "
                                f"its log: {server.logs / 'mlflow.log'}")
@@ -51,7 +60,18 @@ def cmd_server(args) -> int:
             signal.signal(sig, h)
 
 
-def _banner(server: LabServer) -> str:
+def _ui_link(server: LabServer) -> str:
+    """The UI's link to the runs of the project's experiment (the default
+    ``mlflow.experiment``), looked up through the server (read only); its front page when the
+    store has no such experiment yet (said so), or when the lookup gets no answer."""
+    try:
+        found = find_experiment(server.uri, EXPERIMENT, timeout=30)
+    except (OSError, ValueError):
+        return f"{server.share_uri}/"
+    return link_text(server.share_uri, EXPERIMENT, found)
+
+
+def _banner(server: LabServer, ui: str | None = None) -> str:
     state = ("made the database" if server.created else "reusing the database")
     lines = [
         f"server: up on {server.uri} ({state} in {server.pgdata}, PostgreSQL on "
@@ -59,7 +79,8 @@ def _banner(server: LabServer) -> str:
         "server: colleagues log to it with",
         f"  export MLFLOW_TRACKING_URI={server.share_uri}",
         f"  or: talkingface ... --set mlflow.uri={server.share_uri}",
-        f"server: its UI: {server.share_uri} (Ctrl-C here stops the server and its database)",
+        f"server: its UI: {ui or server.share_uri}; Ctrl-C here stops the server and its "
+        "database",
     ]
     if server.host in ("127.0.0.1", "localhost", "::1"):
         lines.insert(4, "server: only this machine can reach it; --host ADDRESS (this "

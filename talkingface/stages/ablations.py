@@ -23,7 +23,9 @@ import csv
 from pathlib import Path
 
 import numpy as np
+from matplotlib.lines import Line2D
 
+from analysis.figures import report_figure
 from analysis.replicates import summarise_replicates
 from mapping.features import algorithmic_latency_s
 from talkingface.child_runs import log_for
@@ -102,41 +104,40 @@ def lookahead_rows(rows: list[dict]) -> list[dict]:
     return curve + [r for r in rows if r["setting"] in PAPER_POINTS and r["method"] in methods]
 
 
-def lookahead_figure(curve: list[dict], path: Path, split: str = "utterance") -> Path:
+def lookahead_figure(curve: list[dict], path: Path, split: str = "utterance", *,
+                     width: float = 1.0) -> Path:
     """Test R and /p b m/ closure against algorithmic latency (ms), one line per method (the
     ``lookahead-*`` children: right-aligned window, and centred with no frame of look-ahead)
     with their 95 % intervals over seeds, and the paper's setting as a marker."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
-    for ax, key, label in ((axes[0], f"{split}_R", "test R (Eq. 6)"),
-                           (axes[1], f"{split}_closure", "/p b m/ closed (test)")):
-        for method in sorted({r["method"] for r in curve}):
-            pts = sorted((float(r["latency_ms"]), float(r[key]),
-                          float(r.get(f"{key}_ci95") or "nan")) for r in curve
-                         if r["method"] == method and str(r["setting"]).startswith("lookahead-"))
-            line = None
-            if pts:  # with the 95 % interval over seeds where there is one
-                x, y, ci = map(np.asarray, zip(*pts))
-                line = ax.errorbar(x, y, yerr=np.where(np.isfinite(ci), ci, 0), marker="o",
-                                   capsize=3, label=method).lines[0]
-            for r in curve:
-                if r["method"] == method and r["setting"] in PAPER_POINTS:
-                    ax.plot(float(r["latency_ms"]), float(r[key]), marker="*", markersize=12,
-                            color=line.get_color() if line else None, linestyle="none",
-                            label=f"{method}, paper's window")
-        ax.set_xlabel("algorithmic latency (ms)")
-        ax.set_ylabel(label)
-        ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=8)
-    fig.suptitle(f"Accuracy against look-ahead ({split} split)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
-    return path
+    with report_figure(path, width=width, height_in=2.9) as fig:
+        axes = fig.subplots(1, 2)
+        for ax, key, label in ((axes[0], f"{split}_R", "test R (Eq. 6)"),
+                               (axes[1], f"{split}_closure",
+                                "/p b m/ closed (fraction)")):
+            for method in sorted({r["method"] for r in curve}):
+                pts = sorted((float(r["latency_ms"]), float(r[key]),
+                              float(r.get(f"{key}_ci95") or "nan")) for r in curve
+                             if r["method"] == method
+                             and str(r["setting"]).startswith("lookahead-"))
+                line = None
+                if pts:  # with the 95 % interval over seeds where there is one
+                    x, y, ci = map(np.asarray, zip(*pts))
+                    line = ax.errorbar(x, y, yerr=np.where(np.isfinite(ci), ci, 0), marker="o",
+                                       capsize=2, label=method).lines[0]
+                for r in curve:
+                    if r["method"] == method and r["setting"] in PAPER_POINTS:
+                        ax.plot(float(r["latency_ms"]), float(r[key]), marker="*",
+                                markersize=10, color=line.get_color() if line else None,
+                                linestyle="none")
+            ax.set_xlabel("algorithmic latency (ms)")
+            ax.set_ylabel(label)
+            ax.grid(alpha=0.3)
+        handles, labels = axes[0].get_legend_handles_labels()
+        handles.append(Line2D([], [], marker="*", markersize=10, color="k", linestyle="none"))
+        labels.append("the paper's window (centred), in its method's colour")
+        fig.legend(handles, labels, loc="outside lower center", ncol=min(len(labels), 4))
+        fig.suptitle(f"Accuracy against look-ahead ({split} split)")
+    return Path(path)
 
 
 def grid_path(cfg) -> Path | None:

@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.figures import report_figure
 from analysis.metrics import PAPER_TABLES
 from analysis.replicates import summarise_replicates
 from face_model.errors import ParameterError
@@ -151,26 +152,44 @@ def decompose(paths: RunPaths, cfg) -> dict:
     return {"grid": str(grid_path(cfg)), "children": list(children), "rows": rows}
 
 
-def ceiling_figure(rows: list[dict], path: Path) -> Path:
-    """Test R of every step on both splits as bars, the paper's mean test R as a line."""
-    import matplotlib
+def ceiling_figure(rows: list[dict], path: Path, *, width: float = 1.0) -> Path:
+    """Mean test R of every step on both splits as points with their 95 % intervals over seeds
+    (``<split>_R_ci95``; none where it is NaN), the paper's mean test R as a line.
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    The y axis spans the points, their intervals and the paper's value (not from 0), so the
+    differences between steps stay visible; points, not bars, as no bar starts at 0.
+    """
+    def _num(v) -> float:  # a missing value ("" in a CSV, None) as NaN
+        try:
+            return float(v)
+        except (TypeError, ValueError):
+            return float("nan")
 
     x = np.arange(len(rows))
-    fig, ax = plt.subplots(figsize=(10, 3.8))
-    for dx, split, label in ((-0.2, "utterance", "utterance split"),
-                             (0.2, "random_frames", "frame split (the paper's)")):
-        ax.bar(x + dx, [float(r[f"{split}_R"]) for r in rows], width=0.4, label=label)
-    ax.axhline(PAPER_TEST_R, color="k", linestyle="--",
-               label=f"paper, Table II ({PAPER_TEST_R:.3f})")
-    ax.set_xticks(x, [r["step"] for r in rows], rotation=20, ha="right", fontsize=8)
-    ax.set_ylabel("mean test R (Eq. 6)")
-    ax.set_ylim(0, 1.05)
-    ax.legend(fontsize=8, loc="lower right")
-    ax.set_title("From our Table II toward the ceiling: one measured step per bar")
-    fig.tight_layout()
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
-    return path
+    with report_figure(path, width=width, height_in=3.0) as fig:
+        ax = fig.subplots()
+        ends = [PAPER_TEST_R]
+        for dx, split, label, marker in ((-0.15, "utterance", "utterance split", "o"),
+                                         (0.15, "random_frames", "frame split (the paper's)",
+                                          "s")):
+            y = np.array([_num(r.get(f"{split}_R")) for r in rows])
+            ci = np.array([_num(r.get(f"{split}_R_ci95")) for r in rows])
+            has = np.isfinite(ci)
+            ax.errorbar(x[has] + dx, y[has], yerr=ci[has], fmt=marker, capsize=2.5,
+                        elinewidth=1.0, label=label)
+            colour = ax.containers[-1].lines[0].get_color()
+            ax.plot(x[~has] + dx, y[~has], marker, color=colour)
+            ends += [*(y - np.where(has, ci, 0)), *(y + np.where(has, ci, 0))]
+        ax.axhline(PAPER_TEST_R, color="k", linestyle="--", lw=1.0,
+                   label=f"paper, Table II ({PAPER_TEST_R:.3f})")
+        ends = np.asarray(ends)[np.isfinite(ends)]
+        pad = 0.08 * max(float(np.ptp(ends)), 0.02)
+        ax.set_ylim(float(ends.min()) - pad, float(ends.max()) + pad)
+        ax.set_xticks(x, [r["step"] for r in rows], rotation=25, ha="right",
+                      rotation_mode="anchor")
+        ax.set_xlim(-0.6, len(rows) - 0.4)
+        ax.set_ylabel("mean test R (Eq. 6)")
+        ax.grid(axis="y", alpha=0.3)
+        ax.legend(loc="best")
+        ax.set_title("From our Table II toward the ceiling: one measured step per column")
+    return Path(path)

@@ -2,8 +2,11 @@
 from whatever stages of the run are finished."""
 from __future__ import annotations
 
+import csv
 import json
 
+from analysis.findings import findings
+from analysis.grid_summary import forest_figure, grid_summary, read_replicates
 from analysis.corpus_report import corpus_section, make_figures, summarize_corpus, units_section
 from analysis.mapping_report import ceiling_section, mapping_section
 from analysis.motion_report import motion_section
@@ -36,11 +39,14 @@ def build_report(paths: RunPaths, cfg) -> dict:
     mapping = read_done(paths.mapping)
     if mapping:
         ablations = paths.ablations / "results.csv"
-        mapping_section(rep, mapping, paths.mapping, ablations if ablations.is_file() else None)
+        mapping_section(rep, mapping, paths.mapping, ablations if ablations.is_file() else None,
+                        forest=_forest(paths))
         ceiling_section(rep, paths.stage("ceiling"))
     voices = read_done(paths.stage("voices"))
+    default_model = (voices or {}).get("model")
     speech_section(rep, paths.stage("speech_eval"), read_results(paths),
-                   table_ii_R=_table_ii_R(mapping, cfg.mapping.method), default_model=(voices or {}).get("model"))
+                   table_ii_R=_table_ii_R(mapping, cfg.mapping.method),
+                   default_model=default_model)
     if read_done(paths.keyframes):
         motion_section(rep, paths.keyframes, paths.render, paths.tracking)
     if (paths.stimuli / "stimuli.json").is_file():
@@ -49,8 +55,29 @@ def build_report(paths: RunPaths, cfg) -> dict:
     if study is not None:
         perception_section(rep, study, paths.analysis)
     methods_section(rep, cfg, corpus.info, study=study)
+    rep.findings(findings(mapping=mapping, method=cfg.mapping.method, ab_dir=paths.ablations,
+                          ceiling_dir=paths.stage("ceiling"),
+                          speech_dir=paths.stage("speech_eval"), default_model=default_model,
+                          study=study, has=set(rep.refs.labels)))
     pdf = rep.build(paths.pdf)
     return {"pdf": str(pdf)}
+
+
+def _forest(paths: RunPaths):
+    """The ablations' forest plot (:func:`analysis.grid_summary.forest_figure`) in the report's
+    folder, from the stage's replicates; None when the run has no ablations."""
+    reps = paths.ablations / "replicates.csv"
+    results = paths.ablations / "results.csv"
+    if not reps.is_file() or not results.is_file():
+        return None
+    with open(results, newline="", encoding="utf-8-sig") as f:
+        rows = list(csv.DictReader(f))
+    reference = next((r["setting"] for r in rows if "reference" in (
+        r.get("utterance_R_differs"), r.get("random_frames_R_differs"))), rows[0]["setting"])
+    summary = grid_summary(read_replicates(reps), reference=reference)
+    return forest_figure(summary, paths.report_dir / "ablations_forest.png",
+                         reference=reference, title=f"Ablations: each setting against "
+                                                    f"{reference}")
 
 
 def _table_ii_R(mapping: dict | None, method: str) -> float | None:
@@ -62,7 +89,7 @@ def _table_ii_R(mapping: dict | None, method: str) -> float | None:
 
 
 def methods_section(rep, cfg, corpus_info: dict, *, study: dict | None = None) -> None:
-    rep.heading("Settings and versions")
+    rep.heading("Settings and versions", stage="report")
     rep.paragraph(f"Source commit {git_commit()}; run seed {cfg.seed}. Every table and figure "
                   "above was computed by the pipeline from this run's folders.")
     if study is not None:

@@ -118,8 +118,11 @@ def test_a_table_wider_than_the_page_is_set_smaller_to_fit(tmp_path):
     assert table.wrap(_WIDTH, 1e4)[0] <= _WIDTH
     rep.table("Narrow", ["a", "b"], [["1", "2"]])
     assert rep.story[-1]._content[1]._cellStyles[0][0].fontsize == 8.5  # untouched
+    assert min(c.fontsize for r in table._cellStyles for c in r) >= 7  # legible at 100 %
     pdf = rep.build(tmp_path / "wide.pdf")
-    assert "baseline-gmm-regression" in PdfReader(pdf).pages[0].extract_text()
+    # every cell's text is there, wrapped within its column where it must be
+    text = "".join(PdfReader(pdf).pages[0].extract_text().split())
+    assert "baseline-gmm-regression" in text and "R(random_frames)" in text
     assert not list(tmp_path.glob(".*"))  # no temporary file left beside it
 
 
@@ -170,8 +173,11 @@ WIDE = (0.050, 0.052, 0.048)
 
 def test_the_ablation_table_gives_each_setting_its_interval_and_marks_real_differences(tmp_path):
     """Seed replicates in, the report's ablation table out: mean ± 95 % half-width per setting,
-    ``*`` on the setting the paired test separates from the paper's, none on the other."""
-    from analysis.replicates import interval, summarise_replicates
+    the difference from the paper's with its paired interval, and the verdict: better for the
+    setting the paired test separates from the paper's, no difference for the other."""
+    from analysis.grid_summary import fmt_p
+    from analysis.replicates import interval, paired_tests, summarise_replicates
+    from talkingface.stages.base import write_csv
 
     def rep(setting, seed, r):
         return {"setting": setting, "method": "gated_mlp", "n_classes": 44, "context": "3+1+3",
@@ -187,18 +193,24 @@ def test_the_ablation_table_gives_each_setting_its_interval_and_marks_real_diffe
             + [rep("classes-8", s, v) for s, v in noise.items()])
     rows = summarise_replicates(reps, reference="paper")
     ab_dir = _ablation_results(tmp_path, rows)
+    write_csv(ab_dir / "replicates.csv", reps)
     report = Report("T")
     mapping_section(report, _mapping_summary(), tmp_path, ab_dir / "results.csv")
     text = pdf_text(report.build(tmp_path / "ab.pdf"))
-    for name, values, mark in (("paper", paper.values(), ""),
-                               ("wide-hidden", [v + d for v, d in zip(paper.values(), WIDE)],
-                                " *"),
-                               ("classes-8", noise.values(), "")):
+    tests = paired_tests({n: {r["seed"]: r["utterance_R"] for r in reps if r["setting"] == n}
+                          for n in ("paper", "wide-hidden", "classes-8")}, "paper")
+    mean, half = interval(list(paper.values()))
+    assert f"paper gated_mlp 3 {mean:.3f} ± {half:.3f} – – reference" in text
+    for name, values, verdict in (
+            ("wide-hidden", [v + d for v, d in zip(paper.values(), WIDE)], "better"),
+            ("classes-8", noise.values(), "no difference")):
         mean, half = interval(list(values))
-        assert (f"{name} gated_mlp 44 3+1+3 10 15-25 cascade {mean:.3f} ± {half:.3f}{mark} "
-                "0.0100 ± 0.0000") in text, name
+        t = tests[name]
+        assert (f"{name} gated_mlp 3 {mean:.3f} ± {half:.3f} {t['diff']:+.3f} ± "
+                f"{t['diff_ci95']:.3f} {fmt_p(t['p_holm'])} {verdict}") in text, name
     assert "Holm-corrected" in text and "1 of the 2 rows tested here" in text
-    assert "differs from 'paper'" in text
+    assert "higher (lower) than 'paper'" in text
+    assert "The best setting is wide-hidden (better than the reference)." in text
 
 
 def test_a_table_too_wide_even_in_small_type_wraps_its_widest_column(tmp_path):

@@ -85,3 +85,39 @@ def save_png(driver, folder: Path, name: str) -> Path:
     out = folder / name
     assert driver.save_screenshot(str(out)), out
     return out
+
+
+def page_headings(driver) -> list[str]:
+    """The texts of the page's headings (``h1``-``h4`` and ``role=heading``), in page order."""
+    return driver.execute_script(
+        "return [...document.querySelectorAll('h1,h2,h3,h4,[role=heading]')]"
+        ".map(e => e.textContent.trim()).filter(t => t)")
+
+
+def local_storage(driver, key: str) -> str | None:
+    """The raw value of ``key`` in the current page's localStorage (None: unset)."""
+    return driver.execute_script("return window.localStorage.getItem(arguments[0])", key)
+
+
+def set_local_storage(driver, url: str, items: dict) -> None:
+    """Set localStorage ``items`` for the origin of ``url`` (a page of that origin that runs no
+    script of its own, e.g. a server's health check), as a browser that stored them earlier."""
+    driver.get(url)
+    for key, value in items.items():
+        driver.execute_script("window.localStorage.setItem(arguments[0], arguments[1])",
+                              key, value)
+
+
+def wait_until(driver, condition, what: str, timeout: float = 120.0):
+    """``condition(driver)``'s first true value, polled every 0.5 s; after ``timeout`` s an
+    AssertionError naming ``what`` with the page's address, headings and start of its text."""
+    from selenium.common.exceptions import TimeoutException
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    try:
+        return WebDriverWait(driver, timeout, poll_frequency=0.5).until(condition)
+    except TimeoutException:
+        text = driver.find_element(By.TAG_NAME, "body").text[:600].replace("\n", " | ")
+        raise AssertionError(f"after {timeout:g} s, no {what}: at {driver.current_url}, "
+                             f"headings {page_headings(driver)}, text: {text}") from None

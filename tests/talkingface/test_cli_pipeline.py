@@ -63,6 +63,12 @@ def test_replicate_writes_runs_report_and_mlflow(workdir, capsys):
               "units/variance.csv", "report/summary.json", "report/mu_variance.png"):
         assert (run / p).is_file(), p
     text = pdf_text(workdir / "reports" / "tiny.pdf")
+    # the first page says what the run found, each figure as on the page it cites
+    from tests.analysis.findings_check import findings_of, mismatches, page_texts
+
+    leads = [f.split(".")[0] for f in findings_of(page_texts(workdir / "reports" / "tiny.pdf")[0])]
+    assert leads == ["Table II", "The gap to the paper", "Real speech", "Perception study"]
+    assert mismatches(workdir / "reports" / "tiny.pdf") == []
     assert "MU variance explained: ours vs the paper's" in text
     assert "Utterance MUs (neutral speech)" in text and "97.56 %" in text
     summary = json.loads((run / "report" / "summary.json").read_text())

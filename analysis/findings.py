@@ -1,0 +1,175 @@
+"""The report's first page: what the run found, each headline figure with its interval and the
+table or figure (and page) that shows it.
+
+Every figure here is read from the same stage files as the section that shows it and printed by
+the same formatting function as that section's table cell, so a number on the first page is,
+character for character, a number on the page it cites (``tests/analysis/test_findings.py``
+checks it on a built report). A finding whose stage did not run is left out; nothing here is
+computed that the cited tables do not show.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+from analysis.grid_summary import best, fmt, fmt_p, grid_summary, read_replicates
+from analysis.mapping_report import _f, ci_cell, lookahead_rows_for_report
+from analysis.metrics import PAPER_TABLES
+from analysis.report import escape
+from analysis.speech_report import _num
+
+KEEP = 0.95  # the share of R the look-ahead finding asks the mapping to keep
+
+
+def _read(path: Path) -> list[dict]:
+    if not Path(path).is_file():
+        return []
+    with open(path, newline="", encoding="utf-8-sig") as f:
+        return list(csv.DictReader(f))
+
+
+def _cite(key: str) -> str:
+    return f"({{label:{key}}}, p. {{page:{key}}})"
+
+
+def table_ii_finding(mapping: dict, method: str) -> str | None:
+    """Our Table II against the paper's: the range of test R over expressions per split."""
+    rows = [r for r in mapping.get("rows", []) if r["method"] == method and r["part"] == "test"]
+    if not rows:
+        return None
+    paper = [v[0] for v in PAPER_TABLES["test"].values()]
+    parts = []
+    for split, name in (("random_frames", "the paper's frame split"),
+                        ("utterance", "the utterance split")):
+        rs = [r["R"] for r in rows if r["split"] == split]
+        if rs:
+            parts.append(f"{_f(min(rs))}–{_f(max(rs))} on {name}")
+    return (f"<b>Table II.</b> Our test R per expression ({escape(method)}, one seed) is "
+            + " and ".join(parts) + f", against the paper's {_f(min(paper))}–{_f(max(paper))} "
+            + _cite("table_ii") + ".")
+
+
+def ablation_finding(ab_dir: Path) -> str | None:
+    """The best setting of the ablations and whether it differs from the reference."""
+    ab = _read(ab_dir / "results.csv")
+    if not ab or not (ab_dir / "replicates.csv").is_file():
+        return None
+    reference = next((r["setting"] for r in ab if "reference" in
+                      (r.get("utterance_R_differs"), r.get("random_frames_R_differs"))),
+                     ab[0]["setting"])
+    summary = grid_summary(read_replicates(ab_dir / "replicates.csv"), reference=reference)
+    split = summary[0]["split"]
+    ref = summary[0]
+    top = best(summary, split)
+    n = summary[0]["seeds"]
+    text = (f"<b>Best method.</b> Over {n} training seeds the paper's setting "
+            f"(<i>{escape(reference)}</i>) reaches test R {fmt(ref['R'])} ± "
+            f"{fmt(ref['R_ci95'])} on the {split} split. ")
+    if top["verdict"] == "reference":
+        text += "No other setting of the grid does better. "
+    else:
+        verdict = {"better": "significantly better (Holm-corrected paired test)",
+                   "worse": "significantly worse",
+                   "no difference": "not significantly different after Holm's correction",
+                   "not tested": "not tested (one seed)"}[top["verdict"]]
+        text += (f"The best is <i>{escape(top['setting'])}</i>: {fmt(top['R'])} ± "
+                 f"{fmt(top['R_ci95'])}, Δ {fmt(top['delta'], sign=True)} ± "
+                 f"{fmt(top['delta_ci95'])}, p (Holm) {fmt_p(top['p_holm'])} — {verdict}. ")
+    worse = sum(r["verdict"] == "worse" for r in summary if r["split"] == split)
+    better = sum(r["verdict"] == "better" for r in summary if r["split"] == split)
+    return (text + f"{better} setting{'s' * (better != 1)} differ{'s' * (better == 1)} for "
+            f"the better and {worse} for the worse " + _cite("ablations")
+            + "; the forest plot " + _cite("forest") + ".")
+
+
+def lookahead_finding(ab_dir: Path, method: str, split: str = "utterance") -> str | None:
+    """The least algorithmic latency at which ``method`` keeps :data:`KEEP` of the R of the
+    paper's window (the look-ahead table's rows)."""
+    rows = lookahead_rows_for_report(_read(ab_dir / "results.csv"), split)
+    mine = [r for r in rows if r["method"] == method]
+    ref = next((r for r in mine if not str(r["setting"]).startswith("lookahead-")), None)
+    curve = sorted((r for r in mine if str(r["setting"]).startswith("lookahead-")),
+                   key=lambda r: float(r["latency_ms"]))
+    if ref is None or not curve:
+        return None
+    target = KEEP * float(ref[f"{split}_R"])
+    keep = next((r for r in curve if float(r[f"{split}_R"]) >= target), None)
+    head = (f"<b>Look-ahead.</b> With the paper's window ({_f(float(ref['latency_ms']), 1)} ms) "
+            f"{escape(method)} reaches R {ci_cell(ref, f'{split}_R')}; ")
+    if keep is None:
+        return head + (f"no shorter look-ahead of the grid keeps {100 * KEEP:.0f} % of it "
+                       + _cite("lookahead") + ".")
+    return head + (f"it keeps {100 * KEEP:.0f} % of that from {_f(float(keep['latency_ms']), 1)}"
+                   f" ms on (<i>{escape(keep['setting'])}</i>: {ci_cell(keep, f'{split}_R')}) "
+                   + _cite("lookahead") + ".")
+
+
+def ceiling_finding(ceiling_dir: Path) -> str | None:
+    """Where the gap to the paper goes: our R, without the corpus's nuisances, the oracle."""
+    rows = {r["step"]: r for r in _read(ceiling_dir / "results.csv")}
+    if not rows:
+        return None
+    paper = sum(v[0] for v in PAPER_TABLES["test"].values()) / len(PAPER_TABLES["test"])
+    first = next(iter(rows))
+    names = [(first, "ours"), ("all-off", "every nuisance of the corpus off"),
+             ("oracle", "the oracle reading the true phones"),
+             ("all-off-oracle", "both"), ("tracked", "learning from tracked MUPs")]
+    parts = [f"{label} {ci_cell(rows[s], 'random_frames_R')}" for s, label in names if s in rows]
+    return ("<b>The gap to the paper.</b> On the paper's frame split, mean test R: "
+            + "; ".join(parts) + f"; the paper {_f(paper)} " + _cite("ceiling") + ".")
+
+
+def speech_finding(speech_dir: Path, default_model: str | None) -> str | None:
+    """The default model on the unseen test speakers against the recogniser."""
+    rows = [r for r in _read(speech_dir / "results.csv")
+            if r["split"] == "unseen-test" and r.get("files") not in ("", "0")]
+    if not rows:
+        return None
+    model = f"voices-{default_model}" if default_model else "gated_mlp_utterance"
+    mine = next((r for r in rows if r["model"] == model), None)
+    bar = next((r for r in rows if r["model"].startswith("pocketsphinx")), None)
+    if mine is None:
+        return None
+    text = (f"<b>Real speech.</b> On the unseen test speakers the default model "
+            f"(<i>{escape(model)}</i>) labels visemes at {_num(mine.get('viseme_acc'))} "
+            f"({_num(mine.get('viseme_acc_stream_100ms'))} streaming at 100 ms)")
+    if bar is not None:
+        text += (f", against the recogniser's {_num(bar.get('viseme_acc'))} "
+                 f"({_num(bar.get('viseme_acc_stream_100ms'))} streaming)")
+    return text + (f"; it closes the lips on {_num(mine.get('bilabial_closed_frac'))} of /p b m/ "
+                   + _cite("speech_unseen-test") + ".")
+
+
+def study_finding(study: dict | None) -> str | None:
+    """FLMP or WTAV per face, by BIC, and who the participants were."""
+    models = (study or {}).get("models") or {}
+    faces = models.get("faces") or {}
+    if not all(f in faces for f in ("synthetic", "real")):
+        return None
+    parts = []
+    for face in ("synthetic", "real"):
+        f = faces[face]
+        pref = f["comparison"]["preferred"]
+        parts.append(f"{pref.upper()} for the {face} face (BIC FLMP {f['flmp']['bic']:.1f}, "
+                     f"WTAV {f['wtav']['bic']:.1f})")
+    who = ("simulated participants (FLMP observers), so this checks the analysis, not "
+           "people" if study["simulated"] else "real participants")
+    return (f"<b>Perception study.</b> {study['participants']} {who}: the data prefer "
+            + " and ".join(parts) + " " + _cite("models") + ".")
+
+
+def findings(*, mapping: dict | None, method: str, ab_dir: Path, ceiling_dir: Path,
+             speech_dir: Path, default_model: str | None, study: dict | None,
+             has: set) -> list[str]:
+    """The findings of a run whose report has the parts ``has`` (the keys its sections
+    registered), in the order of the paper's questions."""
+    items = [
+        table_ii_finding(mapping or {}, method) if "table_ii" in has else None,
+        ablation_finding(ab_dir) if {"ablations", "forest"} <= has else None,
+        lookahead_finding(ab_dir, method) if "lookahead" in has else None,
+        ceiling_finding(ceiling_dir) if "ceiling" in has else None,
+        speech_finding(speech_dir, default_model) if "speech_unseen-test" in has else None,
+        study_finding(study) if "models" in has else None,
+    ]
+    return [i for i in items if i and not (isinstance(i, float) and math.isnan(i))]
