@@ -218,3 +218,65 @@ def write_summary(summary: list[dict], path) -> Path:
         for r in summary:
             w.writerow([repr(r[c]) if isinstance(r[c], float) else r[c] for c in COLUMNS])
     return path
+
+
+VOICE_FIGURES = (("viseme_acc", "viseme acc"), ("viseme_acc_stream_100ms", "viseme acc, stream"),
+                 ("bilabial_closed_frac", "/p b m/ closed"), ("r_reference", "r vs reference"))
+
+
+def voices_summary(voices: list[dict], speech: list[dict]) -> list[dict]:
+    """One row per voice-robust model (``voices``: the voices stage's results.csv rows): its
+    in-domain R (Table II's footing), its development score under the rule that picks the
+    default (:func:`analysis.speech_report.dev_choice`) and its figures on the unseen test
+    speakers (``speech``: speech_eval's results.csv rows). One seed per model: no intervals."""
+    from analysis.speech_report import dev_choice
+
+    _, scores = dev_choice(speech)
+    test = {r["model"]: r for r in speech if r["split"] == "unseen-test"}
+    out = []
+    for v in voices:
+        name = f"voices-{v['model']}"
+        row = {"model": v["model"], "default": str(v.get("default")) == "True",
+               "in_domain_R": _num(v.get("in_domain_R")),
+               "dev_score": scores.get(name, math.nan)}
+        for key, _ in VOICE_FIGURES:
+            row[f"test_{key}"] = _num(test.get(name, {}).get(key))
+        out.append(row)
+    bar = next((r for r in test.values() if r["model"].startswith("pocketsphinx")), None)
+    if bar is not None:
+        out.append({"model": bar["model"], "default": False, "in_domain_R": math.nan,
+                    "dev_score": math.nan,
+                    **{f"test_{k}": _num(bar.get(k)) for k, _ in VOICE_FIGURES}})
+    return out
+
+
+def voices_markdown(rows: list[dict]) -> str:
+    """The voices summary in words (the default, how it was chosen, the recogniser's bar) and
+    as a table."""
+    lines = ["### Voice-robust models", ""]
+    default = next((r for r in rows if r["default"]), None)
+    chosen = max((r for r in rows if math.isfinite(r["dev_score"])),
+                 key=lambda r: r["dev_score"], default=None)
+    if default is not None:
+        lines.append(f"- default model: `{default['model']}` (used by animate, stream and the "
+                     "study); on the unseen test speakers viseme accuracy "
+                     f"{fmt(default['test_viseme_acc'], 2)}, streaming "
+                     f"{fmt(default['test_viseme_acc_stream_100ms'], 2)}")
+    if chosen is not None:
+        lines.append(f"- the development rule (mean of viseme accuracy, /p b m/ closure, /f v/ "
+                     f"contact and r on the unseen development speakers) picks "
+                     f"`{chosen['model']}` ({fmt(chosen['dev_score'])})")
+    bar = next((r for r in rows if r["model"].startswith("pocketsphinx")), None)
+    if bar is not None:
+        lines.append(f"- the recogniser's bar (`{bar['model']}`): viseme accuracy "
+                     f"{fmt(bar['test_viseme_acc'], 2)}, streaming "
+                     f"{fmt(bar['test_viseme_acc_stream_100ms'], 2)}")
+    lines += ["- one training seed per model: no intervals", "",
+              "| model | default | in-domain R | dev score | "
+              + " | ".join(f"{label} (test)" for _, label in VOICE_FIGURES) + " |",
+              "|" + "---|" * (4 + len(VOICE_FIGURES))]
+    for r in rows:
+        lines.append(f"| {r['model']} | {'yes' if r['default'] else ''} | "
+                     f"{fmt(r['in_domain_R'])} | {fmt(r['dev_score'])} | "
+                     + " | ".join(fmt(r[f'test_{k}'], 2) for k, _ in VOICE_FIGURES) + " |")
+    return "\n".join(lines) + "\n"

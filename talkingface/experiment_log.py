@@ -6,6 +6,7 @@ Default store: ``sqlite:///<cwd>/mlflow.db`` with artifacts in ``<cwd>/mlartifac
 """
 from __future__ import annotations
 
+import csv
 import json
 import logging
 import os
@@ -20,13 +21,15 @@ from pathlib import Path
 
 from analysis.evaluation import row_metrics
 from analysis.grid_summary import (best, forest_figure, grid_summary, read_replicates,
-                                   summary_markdown, write_summary)
+                                   summary_markdown, voices_markdown, voices_summary,
+                                   write_summary)
 from face_model.errors import TalkingFaceError
 from talkingface.config import flatten
 from talkingface.paths import RunPaths
 from talkingface.provenance import git_commit
 from talkingface.child_runs import ChildLog, logging_to
 from talkingface.stages.grid import GRID_KINDS, log_child, replicate_folder, replicate_seed
+from talkingface.stages.voices import read_results
 
 
 # The UI opens an experiment on its GenAI pages (traces, tokens) unless it is tagged as model
@@ -294,6 +297,51 @@ def log_grid_summary(client, run_id: str, out_dir: Path, *, stage: str, referenc
     client.log_batch(run_id, metrics=[Metric(k, float(v), now, 0) for k, v in metrics.items()],
                      params=[Param(k, str(v)) for k, v in params.items()])
     return summary
+
+
+def log_voices(mlf, log: ChildLog, paths: RunPaths, children: dict) -> None:
+    """The voices grid under its parent run ``log``: each model a child run (logged from its
+    folder if its task did not), and on the parent the models side by side — in-domain R and
+    the real-speech figures of :mod:`analysis.speech_report` — with the default model and the
+    development rule that picks it, as ``summary.csv`` and the run's description."""
+    out = paths.stage("voices")
+    for name, cfg in children.items():
+        summary = json.loads((out / name / "summary.json").read_text())
+        log_child(log, "voices", name, 0, out / name, cfg, summary)
+    log.prune()
+    client = mlf.tracking.MlflowClient()
+    rows = voices_summary(read_results(paths), _csv_rows(paths.stage("speech_eval") /
+                                                          "results.csv"))
+    with tempfile.TemporaryDirectory(prefix="talkingface-summary-") as tmp:
+        client.log_artifact(log.parent_run_id, str(_write_rows(rows, Path(tmp) /
+                                                               "summary.csv")))
+    if (out / "results.csv").is_file():
+        client.log_artifact(log.parent_run_id, str(out / "results.csv"), "voices")
+    client.set_tag(log.parent_run_id, "mlflow.note.content", voices_markdown(rows))
+    default = next((r for r in rows if r["default"]), None)
+    if default is not None:
+        from mlflow.entities import Metric, Param
+
+        now = int(time.time() * 1000)
+        client.log_batch(log.parent_run_id, params=[Param("default", default["model"])],
+                         metrics=[Metric(f"default.{k}", v, now, 0) for k, v in default.items()
+                                  if isinstance(v, float) and v == v])
+    client.set_terminated(log.parent_run_id, "FINISHED")
+
+
+def _csv_rows(path: Path) -> list[dict]:
+    if not path.is_file():
+        return []
+    with open(path, newline="", encoding="utf-8-sig") as f:
+        return list(csv.DictReader(f))
+
+
+def _write_rows(rows: list[dict], path: Path) -> Path:
+    with open(path, "w", newline="", encoding="utf-8") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]) if rows else ["model"])
+        w.writeheader()
+        w.writerows(rows)
+    return path
 
 
 def log_replication(mlf, paths: RunPaths, done: dict) -> None:

@@ -12,13 +12,15 @@ import time
 from face_model.errors import ParameterError
 from talkingface.executor import check_reachable, scheduler_address
 from talkingface.experiment_log import (check_tracking, grid_runs, log_ablations,
-                                        log_replication, log_train, mlflow_run, tracking_uri)
+                                        log_replication, log_train, log_voices, mlflow_run,
+                                        tracking_uri)
 from talkingface.paths import RunPaths
 from talkingface.stages import REPLICATION, preflight, prepare_run, run
 from talkingface.stages.base import time_summary
 from talkingface.stages.ablations import grid_path
 from talkingface.stages.grid import load_grid
 from talkingface.stages.ceiling import grid_path as ceiling_grid_path, load_ceiling_grid
+from talkingface.stages.voices import grid_path as voices_grid_path, load_voices_grid
 
 
 def open_run(name: str, cfg, stages, *, overwrite: bool = False, runs_dir="runs",
@@ -58,7 +60,8 @@ def replicate(name: str, cfg, *, overwrite: bool = False, runs_dir="runs",
                      reports_dir=reports_dir)
     since = time.time()
     grids = {"ablations": ("ablate", "ablations", grid_path(cfg)),
-             "ceiling": ("ceiling", "ceiling", ceiling_grid_path(cfg))}
+             "ceiling": ("ceiling", "ceiling", ceiling_grid_path(cfg)),
+             "voices": ("voices", "voices", voices_grid_path(cfg))}
     with mlflow_run(cfg, run_name=name, tags={"stage": "replicate"}) as mlf:
         with grid_runs(mlf, cfg, grids) as logs:
             done = run(REPLICATION, paths, cfg)
@@ -72,6 +75,9 @@ def replicate(name: str, cfg, *, overwrite: bool = False, runs_dir="runs",
                 log_ablations(mlf, logs["ceiling"], paths.stage("ceiling"), steps,
                               seeds=cfg.ceiling.seeds, stage="ceiling", folder="ceiling",
                               reference=next(iter(steps)))
+            if "voices" in done:
+                log_voices(mlf, logs["voices"], paths,
+                           load_voices_grid(voices_grid_path(cfg), cfg)[0])
             log_replication(mlf, paths, done)
     print("time per stage:", *time_summary(done, paths, since), sep="\n", flush=True)
     return paths.pdf

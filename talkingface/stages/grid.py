@@ -284,10 +284,11 @@ def run_grid(jobs: dict, out_dir: Path, *, seeds: int = 1, scheduler: str = "loc
 
 
 def run_children(jobs: dict, out_dir: Path, *, scheduler: str = "local", workers: int = 0,
-                 desc: str = "runs", progress: bool = True, cache=None) -> dict:
+                 desc: str = "runs", progress: bool = True, cache=None, log=None,
+                 stage: str = "") -> dict:
     """:func:`run_grid` with one seed: ``{name: run_child's result}``."""
     res = run_grid(jobs, out_dir, scheduler=scheduler, workers=workers, desc=desc,
-                   progress=progress, cache=cache)
+                   progress=progress, cache=cache, log=log, stage=stage)
     return {name: r for (name, _), r in res.items()}
 
 

@@ -37,6 +37,7 @@ from face_model.motion_units import MotionUnits
 from mapping.checkpoint import AudioMapping
 from mapping.dataset import build_dataset, split_masks
 from mapping.experiment import SPLIT_SEED_OFFSET, predict_utterance, recognise_context
+from talkingface.child_runs import log_for
 from talkingface.config import read_yaml
 from talkingface.paths import RunPaths
 from talkingface.stages.grid import grid_corpus, load_grid, resolve_grid, run_children
@@ -124,7 +125,8 @@ def train_voices(paths: RunPaths, cfg) -> dict:
     summaries = run_children({name: (corpora[name], paths.units_model, child)
                               for name, child in children.items()}, out,
                              scheduler=cfg.cluster.scheduler, workers=cfg.voices.workers,
-                             desc="voice-robust models", cache=paths.cache)
+                             desc="voice-robust models", cache=paths.cache,
+                             log=log_for("voices"), stage="voices")
     units = MotionUnits.load(paths.units_model)
     own_corpus = load_corpus(training_corpus(paths, cfg))
     own: dict = {}  # (n_mfcc, deltas) -> (data, masks, scale) of the run's corpus

@@ -107,6 +107,16 @@ def test_replicate_writes_runs_report_and_mlflow(workdir, capsys):
     steps = {c.data.tags.get("ablation.setting") for c in runs
              if c.data.tags.get("mlflow.parentRunId") == parent.info.run_id}
     assert steps == {"ours", "no-brow-motion", "tracked", "oracle"}
+    assert parent.data.tags["grid"] == "ceiling" and parent.data.params["reference"] == "ours"
+    assert "best: " in parent.data.tags["mlflow.note.content"]
+    # the voice-robust models: a parent with one child per model and the models side by side
+    voices = next(c for c in runs if c.data.tags.get("stage") == "voices")
+    kids = [c for c in runs if c.data.tags.get("mlflow.parentRunId") == voices.info.run_id]
+    assert sorted(c.info.run_name for c in kids) == ["many/2002", "one/2002"]
+    assert {c.data.tags["grid"] for c in kids} == {"voices"}
+    assert voices.data.params["default"] == "many"
+    note = voices.data.tags["mlflow.note.content"]
+    assert "default model: `many`" in note and "| one |" in note
     with open(run / "ceiling" / "results.csv", newline="") as f:
         ceiling = {row["step"]: row for row in csv.DictReader(f)}
     assert ceiling["ours"]["corpus"] == ceiling["oracle"]["corpus"] == "the run's"
