@@ -17,7 +17,7 @@ from analysis.grid_summary import best, fmt, fmt_p, grid_summary, read_replicate
 from analysis.mapping_report import _f, ci_cell, lookahead_rows_for_report
 from analysis.metrics import PAPER_TABLES
 from analysis.report import escape
-from analysis.speech_report import _num
+from analysis.speech_report import _num, _with_interval, file_intervals
 
 KEEP = 0.95  # the share of R the look-ahead finding asks the mapping to keep
 
@@ -131,14 +131,21 @@ def speech_finding(speech_dir: Path, default_model: str | None) -> str | None:
     bar = next((r for r in rows if r["model"].startswith("pocketsphinx")), None)
     if mine is None:
         return None
+    per_file = _read(speech_dir / "per_file.csv")
+
+    def fig(row, key):
+        ci = file_intervals(per_file, row["model"], "unseen-test").get(key)
+        return _with_interval(row.get(key), ci)
+
     text = (f"<b>Real speech.</b> On the unseen test speakers the default model "
-            f"(<i>{escape(model)}</i>) labels visemes at {_num(mine.get('viseme_acc'))} "
-            f"({_num(mine.get('viseme_acc_stream_100ms'))} streaming at 100 ms)")
+            f"(<i>{escape(model)}</i>) labels visemes at {fig(mine, 'viseme_acc')}")
+    if _num(mine.get("viseme_acc_stream_100ms")) != "–":
+        text += f" ({fig(mine, 'viseme_acc_stream_100ms')} streaming at 100 ms)"
     if bar is not None:
-        text += (f", against the recogniser's {_num(bar.get('viseme_acc'))} "
-                 f"({_num(bar.get('viseme_acc_stream_100ms'))} streaming)")
-    return text + (f"; it closes the lips on {_num(mine.get('bilabial_closed_frac'))} of /p b m/ "
-                   + _cite("speech_unseen-test") + ".")
+        text += (f", against the recogniser's {fig(bar, 'viseme_acc')} "
+                 f"({fig(bar, 'viseme_acc_stream_100ms')} streaming at 100 ms)")
+    return text + (f"; it closes the lips on {fig(mine, 'bilabial_closed_frac')} of /p b m/ "
+                   "segments " + _cite("speech_unseen-test") + ".")
 
 
 def study_finding(study: dict | None) -> str | None:

@@ -46,6 +46,52 @@ def _rows(path: Path) -> list[dict]:
         return list(csv.DictReader(f))
 
 
+BOOTSTRAP = 2000  # resamples of the recordings behind each interval of the real-speech tables
+BOOTSTRAP_SEED = 0
+# pooled figures with intervals: (results column, per-file hits column or None, per-file weight)
+POOLED = (("viseme_acc", None, "frames"), ("viseme_acc_stream_100ms", None, "frames"),
+          ("bilabial_closed_frac", "bilabial_closed", "bilabial_segments"))
+
+
+def file_intervals(per_file: list[dict], model: str, split: str, *, level: float = 0.95,
+                   n_boot: int = BOOTSTRAP, seed: int = BOOTSTRAP_SEED) -> dict:
+    """``{figure: (lo, hi)}``: percentile bootstrap intervals of the pooled figures of
+    :data:`POOLED` for ``model`` on ``split`` (``unseen-test``, ``unseen-dev``, ``seen``),
+    resampling its recordings (per_file.csv rows) with replacement: the recordings, not the
+    frames, are the independent units. A figure pools as its results.csv value does (hits over
+    frames, closed over segments); figures missing for the model are left out."""
+    import numpy as np
+
+    where, _, part = split.partition("-")
+    rows = [r for r in per_file if r["model"] == model and r["split"] == where
+            and (not part or r["part"] == part)]
+    out = {}
+    rng = np.random.default_rng(seed)
+    picks = rng.integers(0, len(rows), size=(n_boot, len(rows))) if rows else None
+    for key, hits_col, weight_col in POOLED:
+        try:
+            w = np.array([float(r[weight_col]) for r in rows])
+            h = (np.array([float(r[hits_col]) for r in rows]) if hits_col else
+                 np.array([float(r[key]) for r in rows]) * w)
+        except (KeyError, TypeError, ValueError):
+            continue
+        if picks is None or not np.isfinite(h).all() or w.sum() <= 0:
+            continue
+        with np.errstate(invalid="ignore", divide="ignore"):
+            boots = h[picks].sum(1) / w[picks].sum(1)
+        boots = boots[np.isfinite(boots)]
+        if boots.size:
+            out[key] = tuple(np.quantile(boots, [(1 - level) / 2, (1 + level) / 2]))
+    return out
+
+
+def _with_interval(v, interval) -> str:
+    text = _num(v)
+    if text == "–" or interval is None:
+        return text
+    return f"{text} [{interval[0]:.2f}, {interval[1]:.2f}]"
+
+
 def _num(v, digits: int = 2) -> str:
     try:
         x = float(v)
@@ -61,6 +107,7 @@ def speech_section(rep, speech_dir: Path, voices_rows: list, *, table_ii_R: floa
     results = _rows(speech_dir / "results.csv")
     if not results:
         return
+    per_file = _rows(speech_dir / "per_file.csv")
     rep.heading("Real speech", stage="speech_eval", key="speech")
     in_domain = {f"voices-{r['model']}": r for r in voices_rows}
     robust = f"voices-{default_model}" if default_model else None
@@ -106,10 +153,13 @@ def speech_section(rep, speech_dir: Path, voices_rows: list, *, table_ii_R: floa
             dom = in_domain.get(r["model"], {})
             r_in = dom.get("in_domain_R") or (table_ii_R if r["model"] ==
                                               "gated_mlp_utterance" else None)
+            ci = file_intervals(per_file, r["model"], split)
             body.append([r["model"], r["files"], _num(r.get("phone_acc")),
-                         _num(r.get("viseme_acc")),
-                         _num(r.get("viseme_acc_stream_100ms")),
-                         _num(r.get("bilabial_closed_frac")),
+                         _with_interval(r.get("viseme_acc"), ci.get("viseme_acc")),
+                         _with_interval(r.get("viseme_acc_stream_100ms"),
+                                        ci.get("viseme_acc_stream_100ms")),
+                         _with_interval(r.get("bilabial_closed_frac"),
+                                        ci.get("bilabial_closed_frac")),
                          _num(r.get("bilabial_centre_rel_vowel")),
                          _num(r.get("labiodental_contact_frac")), _num(r.get("r_reference")),
                          _num(r_in, 3)])
@@ -120,7 +170,9 @@ def speech_section(rep, speech_dir: Path, voices_rows: list, *, table_ii_R: floa
                   note="The recogniser row is pocketsphinx's phone recogniser (trained on real "
                        "speech), the bar a synthetic-trained gate has to reach; it draws no "
                        "face, so only its accuracies are given. In-domain R: test R on the run's "
-                       "single-voice corpus, utterance split, as in Table II. " + TARGETS,
+                       "single-voice corpus, utterance split, as in Table II. [a, b]: 95 % "
+                       f"percentile bootstrap interval over the recordings ({BOOTSTRAP:,} "
+                       f"resamples, seed {BOOTSTRAP_SEED}). " + TARGETS,
                   key=f"speech_{split}")
     figure_model = robust or "gated_mlp_utterance"
     for model in dict.fromkeys([figure_model, "gated_mlp_utterance"]):
