@@ -250,6 +250,9 @@ def log_ablations(mlf, log: ChildLog, out_dir: Path, grid: dict, *, seeds: int =
     for table in ("results.csv", "replicates.csv"):
         if (out_dir / table).is_file():
             client.log_artifact(log.parent_run_id, str(out_dir / table), folder)
+    for figure in ("lookahead.png", "ceiling.png"):  # the stage's own figure, beside the forest
+        if (out_dir / figure).is_file():
+            client.log_artifact(log.parent_run_id, str(out_dir / figure))
     if reference is None:
         reference = "paper" if "paper" in grid else next(iter(grid))
     log_grid_summary(client, log.parent_run_id, out_dir, stage=stage, reference=reference,

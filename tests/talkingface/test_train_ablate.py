@@ -197,7 +197,7 @@ def test_ablate_leaves_a_parent_run_with_one_child_per_setting(workdir, capsys):
     for r in rows:
         assert f"| {r['setting']} | 2 | {float(r['utterance_R']):.3f} ± " in note
     top = {a.path for a in mlflow.MlflowClient().list_artifacts(parents[0].info.run_id)}
-    assert {"summary.csv", "forest.png"} <= top
+    assert {"summary.csv", "forest.png", "lookahead.png"} <= top
     with open(mlflow.artifacts.download_artifacts(run_id=parents[0].info.run_id,
                                                   artifact_path="summary.csv",
                                                   dst_path=str(workdir / "dl")),
