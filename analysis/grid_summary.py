@@ -139,7 +139,23 @@ def summary_markdown(summary: list[dict], *, title: str, reference: str,
                      what: str = "setting") -> str:
     """The summary in words (the reference, the best, which differ), then its table, as
     Markdown (an MLflow run's description)."""
-    lines = [f"### {title}", ""]
+    lines = []
+    for split in dict.fromkeys(r["split"] for r in summary):  # the answer first, one line each
+        top = best(summary, split)
+        if top is None:
+            continue
+        if top["verdict"] == "reference":
+            lines.append(f"**Best ({split} split): the reference `{reference}` itself** — "
+                         f"R {fmt(top['R'])} ± {fmt(top['R_ci95'])}")
+        else:
+            said = {"better": "**significantly better**", "worse": "significantly worse",
+                    "no difference": "**not significantly different**",
+                    "not tested": "not tested (one seed)"}[top["verdict"]]
+            lines.append(f"**Best ({split} split): `{top['setting']}`** — Δ R "
+                         f"{fmt(top['delta'], sign=True)} ± {fmt(top['delta_ci95'])} vs "
+                         f"`{reference}`, p (Holm) {fmt_p(top['p_holm'])}: {said}")
+        lines.append("")
+    lines += [f"### {title}", ""]
     for split in dict.fromkeys(r["split"] for r in summary):
         part = [r for r in summary if r["split"] == split]
         ref = next((r for r in part if r["verdict"] == "reference"), None)

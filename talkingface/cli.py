@@ -32,7 +32,7 @@ from talkingface.experiment_log import (artifact_root, check_tracking, log_speec
                                         mlflow_run, tracking_uri)
 from talkingface.live import input_devices
 from talkingface.mlflow_app import (APP_NAME, check_installed, find_experiment,
-                                    link_text)
+                                    grid_link_text, link_text)
 from talkingface.server import check_free
 from talkingface.paths import RunPaths
 from talkingface.stages import run
@@ -192,14 +192,18 @@ def cmd_ui(args) -> int:
 
 
 def _print_link_when_up(base: str, experiment: str, stop: threading.Event) -> None:
-    """Once the server answers: the link to the experiment's runs (looked up through the
-    server, read only), or to the front page when the store has no such experiment yet."""
+    """Once the server answers: the link to the experiment's pipeline runs and grid parents
+    (looked up through the server, read only) and one to its grids' runs, or to the front page
+    when the store has no such experiment yet."""
     while not stop.wait(0.5):
         try:
             found = find_experiment(base, experiment, timeout=5)
         except (OSError, ValueError):  # not up yet (or still migrating the store)
             continue
         print(f"MLflow UI: {link_text(base, experiment, found)}", flush=True)
+        grids = grid_link_text(base, found)
+        if grids:
+            print(f"MLflow UI: {grids}", flush=True)
         return
 
 

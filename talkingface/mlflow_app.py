@@ -15,9 +15,30 @@ whose ``index.html`` sets ``mlflow.workflowType_v1`` to ``"machine_learning"`` i
 that has not chosen a workflow type yet. A user who switches to GenAI keeps that choice (the
 key is then set, and never overwritten).
 
-:func:`find_experiment` and :func:`runs_url` give the link ``ui`` and ``server`` print: straight
-to an experiment's runs (``#/experiments/<id>/runs?workflowType=machine_learning``), which works
-in any browser and on any MLflow server of this version, plugin or not.
+The same ``index.html`` keeps MLflow's assistant panel (an LLM chat, which MLflow 3.17 opens by
+itself on a browser's first visit to a local server, over a quarter of the page) closed until the
+user opens it with its button: ``mlflow.assistant.fab.autoOpenedOnFirstLoad_v1`` set where unset.
+
+:func:`find_experiment`, :func:`link_text` and :func:`grid_link_text` give the links ``ui`` and
+``server`` print, which work in any browser and on any MLflow server of this version, plugin or
+not. They use the runs page's own URL state (MLflow 3.17 reads ``searchFilter``, ``orderByKey``,
+``orderByAsc``, ``startTime``, ``lifecycleFilter``, ``datasetsFilter`` and
+``modelVersionFilter`` from the query of ``#/experiments/<id>/runs``; those it lacks take their
+defaults, so the link shows the same list in every browser, whatever it stored before):
+
+- :func:`pipeline_url`, the landing page: the pipeline's own runs (``tags.stage IS NOT NULL``:
+  the replicate, train, ablate, speech_eval runs and every grid's parent run, which holds the
+  grid's answer), not the hundreds of grid runs below them, as one flat list, newest first. The
+  UI nests child runs under their parent, collapsed, only when the table is sorted by its
+  "Created" key spelt exactly ``attributes.start_time``; the same order spelt
+  ``attributes.`start_time``` is a flat list, so a replication's grid parents are rows of their
+  own, one click from the landing page (the sort button reads "Sort: start_time").
+- :func:`grid_url`: one grid's runs, one per setting and seed (``tags.grid = 'ablations' AND
+  params.setting IS NOT NULL``), sorted by name (``<setting>/<seed>``), also a flat list.
+
+MLflow's saved views (an experiment tag ``mlflow.sharedViewState.<id>`` opened by
+``viewStateShareKey=<id>``) could also choose the table's columns, but need a write to the store
+and put a "You're viewing a shared view" banner over the table; the links write nothing.
 
 MLflow is imported here only inside :func:`create_app`, which runs in the server's process.
 """
@@ -39,13 +60,23 @@ APP_TARGET = "talkingface.mlflow_app:create_app"
 WORKFLOW_KEY = "mlflow.workflowType_v1"  # MLflow 3.17's key: "<key>_v<version>", JSON value
 DEFAULT_WORKFLOW = "machine_learning"
 RUNS_QUERY = f"workflowType={DEFAULT_WORKFLOW}"
+# set by MLflow 3.17 once it has opened its assistant panel by itself (a JSON boolean)
+ASSISTANT_KEY = "mlflow.assistant.fab.autoOpenedOnFirstLoad_v1"
+# what index.html stores where the browser has no value yet (raw localStorage strings)
+STORAGE_DEFAULTS = {WORKFLOW_KEY: json.dumps(DEFAULT_WORKFLOW), ASSISTANT_KEY: "true"}
 
-# Runs before MLflow's own script (a deferred one): the key is set before the UI reads it.
+# Runs before MLflow's own script (a deferred one): the keys are set before the UI reads them.
 DEFAULT_WORKFLOW_SCRIPT = (
-    "<script>/* talkingface: open on the runs table unless this browser chose a workflow "
-    "*/(function(){try{var k=" + json.dumps(WORKFLOW_KEY) + ";if(window.localStorage."
-    "getItem(k)===null){window.localStorage.setItem(k," + json.dumps(json.dumps(DEFAULT_WORKFLOW))
-    + ")}}catch(e){}})();</script>")
+    "<script>/* talkingface: open on the runs table unless this browser chose a workflow; "
+    "MLflow's assistant panel closed until opened */(function(){try{var d="
+    + json.dumps(STORAGE_DEFAULTS) + ";for(var k in d){if(window.localStorage.getItem(k)"
+    "===null){window.localStorage.setItem(k,d[k])}}}catch(e){}})();</script>")
+
+# The runs page's URL state (see the module's docstring)
+PIPELINE_FILTER = "tags.stage IS NOT NULL"  # the pipeline's runs and the grid parents
+NEWEST_FIRST_FLAT = "attributes.`start_time`"  # "Created", without nesting child runs
+RUN_NAME = "tags.`mlflow.runName`"  # the UI's "Run Name" sort
+GRIDS = ("ablations", "ceiling", "voices")  # the values of the runs' ``grid`` tag
 
 
 def with_default_workflow(html: str) -> str:
@@ -124,18 +155,56 @@ def find_experiment(base_uri: str, name: str, *, timeout: float = 10.0) -> str |
     return str(exp["experiment_id"])
 
 
-def runs_url(base_uri: str, experiment_id: str | None) -> str:
+def runs_url(base_uri: str, experiment_id: str | None, *, search: str | None = None,
+             order_by: str | None = None, ascending: bool | None = None) -> str:
     """The UI's page of an experiment's runs, in the model-training view whatever the browser
-    chose before; the UI's front page when there is no experiment."""
+    chose before, with the search box holding ``search`` and the table sorted by ``order_by``
+    (a key of MLflow's ``order_by``; ``ascending`` or not); the UI's front page when there is
+    no experiment."""
     base = base_uri.rstrip("/")
     if experiment_id is None:
         return f"{base}/"
-    return f"{base}/#/experiments/{experiment_id}/runs?{RUNS_QUERY}"
+    query = {"searchFilter": search, "orderByKey": order_by,
+             "orderByAsc": None if ascending is None else str(bool(ascending)).lower()}
+    extra = urllib.parse.urlencode({k: v for k, v in query.items() if v is not None})
+    return f"{base}/#/experiments/{experiment_id}/runs?{RUNS_QUERY}" + (
+        f"&{extra}" if extra else "")
+
+
+def pipeline_url(base_uri: str, experiment_id: str | None) -> str:
+    """The landing page: the pipeline's own runs and the grid parents, a flat list, newest
+    first (the front page when there is no experiment)."""
+    return runs_url(base_uri, experiment_id, search=PIPELINE_FILTER, order_by=NEWEST_FIRST_FLAT)
+
+
+def grid_filter(grid: str = "ablations") -> str:
+    """The search for the runs of the grids of kind ``grid``: one per setting and seed."""
+    if grid not in GRIDS:
+        raise ValueError(f"grid {grid!r}: one of {', '.join(GRIDS)}")
+    return f"tags.grid = '{grid}' AND params.setting IS NOT NULL"
+
+
+def grid_url(base_uri: str, experiment_id: str, grid: str = "ablations") -> str:
+    """The runs of the grids of kind ``grid`` (one per setting and seed), sorted by their
+    names ``<setting>/<seed>``, a flat list."""
+    return runs_url(base_uri, experiment_id, search=grid_filter(grid), order_by=RUN_NAME,
+                    ascending=True)
 
 
 def link_text(base_uri: str, name: str, experiment_id: str | None) -> str:
-    """The link as ``ui`` and ``server`` print it, with what it opens."""
+    """The landing link as ``ui`` and ``server`` print it, with what it opens."""
     if experiment_id is None:
         return (f"{runs_url(base_uri, None)} (no experiment '{name}' in the store yet: it is "
                 "listed there once a command logs its first run)")
-    return f"{runs_url(base_uri, experiment_id)} (the runs of experiment '{name}')"
+    return (f"{pipeline_url(base_uri, experiment_id)} (the runs of experiment '{name}': the "
+            "pipeline's own runs, newest first; a grid's parent run holds its answer)")
+
+
+def grid_link_text(base_uri: str, experiment_id: str | None) -> str | None:
+    """The second line ``ui`` and ``server`` print: where the grids' own runs are (None when
+    there is no experiment)."""
+    if experiment_id is None:
+        return None
+    return (f"{grid_url(base_uri, experiment_id)} (the ablation grids' runs, one per setting "
+            "and seed; write ceiling or voices for ablations in the search box for another "
+            "grid, or clear the search box for every run)")

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from face_model.errors import TalkingFaceError
 from talkingface.config import MlflowConfig
-from talkingface.mlflow_app import find_experiment, link_text
+from talkingface.mlflow_app import find_experiment, grid_link_text, link_text
 from talkingface.server import (DEFAULT_DB_PORT, DEFAULT_FOLDER, DEFAULT_HOST, DEFAULT_PORT,
                                 LabServer)
 
@@ -60,18 +60,21 @@ def cmd_server(args) -> int:
             signal.signal(sig, h)
 
 
-def _ui_link(server: LabServer) -> str:
-    """The UI's link to the runs of the project's experiment (the default
-    ``mlflow.experiment``), looked up through the server (read only); its front page when the
-    store has no such experiment yet (said so), or when the lookup gets no answer."""
+def _ui_link(server: LabServer) -> tuple[str, str | None]:
+    """The UI's links: to the pipeline's runs of the project's experiment (the default
+    ``mlflow.experiment``), looked up through the server (read only), and to its grids' runs;
+    its front page (and None) when the store has no such experiment yet (said so), or when the
+    lookup gets no answer."""
     try:
         found = find_experiment(server.uri, EXPERIMENT, timeout=30)
     except (OSError, ValueError):
-        return f"{server.share_uri}/"
-    return link_text(server.share_uri, EXPERIMENT, found)
+        return f"{server.share_uri}/", None
+    return (link_text(server.share_uri, EXPERIMENT, found),
+            grid_link_text(server.share_uri, found))
 
 
-def _banner(server: LabServer, ui: str | None = None) -> str:
+def _banner(server: LabServer, ui: tuple[str, str | None] | None = None) -> str:
+    link, grids = ui or (server.share_uri, None)
     state = ("made the database" if server.created else "reusing the database")
     lines = [
         f"server: up on {server.uri} ({state} in {server.pgdata}, PostgreSQL on "
@@ -79,9 +82,10 @@ def _banner(server: LabServer, ui: str | None = None) -> str:
         "server: colleagues log to it with",
         f"  export MLFLOW_TRACKING_URI={server.share_uri}",
         f"  or: talkingface ... --set mlflow.uri={server.share_uri}",
-        f"server: its UI: {ui or server.share_uri}; Ctrl-C here stops the server and its "
-        "database",
     ]
+    lines.append(f"server: its UI: {link}; Ctrl-C here stops the server and its database")
+    if grids:
+        lines.append(f"server: its grids' runs: {grids}")
     if server.host in ("127.0.0.1", "localhost", "::1"):
         lines.insert(4, "server: only this machine can reach it; --host ADDRESS (this "
                      "machine's address on the lab's network) shares it")

@@ -72,6 +72,8 @@ def test_markdown_states_the_best_with_the_tables_figures():
     top = best(summary, "utterance")
     assert f"best: `{top['setting']}`: R {fmt(top['R'])} ± {fmt(top['R_ci95'])}" in text
     assert "**significantly better**" in text
+    assert text.startswith(f"**Best (utterance split): `{top['setting']}`** — Δ R "
+                           f"{fmt(top['delta'], sign=True)} ± {fmt(top['delta_ci95'])} vs `paper`")
     assert "significantly worse: `classes-1`" in text
     rows = table_rows(summary, "utterance")
     for row in rows:  # every printed row is in the description's table

@@ -121,3 +121,24 @@ def wait_until(driver, condition, what: str, timeout: float = 120.0):
         text = driver.find_element(By.TAG_NAME, "body").text[:600].replace("\n", " | ")
         raise AssertionError(f"after {timeout:g} s, no {what}: at {driver.current_url}, "
                              f"headings {page_headings(driver)}, text: {text}") from None
+
+
+def click(driver, element) -> None:
+    """Scroll ``element`` to the middle of the window, then click it, as a person would."""
+    driver.execute_script("arguments[0].scrollIntoView({block: 'center'})", element)
+    element.click()
+
+
+def displayed_with_text(driver, text: str, tag: str = "*") -> list:
+    """The displayed ``tag`` elements whose whole text (spaces normalised) is ``text``,
+    innermost first (a label's own element before the boxes around it)."""
+    from selenium.common.exceptions import StaleElementReferenceException
+    from selenium.webdriver.common.by import By
+
+    literal = f"'{text}'" if "'" not in text else f'"{text}"'
+    shown = []
+    for e in driver.find_elements(By.XPATH, f"//{tag}[normalize-space(.)={literal}]"):
+        with contextlib.suppress(StaleElementReferenceException):  # re-rendered meanwhile
+            if e.is_displayed():
+                shown.append(e)
+    return shown[::-1]

@@ -7,6 +7,12 @@ MLflow 3.17 reads the view (its "workflow type") from the URL's ``workflowType``
 from localStorage ``mlflow.workflowType_v1``, else ``genai``, whatever the experiment's
 ``mlflow.experimentKind`` tag says; the project's MLflow app (``talkingface/mlflow_app.py``)
 sets that key to ``"machine_learning"`` where it is unset.
+
+The printed link lists the pipeline's own runs and the grids' parent runs, not the grids' many
+runs: from it a person reaches a real ablation grid's answer (the best setting, its difference
+with its interval and Holm p, the table of every setting) in at most two clicks, and finds the
+forest plot and ``summary.csv`` at the top of the parent's artifacts; a second printed link
+lists the grid's runs, one per setting and seed.
 """
 from __future__ import annotations
 
@@ -32,16 +38,20 @@ import psutil
 import pytest
 
 from talkingface.cli import _print_link_when_up, main
-from talkingface.mlflow_app import (DEFAULT_WORKFLOW_SCRIPT, WORKFLOW_KEY, create_app,
-                                    find_experiment, link_text, runs_url, with_default_workflow)
+from talkingface.mlflow_app import (ASSISTANT_KEY, DEFAULT_WORKFLOW_SCRIPT, NEWEST_FIRST_FLAT,
+                                    PIPELINE_FILTER, RUN_NAME, WORKFLOW_KEY, create_app,
+                                    find_experiment, grid_filter, grid_link_text, grid_url,
+                                    link_text, pipeline_url, runs_url, with_default_workflow)
 from talkingface.server import lab_server
 from talkingface.server_cli import EXPERIMENT
-from tests.talkingface.browser import (alive, alive_processes, headless_chromium, local_storage,
-                                       page_headings, processes_mentioning, save_png,
-                                       set_local_storage, wait_gone, wait_until)
+from tests.talkingface.browser import (alive, alive_processes, click, displayed_with_text,
+                                       headless_chromium, local_storage, page_headings,
+                                       processes_mentioning, save_png, set_local_storage,
+                                       wait_gone, wait_until)
 
 REPO = Path(__file__).resolve().parents[2]
 KIND = {"mlflow.experimentKind": "custom_model_development"}  # as experiment_log tags it
+STAGE = {"stage": "train"}  # as `talkingface train` tags its run: one of the pipeline's runs
 METRIC = "utterance.mean_test_R"
 RUNS = ("landing-alpha", "landing-beta")
 ML, GENAI = '"machine_learning"', '"genai"'  # localStorage values (JSON strings)
@@ -129,7 +139,8 @@ def _stop(proc, procs, port: int) -> None:
 @pytest.fixture(scope="module")
 def store(tmp_path_factory):
     """A SQLite store with the project's experiment (tagged as model training) holding two
-    finished runs with a metric, and a deleted experiment."""
+    finished runs of the pipeline (tagged with their stage) with a metric, and a deleted
+    experiment."""
     from mlflow import MlflowClient
 
     folder = tmp_path_factory.mktemp("ui-landing")
@@ -139,7 +150,7 @@ def store(tmp_path_factory):
                                    artifact_location=(folder / "mlartifacts").as_uri())
     runs = {}
     for k, name in enumerate(RUNS):
-        run = client.create_run(exp, run_name=name)
+        run = client.create_run(exp, run_name=name, tags=STAGE)
         client.log_metric(run.info.run_id, METRIC, 0.5 + k / 10)
         client.set_terminated(run.info.run_id)
         runs[name] = run.info.run_id
@@ -161,9 +172,10 @@ def ui(store):
     procs = []
     try:
         link_line, output = _read_until(lines, "MLflow UI: ")
+        grid_line, _ = _read_until(lines, "MLflow UI: ", timeout=30)
         procs = processes_mentioning(str(store.folder))  # the command, MLflow and its workers
         yield SimpleNamespace(base=f"http://127.0.0.1:{port}", port=port, output=output,
-                              link_line=link_line, procs=procs)
+                              link_line=link_line, grid_line=grid_line, procs=procs)
     finally:
         _stop(proc, procs + processes_mentioning(str(store.folder)), port)
 
@@ -213,13 +225,31 @@ def assert_genai_overview(driver, experiment_id: str, timeout: float = 180) -> N
     assert "workflowType=genai" in driver.current_url
 
 
+def _assistant_open(driver) -> bool:
+    """MLflow's assistant panel is open: its question box shows."""
+    return driver.execute_script(
+        "return [...document.querySelectorAll('textarea, input')].some(e => "
+        "(e.placeholder || '').startsWith('Ask a question') && e.offsetParent !== null)")
+
+
 # -- the tests -------------------------------------------------------------------------------
 def test_ui_prints_its_address_and_the_link_to_the_runs(ui, store):
     assert (f"MLflow UI on {ui.base} (store: {store.uri}); Ctrl-C stops it"
             in ui.output.splitlines())
-    assert ui.link_line == (f"MLflow UI: {ui.base}/#/experiments/{store.experiment_id}/runs"
-                            f"?workflowType=machine_learning (the runs of experiment "
-                            f"'{EXPERIMENT}')")
+    runs = f"{ui.base}/#/experiments/{store.experiment_id}/runs?workflowType=machine_learning"
+    # the pipeline's runs (those with a stage), newest first, not nested: MLflow's URL state
+    assert ui.link_line == (
+        f"MLflow UI: {runs}&searchFilter=tags.stage+IS+NOT+NULL&orderByKey=attributes."
+        f"%60start_time%60 (the runs of experiment '{EXPERIMENT}': the pipeline's own runs, "
+        "newest first; a grid's parent run holds its answer)")
+    # and where the grid runs are: the ablation grids' runs by name
+    assert ui.grid_line == (
+        f"MLflow UI: {runs}&searchFilter=tags.grid+%3D+%27ablations%27+AND+params.setting+IS+"
+        "NOT+NULL&orderByKey=tags.%60mlflow.runName%60&orderByAsc=true (the ablation grids' "
+        "runs, one per setting and seed; write ceiling or voices for ablations in the search "
+        "box for another grid, or clear the search box for every run)")
+    assert ui.link_line.split()[2] == pipeline_url(ui.base, store.experiment_id)
+    assert ui.grid_line.split()[2] == grid_url(ui.base, store.experiment_id)
     # the server runs the project's app
     cmdlines = [" ".join(p.cmdline()) for p in alive_processes(ui.procs)]
     assert any("--app-name talkingface" in c for c in cmdlines), cmdlines
@@ -236,6 +266,7 @@ def test_a_fresh_browser_goes_from_the_front_page_to_the_runs(ui, store):
              if a.text.strip() == EXPERIMENT and a.is_displayed()), False),
             f"link to experiment {EXPERIMENT!r} on the front page")
         assert local_storage(driver, WORKFLOW_KEY) == ML  # set by the app's index.html
+        assert local_storage(driver, ASSISTANT_KEY) == "true"  # its assistant panel stays shut
         driver.execute_script("arguments[0].scrollIntoView({block: 'center'})", link)
         link.click()
         assert_runs_table(driver, store.experiment_id, store.runs)
@@ -263,10 +294,19 @@ def test_the_experiment_link_mlflow_prints_opens_the_runs(ui, store, capsys):
 
 def test_the_link_ui_prints_opens_the_runs(ui, store):
     printed = ui.link_line.split()[2]
-    assert printed == runs_url(ui.base, store.experiment_id)
+    assert printed == pipeline_url(ui.base, store.experiment_id)
     with headless_chromium() as driver:
         driver.get(printed)
         assert_runs_table(driver, store.experiment_id, store.runs)
+        search = driver.find_element("css selector", "input[placeholder*='metrics.rmse']")
+        assert search.get_attribute("value") == "tags.stage IS NOT NULL"
+        # MLflow's assistant (an LLM chat) does not open by itself over a quarter of the page
+        assert not _assistant_open(driver)
+    # (as MLflow opens it in a browser that says it has not done so yet)
+    with headless_chromium() as driver:
+        set_local_storage(driver, f"{ui.base}/health", {ASSISTANT_KEY: "false"})
+        driver.get(printed)
+        wait_until(driver, _assistant_open, "MLflow's assistant panel, opened by itself")
 
 
 def test_a_browser_that_chose_genai_keeps_it(ui, store):
@@ -290,7 +330,7 @@ def test_a_browser_that_chose_genai_keeps_it(ui, store):
         driver.get(bare)
         assert_genai_overview(driver, store.experiment_id)
         # the printed link opens the runs all the same, and leaves the choice as it is
-        driver.get(runs_url(ui.base, store.experiment_id))
+        driver.get(pipeline_url(ui.base, store.experiment_id))
         assert_runs_table(driver, store.experiment_id, store.runs)
         assert local_storage(driver, WORKFLOW_KEY) == GENAI
     # a browser that stored "genai" before it ever loaded the UI
@@ -324,6 +364,201 @@ def test_the_served_page_and_the_lookup_change_nothing(ui, store, capsys):
         find_experiment(f"http://127.0.0.1:{_free_ports(1)[0]}", EXPERIMENT, timeout=5)
 
 
+# -- a real ablation grid, as a person reads it ------------------------------------------------
+GRID_YAML = ("base:\n  mapping.splits: [utterance]\n  mapping.train.max_epochs: 5\n"
+             "children:\n  paper: {}\n  baseline-linear: {mapping.method: linear}\n")
+TINY = ["--set", "synth.n_sentences=4", "--set", "synth.workers=2"]
+
+# the runs the table lists (a run's name is a link to its page), top to bottom
+_RUN_ROWS_JS = """
+return [...document.querySelectorAll('a[href*="/runs/"]')]
+  .filter(a => a.offsetParent !== null && a.textContent.trim())
+  .map(a => [a.textContent.trim(), a.getBoundingClientRect().top])
+  .sort((x, y) => x[1] - y[1]).map(x => x[0]);
+"""
+# the rows of the tables of a run's page (metrics, parameters): their cells' texts
+_TABLE_ROWS_JS = """
+return [...document.querySelectorAll('[role=row]')]
+  .map(r => [...r.querySelectorAll('[role=cell]')].map(c => c.textContent.trim()));
+"""
+# the rows of the artifact view's table of a .csv file
+_CSV_ROWS_JS = """
+return [...document.querySelectorAll('tbody tr')].filter(tr => tr.offsetParent !== null)
+  .map(tr => [...tr.cells].map(td => td.textContent.trim())).filter(r => r.some(c => c));
+"""
+
+
+def _earlier_replication(client, experiment_id: str) -> None:
+    """The runs of a replication as ``replicate`` nests them (made up; started one after
+    the other, now): its run, a grid's parent run inside it and one run of that grid."""
+    start = int(time.time() * 1000)
+    rep = client.create_run(experiment_id, run_name="replication", start_time=start,
+                            tags={"stage": "replicate"}).info.run_id
+    parent = client.create_run(experiment_id, run_name="ceiling", start_time=start + 1, tags={
+        "mlflow.parentRunId": rep, "stage": "ceiling", "grid": "ceiling"}).info.run_id
+    child = client.create_run(experiment_id, run_name="ours/2002", start_time=start + 2,
+                              tags={"mlflow.parentRunId": parent, "grid": "ceiling"}).info.run_id
+    client.log_param(child, "setting", "ours")
+    for run_id in (child, parent, rep):
+        client.set_terminated(run_id)
+
+
+@pytest.fixture(scope="module")
+def grid(store, tmp_path_factory):
+    """``talkingface ablate`` of a tiny real grid (2 settings x 2 seeds) in a working folder of
+    its own, logging to ``store`` after an earlier replication's runs: its parent run, its runs
+    (name -> id), and the reference and best setting as the parent records them."""
+    from mlflow import MlflowClient
+
+    _earlier_replication(MlflowClient(store.uri), store.experiment_id)
+    work = tmp_path_factory.mktemp("ui-grid")
+    (work / "grid.yaml").write_text(GRID_YAML)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.chdir(work)
+        mp.setenv("MLFLOW_TRACKING_URI", store.uri)
+        assert main(["ablate", "--grid", "grid.yaml", "--name", "a", *TINY, "--workers", "2",
+                     "--seeds", "2"]) == 0
+    client = MlflowClient(store.uri)
+    parent, = client.search_runs([store.experiment_id], "tags.stage = 'ablate'")
+    pid = parent.info.run_id
+    children = client.search_runs([store.experiment_id],
+                                  f"tags.`mlflow.parentRunId` = '{pid}'")
+    assert len(children) == 4
+    return SimpleNamespace(parent=parent.info.run_name, parent_id=pid,
+                           children={r.info.run_name: r.info.run_id for r in children},
+                           settings={"paper", "baseline-linear"},
+                           reference=parent.data.params["reference"],
+                           best=parent.data.params["best.utterance"])
+
+
+def _run_rows(driver, want, what: str) -> list[str]:
+    """The run names the table lists, once it lists all of ``want``."""
+    return wait_until(driver, lambda d: (lambda names: set(want) <= set(names) and names)(
+        d.execute_script(_RUN_ROWS_JS)), what)
+
+
+def test_the_ablation_answer_is_two_clicks_from_the_printed_link(ui, store, grid):
+    from selenium.webdriver.common.by import By
+
+    shots, clicks = _shots(), 0
+    with headless_chromium() as driver:
+        # landing: the pipeline's runs, newest first, the grid's parent among them, no grid
+        # run; one flat list: a replication's grid parent is a row, not folded inside it
+        driver.get(ui.link_line.split()[2])
+        names = _run_rows(driver, [grid.parent, "ceiling", "replication", *RUNS],
+                          "the grid's parent on the landing page")
+        assert names[:3] == [grid.parent, "ceiling", "replication"], names
+        assert sorted(names[3:]) == sorted(RUNS), names  # no grid run
+        save_png(driver, shots, "ui_grid_1_landing.png")
+
+        # click 1: the parent's name opens its page, whose description answers
+        link, = [a for a in driver.find_elements(By.CSS_SELECTOR,
+                                                 f'a[href*="/runs/{grid.parent_id}"]')
+                 if a.text.strip() == grid.parent]
+        click(driver, link)
+        clicks += 1
+        wait_until(driver, lambda d: _tab(d) == (f"/experiments/{store.experiment_id}/runs/"
+                                                 f"{grid.parent_id}"), "the parent's page")
+        heading = wait_until(driver, lambda d: next(iter(displayed_with_text(
+            d, "Description", "h4")), False), "the parent's description")
+        driver.execute_script("arguments[0].scrollIntoView({block: 'start'})", heading)
+        note = driver.find_element(By.CSS_SELECTOR, "[data-testid=note-editor-preview-content]")
+        save_png(driver, shots, "ui_grid_2_parent_description_folded.png")
+        # click 2: MLflow shows a long description folded, "Show more" unfolds it
+        more = displayed_with_text(driver, "Show more", "button")
+        if more:
+            click(driver, more[0])
+            clicks += 1
+            wait_until(driver, lambda d: displayed_with_text(d, "Show less", "button"),
+                       "the unfolded description")
+            driver.execute_script("arguments[0].scrollIntoView({block: 'start'})", heading)
+        assert clicks <= 2
+        text = " ".join(note.text.split())
+        if grid.best == grid.reference:
+            assert f"best: the reference {grid.reference} itself" in text, text
+        else:  # the best setting, its difference with its interval, Holm's p and the verdict
+            assert re.search(
+                rf"best: {re.escape(grid.best)}: R [\d.]+ ± [\d.]+, Δ [+-][\d.]+ ± [\d.]+, "
+                r"p \(Holm\) \S+: (significantly better|no difference from the reference)",
+                text), text
+        # the table of every setting, rendered as a table, with intervals
+        table = note.find_element(By.TAG_NAME, "table")
+        assert table.is_displayed()
+        header = [th.text.strip() for th in table.find_elements(By.CSS_SELECTOR, "thead th")]
+        rows = [[td.text.strip() for td in tr.find_elements(By.TAG_NAME, "td")]
+                for tr in table.find_elements(By.CSS_SELECTOR, "tbody tr")]
+        assert header[0] == "setting" and "p (Holm)" in header, header
+        assert {r[0] for r in rows} == grid.settings, rows
+        assert all("±" in r[header.index("test R ± 95 % CI")] for r in rows), rows
+        save_png(driver, shots, "ui_grid_3_parent_answer.png")
+
+        # its artifacts: the forest plot and summary.csv at the top, no folder to open
+        tab, = displayed_with_text(driver, "Artifacts", "button")
+        click(driver, tab)
+
+        def node(name):
+            return lambda d: next((e for e in d.find_elements(
+                By.CSS_SELECTOR, f'[data-testid=artifact-tree-node][artifact-name="{name}"]')
+                if e.is_displayed()), False)
+
+        forest = wait_until(driver, node("forest.png"), "forest.png in the artifacts")
+        csv_node = wait_until(driver, node("summary.csv"), "summary.csv in the artifacts")
+        click(driver, forest)
+        wait_until(driver, lambda d: d.execute_script(
+            "return [...document.images].some(i => i.alt === 'forest.png' && "
+            "i.naturalWidth > 300 && i.getBoundingClientRect().width > 300)"),
+            "the forest plot drawn")
+        save_png(driver, shots, "ui_grid_4_forest_png.png")
+        click(driver, csv_node)
+        csv_rows = wait_until(driver, lambda d: (lambda r: {row[1] for row in r if len(row) > 1}
+                                                 >= grid.settings and r)(
+            d.execute_script(_CSV_ROWS_JS)), "summary.csv as a table")
+        assert all(row[0] == "utterance" for row in csv_rows), csv_rows
+        save_png(driver, shots, "ui_grid_5_summary_csv.png")
+
+        # the second printed link: the grid's runs by name; a run's page shows its setting
+        driver.get(ui.grid_line.split()[2])
+        names = _run_rows(driver, grid.children, "the grid's runs")
+        assert names == sorted(grid.children), names
+        save_png(driver, shots, "ui_grid_6_grid_runs.png")
+        first = names[0]
+        link, = [a for a in driver.find_elements(
+            By.CSS_SELECTOR, f'a[href*="/runs/{grid.children[first]}"]')
+            if a.text.strip() == first]
+        click(driver, link)
+        setting = first.split("/")[0]
+        wait_until(driver, lambda d: ["setting", setting] in d.execute_script(_TABLE_ROWS_JS),
+                   f"the parameter setting = {setting} on the page of {first}")
+        for h in driver.find_elements(By.XPATH, "//h4[starts-with(normalize-space(.), "
+                                      "'Parameters')]"):
+            driver.execute_script("arguments[0].scrollIntoView({block: 'start'})", h)
+        save_png(driver, shots, "ui_grid_7_grid_run.png")
+
+
+def test_the_links_searches_are_the_stores(store, grid):
+    """What the links put in the search box, MLflow's store answers: the pipeline's runs and
+    the grid's parent, or the grid's runs, in the links' order."""
+    from mlflow import MlflowClient
+
+    client = MlflowClient(store.uri)
+
+    def names(search, order):
+        return [r.info.run_name for r in client.search_runs(
+            [store.experiment_id], search, order_by=[order])]
+
+    listed = names(PIPELINE_FILTER, f"{NEWEST_FIRST_FLAT} DESC")
+    assert listed[:3] == [grid.parent, "ceiling", "replication"]
+    assert sorted(listed[3:]) == sorted(RUNS)
+    assert names(grid_filter(), f"{RUN_NAME} ASC") == sorted(grid.children)
+    assert names(grid_filter("ceiling"), f"{RUN_NAME} ASC") == ["ours/2002"]
+    with pytest.raises(ValueError):
+        grid_filter("nope")
+    assert runs_url("http://h:1/", "7") == ("http://h:1/#/experiments/7/runs?workflowType="
+                                           "machine_learning")
+    assert pipeline_url("http://h:1", None) == "http://h:1/"
+    assert grid_link_text("http://h:1", None) is None
+
+
 # -- the app without a server -------------------------------------------------------------------
 def test_the_script_goes_first_in_mlflows_index_html():
     import mlflow.server
@@ -335,6 +570,8 @@ def test_the_script_goes_first_in_mlflows_index_html():
     assert with_default_workflow(html) == html  # once
     # only when unset; a stored choice is never overwritten
     assert 'if(window.localStorage.getItem(k)===null)' in DEFAULT_WORKFLOW_SCRIPT
+    assert f'"{WORKFLOW_KEY}": "\\"machine_learning\\""' in DEFAULT_WORKFLOW_SCRIPT
+    assert f'"{ASSISTANT_KEY}": "true"' in DEFAULT_WORKFLOW_SCRIPT
     assert with_default_workflow("<p>no head</p>") == DEFAULT_WORKFLOW_SCRIPT + "<p>no head</p>"
 
 
@@ -397,7 +634,7 @@ def test_the_lab_server_prints_the_runs_link_and_opens_on_the_runs(lab_folder, c
         exp = client.create_experiment(EXPERIMENT, tags=KIND)
         runs = {}
         for name in RUNS:
-            run = client.create_run(exp, run_name=name)
+            run = client.create_run(exp, run_name=name, tags=STAGE)
             client.log_metric(run.info.run_id, METRIC, 0.5)
             client.set_terminated(run.info.run_id)
             runs[name] = run.info.run_id
@@ -414,11 +651,14 @@ def test_the_lab_server_prints_the_runs_link_and_opens_on_the_runs(lab_folder, c
     procs = []
     try:
         line, banner = _read_until(lines, "server: its UI:")
+        grids, _ = _read_until(lines, "server: its grids' runs:", timeout=30)
         procs = processes_mentioning(str(lab_folder))
         base = f"http://127.0.0.1:{port}"
-        assert line == (f"server: its UI: {base}/#/experiments/{exp}/runs?workflowType="
-                        f"machine_learning (the runs of experiment '{EXPERIMENT}'); Ctrl-C "
-                        "here stops the server and its database")
+        assert line == (f"server: its UI: {pipeline_url(base, exp)} (the runs of experiment "
+                        f"'{EXPERIMENT}': the pipeline's own runs, newest first; a grid's "
+                        "parent run holds its answer); Ctrl-C here stops the server and its "
+                        "database")
+        assert grids == f"server: its grids' runs: {grid_link_text(base, exp)}"
         assert f"export MLFLOW_TRACKING_URI={base}" in banner and "reusing the database" in banner
         assert "--app-name talkingface" in " ".join(" ".join(p.cmdline()) for p in procs)
         # the names listed are accepted (with the port a browser adds), others are not
