@@ -19,6 +19,7 @@ from matplotlib.lines import Line2D
 
 from analysis.figures import report_figure
 from analysis.replicates import summarise_replicates
+from analysis.speech_report import dev_choice
 
 VERDICTS = ("reference", "better", "worse", "no difference", "not tested")
 # The columns of a summary row, in order.
@@ -245,8 +246,6 @@ def voices_summary(voices: list[dict], speech: list[dict]) -> list[dict]:
     in-domain R (Table II's footing), its development score under the rule that picks the
     default (:func:`analysis.speech_report.dev_choice`) and its figures on the unseen test
     speakers (``speech``: speech_eval's results.csv rows). One seed per model: no intervals."""
-    from analysis.speech_report import dev_choice
-
     _, scores = dev_choice(speech)
     test = {r["model"]: r for r in speech if r["split"] == "unseen-test"}
     out = []

@@ -7,6 +7,8 @@ import csv
 import math
 from pathlib import Path
 
+import numpy as np
+
 TARGETS = ("The project's targets on unseen speakers: viseme accuracy at least 0.75; /p b m/ "
            "closed in at least 90 % of segments, with a centre opening at most 0.4 x the median "
            "vowel opening; lip-opening correlation with the reference at least 0.7. They are "
@@ -60,8 +62,6 @@ def file_intervals(per_file: list[dict], model: str, split: str, *, level: float
     resampling its recordings (per_file.csv rows) with replacement: the recordings, not the
     frames, are the independent units. A figure pools as its results.csv value does (hits over
     frames, closed over segments); figures missing for the model are left out."""
-    import numpy as np
-
     where, _, part = split.partition("-")
     rows = [r for r in per_file if r["model"] == model and r["split"] == where
             and (not part or r["part"] == part)]

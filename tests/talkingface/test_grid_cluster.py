@@ -101,7 +101,7 @@ def test_a_worker_killed_mid_grid_leaves_one_child_per_setting_and_seed(
     for r in children:
         n, s = r.data.tags["ablation.setting"], int(r.data.tags["ablation.seed"])
         k = (s - 2002) // 1000
-        assert r.data.metrics["utterance.mean_test_R"] == out[n, k]["summary"]["ranking"][
+        assert r.data.metrics["test.utterance.R"] == out[n, k]["summary"]["ranking"][
             "utterance"][0]["R"]
     # every folder complete, no partial folder left by the killed attempt
     for n, k in out:
