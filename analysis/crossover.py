@@ -10,7 +10,7 @@ import pandas as pd
 from scipy import stats
 
 from analysis.scoring import check_frame, correct
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 from study.design import AUDIO, EXPRESSIONS, SEQUENCES
 
 

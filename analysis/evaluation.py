@@ -19,7 +19,7 @@ import numpy as np
 from analysis.lip_metrics import LIP_METRIC_NAMES, lip_metrics
 from analysis.metrics import METRIC_NAMES, PAPER_TABLES, normalization_scale, paper_metrics
 from face_model.corpus import EXPRESSIONS
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 from mapping.experiment import TrainedMethod
 
 PARTS = ("train", "test")

@@ -21,9 +21,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.text import Text  # noqa: E402
 
-from face_model.errors import TalkingFaceError  # noqa: E402
 from face_model.layout import default_layout  # noqa: E402
 from face_model.phones import PHONES  # noqa: E402
+from groundwork.errors import TalkingFaceError  # noqa: E402
 
 TEXT_WIDTH_IN = 17 / 2.54  # the report's text width: A4 less two 2 cm margins
 MIN_TEXT_PT = 7.0  # the smallest text a report figure may print

@@ -27,9 +27,9 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from analysis.metrics import pearson_r
-from face_model.errors import ParameterError
 from face_model.layout import N_MARKERS, REGIONS, mouth_opening
 from face_model.phones import BILABIALS, PHONE_INDEX
+from groundwork.errors import ParameterError
 
 LIP_REGIONS = ("lips", "cheeks", "forehead")
 LIP_METRIC_NAMES = ("LVE", "FDD", "R_lips", "R_cheeks", "R_forehead", "closure",

@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 
 # Hong, Wen & Huang (2002), Tables I (training set) and II (testing set).
 PAPER_TABLES = {

@@ -53,8 +53,8 @@ import numpy as np
 import pandas as pd
 from scipy import optimize, special
 
-from face_model.errors import ParameterError
-from face_model.numerics import one_blas_thread
+from groundwork.errors import ParameterError
+from groundwork.numerics import one_blas_thread
 from study.design import AUDIO, EMOTION_OF, EXPRESSIONS, FACES, RESPONSES
 
 MODELS = ("flmp", "wtav")

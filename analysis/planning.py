@@ -36,7 +36,7 @@ from analysis.perception_models import (
     seeded_rng,
 )
 from analysis.study_data import PAPER_TALLIES, trials_from_tallies
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 from study.design import AUDIO, EXPRESSIONS, FACES, RESPONSES
 
 

@@ -38,7 +38,7 @@ from reportlab.platypus import (
     TableStyle,
 )
 
-from face_model.atomic import atomic_file
+from groundwork.atomic import atomic_file
 
 
 def _register_fonts() -> str:

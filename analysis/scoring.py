@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 from study.design import AUDIO, AUDIO_EMOTION, EMOTION_OF, EXPRESSIONS, FACES, RESPONSES, SEQUENCES
 
 NEEDED = ("participant_id", "sequence", "block", "period", "face", "expression", "audio",

@@ -55,9 +55,9 @@ from data_synth.backends import ESPEAK_SPEAKER, voice_speaker
 from data_synth.config import SynthConfig
 from data_synth.face import articulate, make_speaker
 from data_synth.flite import VOICE as FLITE_VOICE
-from face_model.errors import ParameterError
 from face_model.layout import mouth_opening
 from face_model.phones import BILABIALS, PHONE_INDEX, PHONES, VISEMES, viseme
+from groundwork.errors import ParameterError
 from mapping.animator import FaceAnimator
 
 VOWELS = frozenset("iy ih ey eh ae aa ah ax ay aw ao ow oy uw uh er".split())

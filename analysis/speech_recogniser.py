@@ -13,10 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from face_model.errors import ParameterError
 from analysis.speech_eval import phone_frames, viseme_index
 from analysis.speech_set import PARTS
 from face_model.phones import PHONE_INDEX
+from groundwork.errors import ParameterError
 from mapping.recogniser import (RECOGNISER_FPS as FRAMES_PER_S, RECOGNISER_NAME,
                                 RECOGNISER_RATE as SAMPLE_RATE, new_decoder, phone_index, to_pcm16)
 

@@ -33,10 +33,10 @@ from pathlib import Path
 
 import numpy as np
 
-from face_model.audio import read_wav
 from face_model.corpus import PhoneSegment, read_phones
-from face_model.errors import CorpusError
 from face_model.phones import PHONE_INDEX, PHONES
+from groundwork.audio import read_wav
+from groundwork.errors import CorpusError
 
 SET_DIR = Path(__file__).resolve().parent / "real_speech"
 MANIFEST = "manifest.csv"

@@ -38,7 +38,7 @@ from statsmodels.tools.sm_exceptions import (ConvergenceWarning, PerfectSeparati
 
 from analysis.crossover import crossover_tests
 from analysis.scoring import check_frame, correct
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 from study.design import (
     AUDIO,
     AUDIO_EMOTION,

@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 from study.data import COLUMNS, Allocation, sidecar_path
 from study.design import (AUDIO, EXPRESSIONS, FACES, N_TRIALS, RESPONSES, SEQUENCES,
                           check_participant_id)

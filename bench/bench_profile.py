@@ -32,8 +32,8 @@ import torch  # noqa: E402
 from data_synth.generate import synthesize_corpus  # noqa: E402
 from face_model.corpus import load_corpus  # noqa: E402
 from face_model.motion_units import fit_corpus_units  # noqa: E402
-from face_model.memory import keep_freed_memory  # noqa: E402
-from face_model.threads import limit_threads  # noqa: E402
+from groundwork.memory import keep_freed_memory  # noqa: E402
+from groundwork.threads import limit_threads  # noqa: E402
 from mapping import build_dataset  # noqa: E402
 from mapping.experiment import run_experiment  # noqa: E402
 from mapping.nets import record_fits  # noqa: E402

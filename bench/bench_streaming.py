@@ -179,7 +179,7 @@ def main() -> None:
         _, markers = anim.animate(u.audio, sr, u.expression)
         frames = [renderer.render(m) for m in markers]
         render_s = time.perf_counter() - t0
-        from talkingface.animate import write_mp4
+        from talkingface.cli.animate import write_mp4
         wav = Path(tmp) / "corpus" / "audio" / f"{u.utt_id}.wav"
         t0 = time.perf_counter()
         write_mp4(Path(tmp) / "out.mp4", iter(frames), len(frames), renderer.size, fps=30,

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from face_model.errors import ParameterError
 from face_model.phones import (
     ARTIC_PARAMS,
     BILABIALS,
@@ -23,6 +22,7 @@ from face_model.phones import (
     dominance_matrix,
     target_matrix,
 )
+from groundwork.errors import ParameterError
 
 _CLOSURE = ARTIC_PARAMS.index("closure")
 

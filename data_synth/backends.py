@@ -33,7 +33,7 @@ from data_synth.espeak import EspeakBackend
 from data_synth.festival import FESTIVAL_VOICES, FestivalBackend
 from data_synth.flite import FLITE, FLITE_VOICES, FliteBackend
 from data_synth.speech import SpeechBackend
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 
 BACKENDS = ("espeak", "flite")
 ENGINES = ("espeak", "flite", "festival")

@@ -1,7 +1,7 @@
 """The synthetic corpus's settings (paper §IV-A, §VII-A), owned by ``data_synth``.
 
 ``talkingface.config`` composes this section (``synth``) with the other packages' sections.
-Every value is checked when the config is made (:mod:`face_model.settings`).
+Every value is checked when the config is made (:mod:`groundwork.settings`).
 """
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from numbers import Real
 
 from data_synth.backends import voice_problem
 from face_model.corpus import EXPRESSIONS
-from face_model.settings import (SettingError, check_fields, choice, integer, number, require,
+from groundwork.settings import (SettingError, check_fields, choice, integer, number, require,
                                  span, subset)
 
 

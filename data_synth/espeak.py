@@ -28,7 +28,7 @@ import espeakng_loader
 import numpy as np
 
 from data_synth.speech import RawPhone, SpeechBackend, SynthRequest, SynthResult
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 
 # espeak-ng constants (speak_lib.h)
 _AUDIO_OUTPUT_SYNCHRONOUS = 2

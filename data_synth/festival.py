@@ -58,8 +58,8 @@ from data_synth.flite import FLITE_TO_CLASS
 from data_synth.speech import (RawPhone, SpeechBackend, SynthRequest, SynthResult,
                                run_program)
 from data_synth.text import is_speakable, to_ascii
-from face_model.audio import read_wav, resample
-from face_model.errors import ParameterError
+from groundwork.audio import read_wav, resample
+from groundwork.errors import ParameterError
 
 FESTIVAL = "festival"
 DEBIAN_PACKAGE = "festival"

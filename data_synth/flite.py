@@ -52,8 +52,8 @@ import numpy as np
 from data_synth.speech import (RawPhone, SpeechBackend, SynthRequest, SynthResult,
                                run_program)
 from data_synth.text import to_ascii
-from face_model.audio import read_wav, resample
-from face_model.errors import ParameterError
+from groundwork.audio import read_wav, resample
+from groundwork.errors import ParameterError
 
 FLITE = "flite"
 DEBIAN_PACKAGE = "flite"

@@ -32,10 +32,10 @@ from data_synth.face import Speaker, articulate, expression_envelope, make_speak
 from data_synth.nuisance import add_marker_noise, apply_head_motion, brow_track, head_motion
 from data_synth.speech import SynthRequest, phone_segments
 from data_synth.text import select_sentences
-from face_model.atomic import fresh_partial_folder, swap_in
 from face_model.corpus import EXPRESSIONS, FPS, write_manifest, write_utterance
-from face_model.errors import ParameterError
 from face_model.layout import LAYOUT_VERSION
+from groundwork.atomic import fresh_partial_folder, swap_in
+from groundwork.errors import ParameterError
 
 
 @dataclass(frozen=True)

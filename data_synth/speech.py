@@ -16,8 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from face_model.corpus import PhoneSegment
-from face_model.errors import ParameterError
 from face_model.phones import PHONE_INDEX
+from groundwork.errors import ParameterError
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,7 @@ import unicodedata
 from importlib import resources
 from pathlib import Path
 
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 
 
 def builtin_sentences() -> list[str]:

@@ -32,10 +32,10 @@ from tqdm.auto import tqdm
 from data_synth.video import INITS, VideoDifficulty, first_frame_markers, render_marker_video
 from face_model.alignment import speaker_neutrals
 from face_model.corpus import corpus_hash, write_manifest
-from face_model.errors import ParameterError
-from face_model.memory import keep_freed_memory
-from face_model.threads import limit_threads, thread_budget
 from face_model.tracker import MUTracker
+from groundwork.errors import ParameterError
+from groundwork.memory import keep_freed_memory
+from groundwork.threads import limit_threads, thread_budget
 
 
 @dataclass(frozen=True)

@@ -35,7 +35,6 @@ import numpy as np
 
 from face_model.alignment import similarity_params
 from face_model.detect import initial_markers_from_image
-from face_model.errors import ParameterError
 from face_model.layout import (
     LEFT_INNER_CORNER,
     LEFT_OUTER_CORNER,
@@ -49,6 +48,7 @@ from face_model.layout import (
     default_layout,
 )
 from face_model.tracker import MUTracker, init_from_mouth_corners, track_points_lk
+from groundwork.errors import ParameterError
 
 FPS = 30
 DEFAULT_SIZE = (320, 320)  # width, height in pixels

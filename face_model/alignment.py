@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from face_model.errors import ParameterError
 from face_model.layout import GLASSES, N_MARKERS, default_layout
+from groundwork.errors import ParameterError
 
 ALIGNMENTS = ("similarity", "affine")
 

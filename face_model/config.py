@@ -1,13 +1,13 @@
 """Settings owned by ``face_model``: the Motion Units (``units``) and the MU-constrained
 tracker's evaluation (``tracker``). ``talkingface.config`` composes them with the other sections.
-Every value is checked when the config is made (:mod:`face_model.settings`).
+Every value is checked when the config is made (:mod:`groundwork.settings`).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 from face_model.motion_units import N_DIM  # values per deformation: the most MUs a PCA gives
-from face_model.settings import check_fields, choice, integer, number, numbers
+from groundwork.settings import check_fields, choice, integer, number, numbers
 
 
 @dataclass(frozen=True)

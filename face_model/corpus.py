@@ -25,10 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
-from face_model.audio import read_wav, resample, write_wav
-from face_model.errors import CorpusError, ParameterError
 from face_model.layout import N_MARKERS
 from face_model.phones import PHONE_INDEX, PHONES
+from groundwork.audio import read_wav, resample, write_wav
+from groundwork.errors import CorpusError, ParameterError
 
 EXPRESSIONS = ("neutral", "smile", "sad")
 MANIFEST_COLUMNS = ("utt_id", "speaker", "expression", "text", "n_frames", "fps",

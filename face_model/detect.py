@@ -33,10 +33,10 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from face_model.errors import ParameterError
 from face_model.layout import LEFT_OUTER_CORNER, N_MARKERS, RIGHT_OUTER_CORNER
 from face_model.mu_fit import as_points, fit_linear
 from face_model.tracker import init_from_mouth_corners
+from groundwork.errors import ParameterError
 
 __all__ = ["dot_response", "detect_marker_dots", "register_layout", "find_mouth_corners",
            "initial_markers_from_image", "DotResponse", "LayoutMatch"]

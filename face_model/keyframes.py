@@ -41,11 +41,11 @@ from pathlib import Path
 
 import numpy as np
 
-from face_model import numerics
 from face_model.alignment import corpus_deformations
-from face_model.errors import NotFittedError, ParameterError
 from face_model.motion_units import N_DIM, MotionUnits
 from face_model.phones import BILABIALS, PHONE_INDEX, PHONES, dominance_matrix, viseme
+from groundwork import numerics
+from groundwork.errors import NotFittedError, ParameterError
 
 KEYFRAMES = ("smile", "sad", "i", "a", "o", "f", "u", "m")
 EXPRESSION_KEYFRAMES, VISEME_KEYFRAMES = KEYFRAMES[:2], KEYFRAMES[2:]

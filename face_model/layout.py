@@ -20,7 +20,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.spatial import Delaunay
 
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 
 LAYOUT_VERSION = "hwh79-1"
 N_MARKERS = 79

@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from face_model.alignment import corpus_deformations
-from face_model.errors import NotFittedError, ParameterError
 from face_model.layout import LAYOUT_VERSION, N_MARKERS
-from face_model.numerics import single_threaded, svd
+from groundwork.errors import NotFittedError, ParameterError
+from groundwork.numerics import single_threaded, svd
 
 N_DIM = 2 * N_MARKERS
 FORMAT = "talkingface.motion_units/1"

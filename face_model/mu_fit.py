@@ -29,9 +29,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from face_model.errors import ParameterError
 from face_model.layout import N_MARKERS, default_layout
-from face_model.numerics import lstsq, one_blas_thread
+from groundwork.errors import ParameterError
+from groundwork.numerics import lstsq, one_blas_thread
 
 
 def as_points(x, name: str, shape: tuple, *, stacked: bool | None = None) -> np.ndarray:

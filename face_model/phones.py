@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 
 ARTIC_PARAMS = ("jaw", "aperture", "spread", "protrusion", "upper_raise", "lower_tuck", "closure")
 N_ARTIC = len(ARTIC_PARAMS)

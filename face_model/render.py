@@ -15,10 +15,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from face_model.errors import ParameterError
 from face_model.layout import (BROW_ROW, FACE_CENTRE, LEFT_INNER_CORNER, LEFT_OUTER_CORNER,
                                LOWER_INNER, LOWER_OUTER, N_MARKERS, RIGHT_INNER_CORNER,
                                RIGHT_OUTER_CORNER, UPPER_INNER, UPPER_OUTER, default_layout)
+from groundwork.errors import ParameterError
 
 _SHIFT = 4  # sub-pixel bits for cv2 drawing
 _COLOURS = {  # RGB

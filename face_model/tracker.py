@@ -37,7 +37,6 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from face_model.errors import ParameterError
 from face_model.layout import LEFT_OUTER_CORNER, N_MARKERS, RIGHT_OUTER_CORNER
 from face_model.mu_fit import (
     MUFit,
@@ -50,6 +49,7 @@ from face_model.mu_fit import (
     min_markers,
     model_basis,
 )
+from groundwork.errors import ParameterError
 
 __all__ = ["MUTracker", "TrackResult", "init_from_mouth_corners", "track_points_lk",
            "fit_linear", "fit_nonlinear", "MUFit", "apply_beta", "beta_to_similarity",

@@ -27,8 +27,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from face_model.alignment import unflatten
-from face_model.errors import ParameterError
 from face_model.layout import default_layout
+from groundwork.errors import ParameterError
 from mapping.checkpoint import rest_mups
 from mapping.features import (MFCC_SETTINGS, algorithmic_latency_s, hop_samples, mfcc,
                                window_dbfs, window_future)

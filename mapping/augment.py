@@ -23,7 +23,7 @@ import librosa
 import numpy as np
 import scipy.signal as sps
 
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 from mapping.config import AugmentSettings
 
 NOISE_BETA = {"white": 0.0, "pink": 1.0, "brown": 2.0}  # power spectrum ∝ 1 / f^β

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from face_model.errors import NotFittedError, ParameterError
+from groundwork.errors import NotFittedError, ParameterError
 from mapping.config import TrainSettings
 from mapping.nets import MLP, NetRegressor, fit_many
 from mapping.state import ArrayGroup, nest, part_name, settings_from_params, settings_to_params

@@ -27,12 +27,12 @@ from sklearn.linear_model import Ridge
 from sklearn.mixture import GaussianMixture
 from sklearn.utils._openmp_helpers import _openmp_effective_n_threads
 
-from face_model.errors import NotFittedError, ParameterError
-from face_model.numerics import single_threaded
-from mapping.features import ContextFeatures, check_context, check_seed
-from mapping.normalize import check_cmvn
+from groundwork.errors import NotFittedError, ParameterError
+from groundwork.numerics import single_threaded
 from mapping.config import TrainSettings
+from mapping.features import ContextFeatures, check_context, check_seed
 from mapping.nets import GRUNet, MLP, TDNN, NetRegressor, fit_many
+from mapping.normalize import check_cmvn
 from mapping.state import (ArrayGroup, nest, part_name, settings_from_params,
                            settings_to_params)
 

@@ -30,8 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from face_model.audio import read_wav, resample
-from face_model.errors import ParameterError
+from groundwork.audio import read_wav, resample
+from groundwork.errors import ParameterError
 from mapping.baselines import BASELINES, Baseline
 from mapping.features import audio_features, check_align, frame_rms_dbfs
 from mapping.gated import GatedMLP

@@ -32,7 +32,7 @@ frames only; test utterances never), or one warped copy each when only the warp 
 utterance and the copy number.
 :func:`mapping.experiment.make_mapper` turns a section into the estimators' explicit
 hyper-parameters, so no estimator reads a config object. Every value is checked when the config
-is made (:mod:`face_model.settings`).
+is made (:mod:`groundwork.settings`).
 
 The names below are those of :data:`mapping.experiment.METHODS`, :data:`mapping.dataset.SPLITS`,
 :data:`mapping.gate.N_CLASS_CHOICES` and ``MFCC_SETTINGS["n_mels"] - 1``, written out so loading
@@ -42,7 +42,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from face_model.settings import (check_fields, check_order, choice, fraction, integer, number,
+from groundwork.settings import (check_fields, check_order, choice, fraction, integer, number,
                                  numbers, require, span, subset)
 
 METHOD_NAMES = ("gated_mlp", "vq", "linear", "gmm_regression", "mlp_large", "tdnn", "gru")

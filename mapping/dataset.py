@@ -19,9 +19,9 @@ import numpy as np
 from tqdm import tqdm
 
 from face_model.alignment import corpus_deformations
-from face_model.cache import content_key
 from face_model.corpus import corpus_hash
-from face_model.errors import ParameterError
+from groundwork.cache import content_key
+from groundwork.errors import ParameterError
 from mapping.augment import augment, retime_labels, retime_targets, rir_bank
 from mapping.config import AugmentSettings
 from mapping.features import FEATURES_VERSION, audio_features, hop_samples
@@ -80,7 +80,7 @@ def build_dataset(corpus, units, *, n_mfcc: int = 10, deltas: bool = False,
     future frames decided with ``forward`` frames of look-ahead
     (:func:`mapping.recogniser.recognise_windows`; the recogniser gate's input), fitted to the
     utterance's frames. ``window_align``: the MFCC window's alignment
-    (:func:`mapping.features.aligned`). ``cache``: a :class:`face_model.cache.ArrayCache`
+    (:func:`mapping.features.aligned`). ``cache``: a :class:`groundwork.cache.ArrayCache`
     that keeps the features and the recognised phones of a corpus, by its content and the
     settings, for every later call (a grid's tasks, later runs).
     """
@@ -109,7 +109,7 @@ def build_dataset(corpus, units, *, n_mfcc: int = 10, deltas: bool = False,
 
 def _per_utterance(corpus, cache, what: tuple, make, desc: str | None = None) -> dict:
     """``{utt_id: make(u)}`` for every utterance of ``corpus``; with ``cache`` (a
-    :class:`face_model.cache.ArrayCache`) read from, or made once into, the entry keyed by the
+    :class:`groundwork.cache.ArrayCache`) read from, or made once into, the entry keyed by the
     corpus's content hash and ``what`` (the kind first, then every setting and version the
     arrays depend on)."""
     def build() -> dict:

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field, replace
 
 from tqdm import tqdm
 
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 from mapping.baselines import BASELINES, Baseline
 from mapping.config import MappingConfig
 from mapping.dataset import split_masks, training_copies

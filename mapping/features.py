@@ -27,7 +27,7 @@ import functools
 import librosa
 import numpy as np
 
-from face_model.errors import NotFittedError, ParameterError
+from groundwork.errors import NotFittedError, ParameterError
 from mapping.normalize import CepstralNormalizer, check_cmvn
 from mapping.state import ArrayGroup, nest
 

@@ -17,9 +17,9 @@ from __future__ import annotations
 import numpy as np
 from sklearn.mixture import GaussianMixture
 
-from face_model.errors import NotFittedError, ParameterError
-from face_model.numerics import single_threaded
 from face_model.phones import PHONES, viseme
+from groundwork.errors import NotFittedError, ParameterError
+from groundwork.numerics import single_threaded
 from mapping.state import ArrayGroup, nest
 
 N_CLASS_CHOICES = (1, 8, 44)

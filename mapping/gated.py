@@ -43,11 +43,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from face_model.errors import NotFittedError, ParameterError
+from groundwork.errors import NotFittedError, ParameterError
+from mapping.bank import MLPBank, fit_banks, hidden_units  # noqa: F401 (hidden_units: API)
+from mapping.config import TrainSettings
 from mapping.features import ContextFeatures, check_context, check_seed
 from mapping.gate import COVARIANCE_TYPES, PhoneGate, class_groups, merge_small_classes
-from mapping.config import TrainSettings
-from mapping.bank import MLPBank, fit_banks, hidden_units  # noqa: F401 (hidden_units: API)
 from mapping.nets import MLP, NetRegressor, fit_many
 from mapping.normalize import check_cmvn
 from mapping.recogniser import N_PHONES, label_windows, phone_inputs

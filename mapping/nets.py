@@ -19,7 +19,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from face_model.errors import NotFittedError, ParameterError
+from groundwork.errors import NotFittedError, ParameterError
 from mapping.batched import fit_mlps
 from mapping.config import TrainSettings
 from mapping.state import ArrayGroup, settings_from_params, settings_to_params

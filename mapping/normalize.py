@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from face_model.errors import NotFittedError, ParameterError
+from groundwork.errors import NotFittedError, ParameterError
 from mapping.state import ArrayGroup
 
 CMVN_MODES = ("none", "mean", "meanvar")

@@ -45,8 +45,8 @@ import numpy as np
 import soxr
 from pocketsphinx import Decoder, get_model_path
 
-from face_model.errors import ParameterError
 from face_model.phones import PHONE_INDEX, PHONES
+from groundwork.errors import ParameterError
 
 RECOGNISER_RATE = 16000  # Hz, the acoustic model's rate
 RECOGNISER_FPS = 100  # the decoder's frames per second

@@ -8,7 +8,7 @@ the names of its :class:`~mapping.features.ContextFeatures`) and their parameter
 :mod:`mapping.checkpoint` writes both into one ``.npz`` file; nothing in it is Python code.
 
 On the way back, :class:`ArrayGroup` hands each estimator its own arrays, checks their shape and
-kind, and names the full array in a :class:`~face_model.errors.ParameterError` when one is
+kind, and names the full array in a :class:`~groundwork.errors.ParameterError` when one is
 missing or does not fit.
 """
 from __future__ import annotations
@@ -17,7 +17,7 @@ import dataclasses
 
 import numpy as np
 
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 from mapping.config import TrainSettings
 
 SEP = "/"

@@ -20,8 +20,8 @@ from sklearn.pipeline import make_pipeline
 
 from face_model.alignment import align_markers, flatten, speaker_neutrals
 from face_model.corpus import load_corpus
-from face_model.errors import NotFittedError, ParameterError
-from face_model.numerics import single_threaded
+from groundwork.errors import NotFittedError, ParameterError
+from groundwork.numerics import single_threaded
 from study.design import AUDIO, EXPRESSIONS, FACES, stimulus_id
 
 

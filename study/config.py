@@ -1,12 +1,12 @@
 """The perception study's settings (paper §VII-C), owned by ``study``; ``talkingface.config``
 composes this section (``study``) with the others. Every value is checked when the config is
-made (:mod:`face_model.settings`).
+made (:mod:`groundwork.settings`).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from face_model.settings import check_fields, choice, distinct_keys, integer, number
+from groundwork.settings import check_fields, choice, distinct_keys, integer, number
 
 
 @dataclass(frozen=True)

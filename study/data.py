@@ -30,7 +30,7 @@ from pathlib import Path
 
 from filelock import FileLock
 
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 from study.design import (
     N_TRIALS,
     RESPONSES,

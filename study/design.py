@@ -32,8 +32,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from face_model.corpus import EXPRESSIONS  # the corpus's expressions, also the study's
-from face_model.errors import ParameterError
-from face_model.identifiers import check_identifier
+from groundwork.errors import ParameterError
+from groundwork.identifiers import check_identifier
 
 SENTENCES = {"normal": "It is normal.", "good": "It is good.", "bad": "It is bad."}
 AUDIO = tuple(SENTENCES)  # audio track 1, 2, 3 of the paper

@@ -40,7 +40,7 @@ from types import SimpleNamespace
 import numpy as np
 from PIL import Image
 
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 from study import data as sdata
 from study.design import RESPONSES, required_stimuli
 from study.session import PRACTICE, SessionPlan, check_session, open_session

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 from filelock import FileLock, Timeout
 
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 from study import data as sdata
 from study.design import (RESPONSES, Trial, allocation_sequences, check_participant_id, group_of,
                           participant_seed, session_trials)

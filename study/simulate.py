@@ -97,7 +97,7 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 from study.classifier import (  # noqa: F401  (ExpressionClassifier, visual_evidence: re-exported)
     ExpressionClassifier,
     is_finite_number,

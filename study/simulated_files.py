@@ -9,7 +9,7 @@ import io
 import json
 from pathlib import Path
 
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 from study.data import (
     COLUMNS,
     Allocation,

@@ -39,11 +39,11 @@ from tqdm.auto import tqdm
 
 from data_synth.generate import synthesize_corpus
 from face_model.alignment import align_markers, speaker_neutrals
-from face_model.audio import write_wav
 from face_model.corpus import load_corpus
-from face_model.errors import ParameterError
-from face_model.movie import write_mp4
 from face_model.render import FaceRenderer, face_grid
+from groundwork.audio import write_wav
+from groundwork.errors import ParameterError
+from groundwork.movie import write_mp4
 from study.design import (AUDIO, EXPRESSIONS, FACES, SENTENCES, check_stimulus_id,
                           required_stimuli, stimulus_id)
 
@@ -80,7 +80,7 @@ class Stimulus:
 
 
 def write_silent_mp4(path, frames, size, *, fps: int = FPS) -> Path:
-    """RGB frames (h, w, 3) uint8 → H.264 MP4 without audio (:func:`face_model.movie.write_mp4`
+    """RGB frames (h, w, 3) uint8 → H.264 MP4 without audio (:func:`groundwork.movie.write_mp4`
     at quality 8, frame sizes padded to a multiple of 8 pixels)."""
     return write_mp4(path, frames, len(frames) if hasattr(frames, "__len__") else None, size,
                      fps=fps, audio_path=None, progress=False, quality=8, macro_block_size=8)

@@ -1,3 +1,3 @@
-from talkingface.cli import entry
+from talkingface.cli.main import entry
 
 entry()

@@ -12,7 +12,7 @@ It composes, loads, validates and dumps them.
 ``--set section.key=value`` (or ``section.sub.key=value`` for a nested section) overrides single
 values, parsed as YAML scalars (with YAML 1.2's numbers: ``1e-3``, ``1E5`` and ``.5`` are floats,
 not strings as in PyYAML's YAML 1.1). An unknown section or key is an error naming the key and
-what is allowed. Each section checks its own values when it is made (:mod:`face_model.settings`);
+what is allowed. Each section checks its own values when it is made (:mod:`groundwork.settings`);
 this module prefixes the section, so a refused value reads
 ``synth.rate_wpm is -100; allowed: an integer > 0``. A config file that cannot be read, is not
 UTF-8 YAML, repeats a key or is not a mapping is refused with its name (and line and column).
@@ -29,8 +29,8 @@ import yaml
 
 from data_synth.config import SynthConfig
 from face_model.config import TrackerConfig, UnitsConfig
-from face_model.errors import ParameterError
-from face_model.settings import SettingError, check_fields, choices_of, integer, require
+from groundwork.errors import ParameterError
+from groundwork.settings import SettingError, check_fields, choices_of, integer, require
 from mapping.config import MappingConfig
 from study.config import StudyConfig
 from talkingface.executor import scheduler_address

@@ -20,7 +20,7 @@ A task that dies with its worker is run again on another worker by the Dask sche
 ``distributed.scheduler.allowed-failures`` times); tasks are written to be run again safely
 (:func:`talkingface.stages.grid.run_child` writes its folder under a temporary name and its
 MLflow child run is keyed by setting and seed). Every task's process sets its torch and BLAS
-threads so that workers × threads ≤ cores (:mod:`face_model.threads`): the parallelism is the
+threads so that workers × threads ≤ cores (:mod:`groundwork.threads`): the parallelism is the
 workers'.
 """
 from __future__ import annotations
@@ -40,9 +40,9 @@ from contextlib import contextmanager, suppress
 
 from tqdm import tqdm
 
-from face_model.errors import ParameterError, TalkingFaceError
-from face_model.memory import keep_freed_memory
-from face_model.threads import cores, limit_threads, thread_budget
+from groundwork.errors import ParameterError, TalkingFaceError
+from groundwork.memory import keep_freed_memory
+from groundwork.threads import cores, limit_threads, thread_budget
 
 SCHEDULERS = ("local", "processes")
 CONNECT_TIMEOUT_S = 10
@@ -126,8 +126,8 @@ def _is_dask_greeting(data: bytes) -> bool:
 
 
 def _call(fn, args, threads: int = 1):
-    limit_threads(threads)  # processes x threads <= cores (face_model.threads)
-    keep_freed_memory()  # no page faults for every epoch's tensors (face_model.memory)
+    limit_threads(threads)  # processes x threads <= cores (groundwork.threads)
+    keep_freed_memory()  # no page faults for every epoch's tensors (groundwork.memory)
     return fn(*args)
 
 

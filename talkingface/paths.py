@@ -29,8 +29,8 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from face_model.errors import ParameterError
-from face_model.identifiers import check_identifier
+from groundwork.errors import ParameterError
+from groundwork.identifiers import check_identifier
 
 # 1-64 letters, digits, ._- starting with a letter or digit, and no ".." anywhere
 _NAME = re.compile(r"(?!.*\.\.)[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
@@ -73,7 +73,7 @@ class RunPaths:
 
     @property
     def cache(self) -> Path:
-        """The content-keyed cache beside ``runs/`` (:mod:`face_model.cache`): what tasks,
+        """The content-keyed cache beside ``runs/`` (:mod:`groundwork.cache`): what tasks,
         stages and runs share (a corpus's features, its recognised phones)."""
         return self.root.parent.parent / "cache"
 

@@ -25,16 +25,16 @@ if str(REPO_ROOT) not in sys.path:
 
 from data_synth.generate import synthesize_corpus  # noqa: E402
 from face_model.corpus import load_corpus  # noqa: E402
-from face_model.memory import keep_freed_memory  # noqa: E402
-from face_model.owner import release_all  # noqa: E402
+from groundwork.memory import keep_freed_memory  # noqa: E402
+from groundwork.owner import release_all  # noqa: E402
 from talkingface.config import Config  # noqa: E402
 
 # The test workers share the cores: each sets its torch and BLAS threads so that workers x
-# threads <= cores (face_model.threads; tiny networks run many times slower when threads compete).
-from face_model.threads import limit_threads, thread_budget  # noqa: E402
+# threads <= cores (groundwork.threads; tiny networks run many times slower when threads compete).
+from groundwork.threads import limit_threads, thread_budget  # noqa: E402
 
 limit_threads(thread_budget(int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))))
-keep_freed_memory()  # as every process of the project (face_model.memory)
+keep_freed_memory()  # as every process of the project (groundwork.memory)
 
 # Property tests: reproducible examples (derandomize), no wall-clock deadline, no example database.
 settings.register_profile("talkingface", derandomize=True, deadline=None, database=None,
@@ -71,7 +71,7 @@ def pytest_collection_modifyitems(session, config, items):
 @pytest.fixture(autouse=True)
 def _release_held_folders():
     """What a test that calls the run layer directly (not through the CLI, which releases at
-    its end) left held: released after each test (face_model.owner)."""
+    its end) left held: released after each test (groundwork.owner)."""
     yield
     release_all()
 
@@ -174,7 +174,7 @@ def small_run_dir(tmp_path_factory):
     study data, analysis, report: the settings of ``tests.talkingface.bad_input_cases.QUICK``,
     without MLflow) and a corpus ``c``, made once per test run (:func:`build_once`) by the
     command line. Read-only: tests copy the folders they run commands in."""
-    from talkingface.cli import main
+    from talkingface.cli.main import main
     from tests.talkingface.bad_input_cases import build_run
 
     def build(folder):

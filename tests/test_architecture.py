@@ -1,7 +1,8 @@
 """The import layering of DESIGN.md, checked over the import graph of the source tree.
 
-Layers, lowest first: ``face_model`` ← ``data_synth``, ``mapping`` ← ``study`` ← ``analysis`` ←
-``talkingface``. A module imports only its own package and lower layers (``data_synth`` and
+Layers, lowest first: ``groundwork`` (the ground floor: errors, settings fields, files, audio
+I/O; it imports no project package) ← ``face_model`` ← ``data_synth``, ``mapping`` ← ``study`` ←
+``analysis`` ← ``talkingface``. A module imports only its own package and lower layers (``data_synth`` and
 ``mapping`` are siblings: neither imports the other); no two files import each other, directly
 or around a loop, counting imports inside functions; and imports sit at the top of a file,
 except the heavy, optional ones in :data:`LAZY_OK`.
@@ -14,11 +15,11 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-LAYERS = {"face_model": 0, "data_synth": 1, "mapping": 1, "study": 2, "analysis": 3,
-          "talkingface": 4}
+LAYERS = {"groundwork": 0, "face_model": 1, "data_synth": 2, "mapping": 2, "study": 3,
+          "analysis": 4, "talkingface": 5}
 # May be imported inside a function: heavy or optional, and only needed on some paths.
 LAZY_OK = ("torch", "mlflow", "psychopy", "pyglet", "psychtoolbox", "cv2", "sounddevice",
-           "imageio_ffmpeg", "matplotlib", "talkingface.pyfunc", "distributed")
+           "imageio_ffmpeg", "matplotlib", "talkingface.experiments.pyfunc", "distributed")
 
 
 def _module_name(root: Path, path: Path) -> str:
@@ -146,9 +147,9 @@ def _tree(root: Path, files: dict) -> Path:
 @pytest.mark.parametrize("files, problem", [
     ({"study/stimuli.py": "from analysis.figures import face_grid\n",
       "analysis/figures.py": "def face_grid(): pass\n"},
-     "study/stimuli.py:1: study (layer 2) imports analysis (layer 3)"),
+     "study/stimuli.py:1: study (layer 3) imports analysis (layer 4)"),
     ({"data_synth/gen.py": "import mapping.features\n", "mapping/features.py": ""},
-     "data_synth/gen.py:1: data_synth (layer 1) imports mapping (layer 1)"),
+     "data_synth/gen.py:1: data_synth (layer 2) imports mapping (layer 2)"),
     ({"analysis/stats.py": "def f():\n    from analysis.crossover import g\n",
       "analysis/crossover.py": "from analysis.stats import f\ndef g(): pass\n"},
      "import cycle: analysis.crossover -> analysis.stats -> analysis.crossover"),
@@ -161,6 +162,9 @@ def _tree(root: Path, files: dict) -> Path:
      "face_model/a.py:2: imports face_model.b inside a function"),
     ({"face_model/a.py": "def f():\n    import scipy.linalg\n"},
      "face_model/a.py:2: imports scipy.linalg inside a function"),
+    ({"groundwork/errors.py": "from face_model.layout import L\n",
+      "face_model/layout.py": "L = 1\n"},
+     "groundwork/errors.py:1: groundwork (layer 0) imports face_model (layer 1)"),
 ])
 def test_an_import_against_the_rules_is_reported(tmp_path, files, problem):
     problems = import_problems(_tree(tmp_path, files))
@@ -170,6 +174,59 @@ def test_an_import_against_the_rules_is_reported(tmp_path, files, problem):
 def test_lazy_heavy_imports_and_downward_imports_are_allowed(tmp_path):
     root = _tree(tmp_path, {"study/run.py": "import numpy\nfrom mapping.gate import G\n"
                                             "def f():\n    import psychopy.visual\n",
-                            "mapping/gate.py": "from face_model.errors import E\nclass G: pass\n",
-                            "face_model/errors.py": "class E(Exception): pass\n"})
+                            "mapping/gate.py": "from groundwork.errors import E\nclass G: pass\n",
+                            "groundwork/errors.py": "class E(Exception): pass\n"})
     assert import_problems(root) == []
+
+
+def test_the_ground_floor_imports_no_project_package():
+    """``groundwork`` stands below every package: none of its files names another one."""
+    others = [p for p in LAYERS if p != "groundwork"]
+    for path in sorted((REPO / "groundwork").rglob("*.py")):
+        tree = ast.parse(path.read_text(), filename=str(path))
+        names = [n for n, _, _ in _imports(tree, _module_name(REPO, path),
+                                           path.name == "__init__.py")]
+        assert [n for n in names if n.split(".")[0] in others] == [], path
+
+
+# Inside ``talkingface``: the command line uses the MLflow logging, which reads the stages; the
+# shared modules (config, paths, executor, provenance) sit under all three.
+ROOMS = {"talkingface.stages": 1, "talkingface.experiments": 2, "talkingface.cli": 3,
+         "talkingface.__main__": 4}
+
+
+def _room(module: str) -> tuple[str, int]:
+    for room, level in ROOMS.items():
+        if module == room or module.startswith(room + "."):
+            return room, level
+    return "talkingface", 0
+
+
+def room_problems(root: Path) -> list[str]:
+    """Every import inside ``talkingface`` that runs against :data:`ROOMS`, one line each."""
+    files = {_module_name(root, p): p for p in sorted((root / "talkingface").rglob("*.py"))}
+    problems = []
+    for mod, path in files.items():
+        room, level = _room(mod)
+        tree = ast.parse(path.read_text(), filename=str(path))
+        for name, line, _ in _imports(tree, mod, path.name == "__init__.py"):
+            target = _resolve(set(files), name)
+            if target is None:
+                continue
+            other, other_level = _room(target)
+            if other != room and other_level >= level:
+                problems.append(f"{path.relative_to(root)}:{line}: {room} imports {other}; "
+                                "only talkingface.cli → experiments → stages → shared modules")
+    return problems
+
+
+def test_talkingface_rooms_import_in_one_direction():
+    assert room_problems(REPO) == []
+
+
+def test_an_upward_import_between_rooms_is_reported(tmp_path):
+    root = _tree(tmp_path, {"talkingface/stages/train.py": "from talkingface.cli.main import x\n",
+                            "talkingface/cli/main.py": "x = 1\n"})
+    assert room_problems(root) == ["talkingface/stages/train.py:1: talkingface.stages imports "
+                                   "talkingface.cli; only talkingface.cli → experiments → "
+                                   "stages → shared modules"]

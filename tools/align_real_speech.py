@@ -32,8 +32,8 @@ if str(REPO) not in sys.path:
 
 from analysis.speech_set import (ALIGNED, SAMPLE_RATE, SET_DIR, _tidy, hts_segments,  # noqa: E402
                                  phone_class, read_manifest, textgrid_segments, write_labels)
-from face_model.audio import read_wav  # noqa: E402
-from face_model.errors import CorpusError  # noqa: E402
+from groundwork.audio import read_wav  # noqa: E402
+from groundwork.errors import CorpusError  # noqa: E402
 
 FRAMES_PER_S = 100  # pocketsphinx's default frame rate
 

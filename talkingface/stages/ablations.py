@@ -28,9 +28,9 @@ from matplotlib.lines import Line2D
 from analysis.figures import report_figure
 from analysis.replicates import summarise_replicates
 from mapping.features import algorithmic_latency_s
-from talkingface.child_runs import log_for
 from talkingface.paths import RunPaths
 from talkingface.stages.base import write_csv
+from talkingface.stages.child_runs import log_for
 from talkingface.stages.grid import (checked_grid, child_metrics, load_grid, resolve_grid,
                                      run_grid)
 from talkingface.stages.motion import training_corpus

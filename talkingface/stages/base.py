@@ -31,9 +31,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 
-from face_model.atomic import atomic_file, fresh_partial_folder, swap_in
-from face_model.errors import ParameterError
-from face_model.owner import acquire
+from groundwork.atomic import atomic_file, fresh_partial_folder, swap_in
+from groundwork.errors import ParameterError
+from groundwork.owner import acquire
 from talkingface.config import dump_config, read_yaml, select, to_dict
 from talkingface.paths import RunPaths
 

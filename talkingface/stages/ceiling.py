@@ -37,14 +37,14 @@ import numpy as np
 from analysis.figures import report_figure
 from analysis.metrics import PAPER_TABLES
 from analysis.replicates import summarise_replicates
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 from talkingface.config import flatten
 from talkingface.paths import RunPaths
-from talkingface.child_runs import log_for
+from talkingface.stages.base import write_csv
+from talkingface.stages.child_runs import log_for
+from talkingface.stages.foundation import fit_units_folder
 from talkingface.stages.grid import (checked_grid, child_metrics, grid_corpus, load_grid,
                                      resolve_grid, run_grid)
-from talkingface.stages.base import write_csv
-from talkingface.stages.foundation import fit_units_folder
 from talkingface.stages.motion import track_folder, training_corpus, uses_tracked_corpus
 
 DEFAULT_GRID = Path(__file__).resolve().parents[2] / "configs" / "ceiling.yaml"

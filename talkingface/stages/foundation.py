@@ -14,13 +14,13 @@ import numpy as np
 from analysis.corpus_report import summarize_units
 from data_synth.generate import synthesize_corpus
 from face_model.alignment import corpus_deformations, unflatten
-from face_model.atomic import atomic_file
 from face_model.corpus import corpus_hash, load_corpus
-from face_model.errors import ParameterError
 from face_model.keyframes import KEYFRAMES, KeyframeModel
 from face_model.layout import default_layout
 from face_model.motion_units import MotionUnits, fit_corpus_units
 from face_model.render import FaceRenderer, face_grid
+from groundwork.atomic import atomic_file
+from groundwork.errors import ParameterError
 from talkingface.paths import RunPaths
 from talkingface.stages.base import write_csv
 

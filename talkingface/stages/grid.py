@@ -22,8 +22,8 @@ one seed gives exactly the single-run results. Folders::
 
 A task writes its folder under ``<folder>.partial-<attempt>`` (its own, since a scheduler may run
 a task again while the first attempt still lives) and swaps it in when complete
-(:func:`face_model.atomic.swap_in`), unless another attempt's finished folder got there first,
-then logs its MLflow child run, keyed by setting and seed (:mod:`talkingface.child_runs`):
+(:func:`groundwork.atomic.swap_in`), unless another attempt's finished folder got there first,
+then logs its MLflow child run, keyed by setting and seed (:mod:`talkingface.stages.child_runs`):
 attempts that race keep one folder and one run between them, and the partial folders and
 unfinished runs of attempts killed with their workers are removed once the grid has ended. So
 no child is ever doubled or left half-written.
@@ -46,12 +46,12 @@ from pathlib import Path
 
 from analysis.evaluation import row_metrics
 from data_synth.generate import synthesize_corpus
-from face_model.atomic import swap_in
-from face_model.errors import ParameterError
+from groundwork.atomic import swap_in
+from groundwork.errors import ParameterError
 from mapping.experiment import METHOD_COST
-from talkingface.child_runs import artifact_files
 from talkingface.config import apply_overrides, flatten, parse_set, read_yaml, to_dict
 from talkingface.executor import map_tasks
+from talkingface.stages.child_runs import artifact_files
 from talkingface.stages.training import train_and_evaluate
 
 _CHILD_NAME = "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_.-"
@@ -178,7 +178,7 @@ def mlflow_child_metrics(metrics: dict) -> dict:
 
 def log_child(log, stage: str, name: str, k: int, folder: Path, cfg, summary: dict) -> str:
     """Log one replicate of a child as an MLflow child run (``log``: a
-    :class:`talkingface.child_runs.ChildLog`); idempotent. The run is named ``<setting>/<seed>``;
+    :class:`talkingface.stages.child_runs.ChildLog`); idempotent. The run is named ``<setting>/<seed>``;
     the setting is a param (``setting``, so it can be a chart axis) and a tag, and the tag
     ``grid`` says which grid it belongs to (:data:`GRID_KINDS`)."""
     m = cfg.mapping

@@ -23,10 +23,10 @@ from face_model.layout import mouth_opening
 from face_model.motion_units import MotionUnits
 from face_model.phones import PHONES
 from face_model.render import FaceRenderer, face_grid
-from talkingface.animate import load_animator
 from talkingface.executor import map_tasks
 from talkingface.paths import RunPaths
 from talkingface.stages.base import read_done, write_csv
+from talkingface.stages.models import load_animator
 
 INIT_WORDS = {"markers": "true first-frame markers",
               "corners": "neutral face placed by the true mouth corners",

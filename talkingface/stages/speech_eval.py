@@ -19,12 +19,12 @@ from pathlib import Path
 from analysis.speech_eval import opening_figure, score_model, training_speakers
 from analysis.speech_recogniser import recogniser_scores
 from analysis.speech_set import MANIFEST, SET_DIR, load_speech_set, read_manifest
-from face_model.errors import ParameterError
 from face_model.motion_units import MotionUnits
+from groundwork.errors import ParameterError
 from mapping.checkpoint import AudioMapping
 from talkingface.paths import RunPaths
 from talkingface.stages.base import read_done, write_csv
-from talkingface.animate import model_units
+from talkingface.stages.models import model_units
 from talkingface.stages.voices import voices_models
 
 FIGURE_RECORDING = "slt_a0009"  # a real sentence with hand-checked (HTS) labels

@@ -12,12 +12,12 @@ import json
 from pathlib import Path
 
 from analysis.perception_report import analyze_study
+from groundwork.errors import ParameterError
 from study.classifier import observer_classifier
 from study.simulate import simulate_study
 from study.stimuli import build_stimuli, load_manifest
-from talkingface.animate import load_animator
-from face_model.errors import ParameterError
 from talkingface.paths import RunPaths
+from talkingface.stages.models import load_animator
 
 
 def make_stimuli(paths: RunPaths, cfg) -> dict:

@@ -22,9 +22,9 @@ from pathlib import Path
 
 from analysis.evaluation import evaluate_experiment, ranking, table_rows
 from analysis.figures import confusion_matrix, mup_trajectories
-from face_model.cache import ArrayCache
 from face_model.corpus import corpus_hash, load_corpus
 from face_model.motion_units import MotionUnits
+from groundwork.cache import ArrayCache
 from mapping.checkpoint import AudioMapping, rest_mups
 from mapping.dataset import build_dataset
 from mapping.experiment import recognise_context, run_experiment
@@ -57,7 +57,7 @@ def train_and_evaluate(corpus_dir: Path, units_path: Path, out_dir: Path, cfg, *
     """Train and evaluate ``methods`` (default: the primary method and every baseline) on
     ``splits``; write the files listed in the module docstring into ``out_dir`` and return the
     summary the report and MLflow read. ``cache``: the folder of the content-keyed cache
-    (:mod:`face_model.cache`) that keeps the corpus's features and recognised phones for
+    (:mod:`groundwork.cache`) that keeps the corpus's features and recognised phones for
     every task and run; ``figures``: draw the gate's confusion and the trajectories (a grid's
     tasks write the tables and the confusion's CSV only: the figures would cost them a third
     of their time, and the report draws the mapping stage's); ``map_fn``: where the methods ×

@@ -30,18 +30,18 @@ from pathlib import Path
 import numpy as np
 
 from analysis.evaluation import database_scale, evaluate_predictions
-from face_model.cache import ArrayCache
 from face_model.corpus import load_corpus
-from face_model.errors import ParameterError
 from face_model.motion_units import MotionUnits
+from groundwork.cache import ArrayCache
+from groundwork.errors import ParameterError
 from mapping.checkpoint import AudioMapping
 from mapping.dataset import build_dataset, split_masks
 from mapping.experiment import SPLIT_SEED_OFFSET, predict_utterance, recognise_context
-from talkingface.child_runs import log_for
 from talkingface.config import read_yaml
 from talkingface.paths import RunPaths
-from talkingface.stages.grid import grid_corpus, load_grid, resolve_grid, run_children
 from talkingface.stages.base import read_done, write_csv
+from talkingface.stages.child_runs import log_for
+from talkingface.stages.grid import grid_corpus, load_grid, resolve_grid, run_children
 from talkingface.stages.motion import training_corpus
 
 DEFAULT_GRID = Path(__file__).resolve().parents[2] / "configs" / "voices.yaml"

@@ -6,8 +6,8 @@ import pytest
 
 from analysis.lip_metrics import (bilabial_segments, closure, dynamics_deviation, lip_metrics,
                                   lip_vertex_error, region_r)
-from face_model.errors import ParameterError
 from face_model.phones import PHONE_INDEX
+from groundwork.errors import ParameterError
 
 N = 79
 

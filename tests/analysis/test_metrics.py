@@ -10,7 +10,7 @@ from analysis.metrics import (
     paper_metrics,
     pearson_r,
 )
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 
 
 def test_identical_signals_give_r_one_and_zero_mse(rng):

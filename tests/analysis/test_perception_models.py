@@ -27,7 +27,7 @@ from analysis.planning import (
     simulate_counts,
 )
 from analysis.study_data import PAPER_TALLIES, trials_from_tallies
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 
 # A tiny example: rows are the three levels, columns neutral, happy, sad, not sure.
 A = np.array([[0.6, 0.2, 0.1, 0.1], [0.25, 0.25, 0.25, 0.25], [0.1, 0.1, 0.7, 0.1]])

@@ -7,7 +7,7 @@ import numpy as np
 from analysis.study_data import PAPER_TALLIES, trials_from_tallies, write_study_data
 from pypdf import PdfReader
 
-from talkingface.cli import main
+from talkingface.cli.main import main
 
 
 def pdf_text(path) -> str:

@@ -21,9 +21,9 @@ from analysis.speech_report import DEV_RULE, dev_choice
 from analysis.speech_set import (SET_DIR, load_speech_set, phone_class, read_manifest)
 from data_synth.config import SynthConfig
 from face_model.corpus import PhoneSegment
-from face_model.errors import CorpusError
 from face_model.layout import default_layout
 from face_model.phones import BILABIALS, PHONE_INDEX, VISEMES
+from groundwork.errors import CorpusError
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tools"))
 import align_real_speech  # noqa: E402

@@ -15,7 +15,7 @@ from statsmodels.stats.proportion import proportion_confint
 
 from analysis import crossover, scoring, stats
 from analysis.study_data import PAPER_TALLIES, trials_from_tallies
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 from study.design import AUDIO, EMOTION_OF, EXPRESSIONS, FACES, RESPONSES
 
 

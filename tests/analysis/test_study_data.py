@@ -14,7 +14,7 @@ from analysis.study_data import (
     trials_from_tallies,
     write_study_data,
 )
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 
 
 @pytest.fixture
@@ -154,7 +154,7 @@ def test_allocation_slots_not_marked_complete_are_refused_unless_allowed(paper_d
 def test_analyze_refuses_an_incomplete_study_and_reports_it_when_allowed(paper_dir, tmp_path,
                                                                          capsys):
     from analysis.perception_report import incomplete_sentence
-    from talkingface.cli import main
+    from talkingface.cli.main import main
 
     _edit(paper_dir, "T07", lambda rows: rows[:20])
     out = tmp_path / "analysis"

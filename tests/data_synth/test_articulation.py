@@ -8,8 +8,8 @@ from hypothesis import strategies as st
 
 from data_synth.articulation import coarticulate
 from face_model.corpus import PhoneSegment
-from face_model.errors import ParameterError
 from face_model.phones import ARTIC_PARAMS, BILABIALS, PHONE_INDEX, PHONES, target_matrix
+from groundwork.errors import ParameterError
 
 CLOSURE = ARTIC_PARAMS.index("closure")
 PROTRUSION = ARTIC_PARAMS.index("protrusion")

@@ -13,8 +13,8 @@ from data_synth.flite import FLITE_TO_CLASS, FliteBackend, flite_features
 from data_synth.generate import synthesize_corpus
 from data_synth.speech import SynthRequest
 from face_model.corpus import load_corpus
-from face_model.errors import ParameterError
 from face_model.phones import PHONE_INDEX
+from groundwork.errors import ParameterError
 from talkingface.config import Config
 
 SR = 22050
@@ -171,7 +171,7 @@ def test_a_speech_program_that_never_finishes_is_stopped_and_one_line(monkeypatc
     """A hung program (waiting on a sound device, say) is killed after its time, not waited on
     for ever."""
     from data_synth import speech
-    from face_model.errors import ParameterError
+    from groundwork.errors import ParameterError
 
     monkeypatch.setattr(speech, "PROGRAM_TIMEOUT_S", 1)
     with pytest.raises(ParameterError, match=r"^sleeper did not finish within 2 s \(2 "

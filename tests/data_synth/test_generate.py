@@ -16,9 +16,9 @@ import pytest
 from data_synth.generate import plan_corpus, synthesize_corpus
 from face_model.alignment import corpus_deformations, speaker_neutrals, unflatten
 from face_model.corpus import load_corpus
-from face_model.errors import ParameterError
 from face_model.layout import LAYOUT_VERSION, REGIONS
 from face_model.phones import PHONE_INDEX, PHONES
+from groundwork.errors import ParameterError
 from talkingface.config import Config
 
 SEED = Config().seed

@@ -20,8 +20,8 @@ from data_synth.speech import (
     phone_segments,
 )
 from face_model.corpus import PhoneSegment
-from face_model.errors import ParameterError
 from face_model.phones import PHONE_INDEX, PHONES
+from groundwork.errors import ParameterError
 
 
 class FakeBackend(SpeechBackend):

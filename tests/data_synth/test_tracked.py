@@ -9,8 +9,8 @@ import pytest
 from data_synth.tracked import track_corpus, track_utterance
 from face_model.alignment import speaker_neutrals
 from face_model.corpus import Corpus, corpus_hash, load_corpus
-from face_model.errors import ParameterError
 from face_model.motion_units import fit_corpus_units
+from groundwork.errors import ParameterError
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,7 @@ from data_synth.video import (
     render_marker_video,
     tracking_error_curve,
 )
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 
 
 @pytest.fixture(scope="module")

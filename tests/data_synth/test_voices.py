@@ -23,7 +23,7 @@ from data_synth.config import SynthConfig
 from data_synth.generate import plan_corpus, synthesize_corpus
 from data_synth.speech import SynthRequest, phone_segments
 from face_model.corpus import load_corpus
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 from talkingface.config import Config
 
 SEED = Config().seed
@@ -236,7 +236,7 @@ def test_bad_weights_are_refused():
     (flite_mod, "flite:awb", "apt-get install flite")])
 def test_missing_program_names_the_debian_package(monkeypatch, tmp_path, capsys, module, spec,
                                                   package):
-    from talkingface.cli import main
+    from talkingface.cli.main import main
 
     monkeypatch.setattr(module, module.__name__.rsplit(".", 1)[1].upper(),
                         "talkingface-no-such-program")

@@ -19,8 +19,8 @@ from face_model.alignment import (
     speaker_neutrals,
     unflatten,
 )
-from face_model.errors import ParameterError
 from face_model.layout import GLASSES, default_layout
+from groundwork.errors import ParameterError
 from talkingface.config import Config
 
 G = list(GLASSES)

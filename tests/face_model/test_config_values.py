@@ -1,4 +1,4 @@
-"""The declarative checks of the config dataclasses (face_model.settings) and face_model's own
+"""The declarative checks of the config dataclasses (groundwork.settings) and face_model's own
 sections (units, tracker)."""
 import dataclasses
 import math
@@ -10,9 +10,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from face_model.config import TrackerConfig, UnitsConfig
-from face_model.errors import ParameterError
 from face_model.motion_units import N_DIM
-from face_model.settings import (Interval, SettingError, check_fields, check_order, choice,
+from groundwork.errors import ParameterError
+from groundwork.settings import (Interval, SettingError, check_fields, check_order, choice,
                                  distinct_keys, fraction, integer, number, numbers, require,
                                  span, subset)
 

@@ -22,9 +22,9 @@ from face_model.corpus import (
     write_manifest,
     write_utterance,
 )
-from face_model.errors import CorpusError
 from face_model.layout import N_MARKERS
 from face_model.phones import PHONE_INDEX
+from groundwork.errors import CorpusError
 
 UTT = "s00_neutral_001"  # the utterance a test damages (manifest line 3)
 LINE = 3

@@ -13,10 +13,10 @@ from face_model.detect import (
     initial_markers_from_image,
     register_layout,
 )
-from face_model.errors import ParameterError
 from face_model.layout import LEFT_OUTER_CORNER, N_MARKERS, RIGHT_OUTER_CORNER, default_layout
 from face_model.motion_units import fit_corpus_units
 from face_model.tracker import init_from_mouth_corners
+from groundwork.errors import ParameterError
 
 
 @pytest.fixture(scope="module")

@@ -13,11 +13,11 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from data_synth.face import expression_fields, make_speaker
-from face_model.errors import NotFittedError, ParameterError
 from face_model.keyframes import (KEYFRAMES, KeyframeModel, read_keyframe_tracks,
                                   write_keyframe_tracks)
 from face_model.motion_units import MotionUnits, fit_corpus_units
 from face_model.phones import BILABIALS, PHONES, viseme
+from groundwork.errors import NotFittedError, ParameterError
 from talkingface.config import Config
 
 D = 158

@@ -24,7 +24,7 @@ from face_model.layout import (
     default_layout,
     mouth_opening,
 )
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 
 MOUTH_OPENING = ([LEFT_INNER_CORNER, *UPPER_INNER, RIGHT_INNER_CORNER, *LOWER_INNER])
 

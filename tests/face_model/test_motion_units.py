@@ -12,8 +12,8 @@ from hypothesis.extra.numpy import arrays
 from scipy.linalg import subspace_angles
 
 from data_synth.face import expression_fields, make_speaker
-from face_model.errors import NotFittedError, ParameterError
 from face_model.motion_units import MotionUnits, fit_corpus_units
+from groundwork.errors import NotFittedError, ParameterError
 from talkingface.config import Config
 
 D = 158

@@ -8,7 +8,6 @@ import pytest
 
 from data_synth.video import VideoDifficulty, render_marker_video, tracking_error_curve
 from face_model.alignment import speaker_neutrals
-from face_model.errors import ParameterError
 from face_model.layout import LEFT_OUTER_CORNER, RIGHT_OUTER_CORNER, default_layout
 from face_model.motion_units import MotionUnits, fit_corpus_units
 from face_model.mu_fit import (
@@ -21,6 +20,7 @@ from face_model.mu_fit import (
     similarity_beta,
 )
 from face_model.tracker import MUTracker, init_from_mouth_corners, track_points_lk
+from groundwork.errors import ParameterError
 
 
 @pytest.fixture(scope="module")

@@ -5,8 +5,8 @@ what the markers say."""
 import numpy as np
 import pytest
 
-from face_model.errors import ParameterError
-from face_model.audio import resample
+from groundwork.audio import resample
+from groundwork.errors import ParameterError
 from mapping import build_dataset, make_mapper, split_masks
 from mapping.animator import FaceAnimator, StreamingAnimator
 from mapping.checkpoint import AudioMapping, rest_mups

@@ -8,9 +8,9 @@ import json
 import numpy as np
 import pytest
 
-from face_model.audio import resample
-from face_model.errors import NotFittedError, ParameterError
 from face_model.motion_units import fit_corpus_units
+from groundwork.audio import resample
+from groundwork.errors import NotFittedError, ParameterError
 from mapping import BASELINES, METHODS, Baseline, GatedMLP, build_dataset, make_mapper, mfcc
 from mapping.checkpoint import FORMAT, AudioMapping, rest_mups
 from mapping.config import MappingConfig, TrainSettings

@@ -13,7 +13,7 @@ import zipfile
 import numpy as np
 import pytest
 
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 from mapping import BASELINES, Baseline, GatedMLP
 from mapping.checkpoint import FORMAT, AudioMapping, checksum
 from mapping.config import TrainSettings

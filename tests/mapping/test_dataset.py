@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from face_model.errors import ParameterError
 from face_model.motion_units import fit_corpus_units
+from groundwork.errors import ParameterError
 from mapping.dataset import SPLITS, UttData, build_dataset, split_masks
 from mapping.features import audio_features
 

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from face_model.errors import NotFittedError, ParameterError
+from groundwork.errors import NotFittedError, ParameterError
 from mapping.features import FeatureNormalizer, hop_samples, mfcc, stack_context
 
 

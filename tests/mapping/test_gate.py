@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from face_model.errors import NotFittedError, ParameterError
 from face_model.phones import PHONES, viseme
+from groundwork.errors import NotFittedError, ParameterError
 from mapping.gate import PhoneGate, class_groups, confusion, merge_small_classes
 
 

@@ -8,8 +8,8 @@ import inspect
 import numpy as np
 import pytest
 
-from face_model.errors import NotFittedError, ParameterError
 from face_model.phones import PHONES
+from groundwork.errors import NotFittedError, ParameterError
 from mapping.config import TrainSettings
 from mapping.dataset import UttData, split_masks
 from mapping.gated import GatedMLP, hidden_units

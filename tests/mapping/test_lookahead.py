@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 from mapping.animator import FaceAnimator, StreamingAnimator
 from mapping.checkpoint import AudioMapping
 from mapping.features import (algorithmic_latency_s, aligned, frame_rms_dbfs, mfcc,

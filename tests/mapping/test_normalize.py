@@ -7,8 +7,8 @@ import librosa
 import numpy as np
 import pytest
 
-from face_model.errors import ParameterError
-from face_model.settings import SettingError
+from groundwork.errors import ParameterError
+from groundwork.settings import SettingError
 from mapping.config import AugmentSettings, MappingConfig
 from mapping.features import (MFCC_SETTINGS, ContextFeatures, _mel_filters, mfcc, vtlp_warp,
                               warped_mel_filters)

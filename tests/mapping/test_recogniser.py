@@ -9,10 +9,10 @@ import pytest
 
 from analysis.speech_eval import phone_frames, viseme_index
 from analysis.speech_set import SET_DIR, load_speech_set
-from face_model.audio import resample
-from face_model.errors import ParameterError
 from face_model.phones import PHONE_INDEX
-from face_model.settings import SettingError
+from groundwork.audio import resample
+from groundwork.errors import ParameterError
+from groundwork.settings import SettingError
 from mapping import build_dataset, make_mapper
 from mapping.animator import FaceAnimator
 from mapping.checkpoint import AudioMapping

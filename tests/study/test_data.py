@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 from study.data import (
     COLUMNS,
     Allocation,

@@ -6,7 +6,7 @@ from collections import Counter
 import pytest
 from hypothesis import given, strategies as st
 
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 from study.design import (
     N_TRIALS,
     allocation_sequences,

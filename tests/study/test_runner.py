@@ -24,9 +24,9 @@ import pytest
 from filelock import FileLock
 from PIL import Image
 
-from face_model.audio import write_wav
-from face_model.errors import ParameterError
 from face_model.render import FaceRenderer
+from groundwork.audio import write_wav
+from groundwork.errors import ParameterError
 from study.data import Allocation, data_path, read_rows, sidecar_path
 from study.design import AUDIO, EXPRESSIONS, FACES, N_TRIALS, RESPONSES, Trial, \
     required_stimuli, session_trials, stimulus_id
@@ -116,7 +116,7 @@ def script(tmp_path_factory):
 
 
 def command(study, stimuli, pid, *extra):
-    return [sys.executable, "-m", "talkingface.cli", "study", "run", "--participant", pid,
+    return [sys.executable, "-m", "talkingface.cli.main", "study", "run", "--participant", pid,
             "--study-dir", str(study), "--stimuli", str(stimuli), *extra]
 
 

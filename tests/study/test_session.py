@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 from study.data import Allocation, data_path, read_rows, sidecar_path, trial_row, write_atomic
 from study.design import N_TRIALS, RESPONSES, required_stimuli, session_trials
 from study.session import (PRACTICE, check_disk_space, check_options, check_session,

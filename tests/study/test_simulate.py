@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from face_model.alignment import align_markers
 from face_model.corpus import Corpus
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 from study.classifier import classifier_corpus, observer_classifier
 from study.data import N_TRIALS, Allocation, data_path, sidecar_path
 from study.design import (

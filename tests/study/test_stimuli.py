@@ -8,12 +8,12 @@ import subprocess
 import numpy as np
 import pytest
 
-from face_model.audio import read_wav, write_wav
-from face_model.errors import ParameterError
-from face_model.movie import write_mp4
+from groundwork.audio import read_wav, write_wav
+from groundwork.errors import ParameterError
+from groundwork.movie import write_mp4
 from study.design import AUDIO, EXPRESSIONS, required_stimuli
 from study.stimuli import COLUMNS, MANIFEST, load_manifest, read_video_frames, write_silent_mp4
-from talkingface.cli import main
+from talkingface.cli.main import main
 from tests.talkingface.bad_input_cases import RUN
 
 
@@ -126,7 +126,7 @@ def test_stimuli_are_never_overwritten(stimuli):
 
 
 def test_silent_stimulus_videos_and_videos_with_sound(tmp_path):
-    """study.stimuli writes silent H.264 videos through face_model.movie.write_mp4, which muxes
+    """study.stimuli writes silent H.264 videos through groundwork.movie.write_mp4, which muxes
     a sound file as AAC when given one; frame k is at k/fps s either way."""
     import imageio_ffmpeg  # heavy and optional: imported where it is used
 

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from face_model.owner import lock_path
+from groundwork.owner import lock_path
 
 TINY = ["--set", "synth.n_sentences=3", "--set", "synth.workers=2", "--set", "mlflow.enabled=false"]
 QUICK = [*TINY, "--set", "mapping.baselines=[linear]", "--set", "mapping.train.max_epochs=20",
@@ -277,7 +277,7 @@ def add_bad_inputs(root: Path) -> None:
     damaged = _copy(root, "runs/R", "runs/D")
     for done in damaged.glob("*/done.json"):
         done.write_text('{"fingerprint": ')
-    # every run a command built has its lock file beside it (face_model.owner): so do these
+    # every run a command built has its lock file beside it (groundwork.owner): so do these
     for name in ("D", "P"):
         shutil.copy(lock_path(run), lock_path(root / "runs" / name))
     nomodel = root / "runs" / "NOMODEL" / "mapping"  # its models deleted by hand

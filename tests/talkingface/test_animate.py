@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from talkingface.cli import main
+from talkingface.cli.main import main
 from tests.talkingface.bad_input_cases import RUN
 
 
@@ -44,7 +44,7 @@ def _probe(path) -> dict:
 
 
 def _speech(trained, sr_out, stereo):
-    from face_model.audio import read_wav, resample
+    from groundwork.audio import read_wav, resample
 
     wav = sorted((trained / "runs" / "t" / "corpus" / "audio").glob("*smile*.wav"))[0]
     y, sr = read_wav(wav)
@@ -132,7 +132,7 @@ def test_stream_reports_the_latency(trained, tmp_path, monkeypatch, capsys):
 def test_a_paced_stream_never_beats_its_look_ahead(trained, tmp_path, monkeypatch):
     """Paced in real time, no frame can be emitted before its look-ahead has been captured:
     every measured latency is at least the algorithmic latency (less a chunk, 10 ms)."""
-    from talkingface.animate import stream_file
+    from talkingface.cli.animate import stream_file
 
     monkeypatch.chdir(trained)
     wav = _write(tmp_path / "p.wav", _speech(trained, 22050, False)[:22050], 22050)
@@ -155,13 +155,13 @@ def test_stream_from_the_microphone(trained, tmp_path):
     repo = str(Path(__file__).resolve().parents[2])
     env = {**os.environ, "HOME": str(home),
            "PYTHONPATH": os.pathsep.join(filter(None, [repo, os.environ.get("PYTHONPATH")]))}
-    run = subprocess.run([sys.executable, "-m", "talkingface.cli", "stream", "--mic",
+    run = subprocess.run([sys.executable, "-m", "talkingface.cli.main", "stream", "--mic",
                           "--seconds", "1"], cwd=trained, env=env, capture_output=True,
                          text=True, timeout=300)
     assert run.returncode == 0, run.stderr
     assert "30 frames streamed from 1.00 s of audio from the microphone (default" in run.stdout
     assert "no latency is measured" in run.stdout
-    listed = subprocess.run([sys.executable, "-m", "talkingface.cli", "stream",
+    listed = subprocess.run([sys.executable, "-m", "talkingface.cli.main", "stream",
                              "--list-devices"], env=env, capture_output=True, text=True)
     assert listed.returncode == 0 and "default" in listed.stdout
 
@@ -207,7 +207,7 @@ class _FakeSoundDevice:
 
 
 def test_a_device_at_another_rate_is_resampled(monkeypatch):
-    import talkingface.live as live
+    import talkingface.cli.live as live
 
     fake = _FakeSoundDevice([{"name": "fake mic", "max_input_channels": 1,
                               "default_samplerate": 48000.0}])
@@ -222,7 +222,7 @@ def test_a_device_at_another_rate_is_resampled(monkeypatch):
 
 
 def test_microphone_errors_are_clear(trained, monkeypatch, capsys):
-    import talkingface.live as live
+    import talkingface.cli.live as live
 
     monkeypatch.setattr(live, "_sounddevice", lambda: _FakeSoundDevice(
         [{"name": "speakers", "max_input_channels": 0, "default_samplerate": 48000.0}]))

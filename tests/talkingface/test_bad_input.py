@@ -26,9 +26,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from analysis.study_data import read_study
-from face_model.audio import read_wav, write_wav
+from groundwork.audio import read_wav, write_wav
 from study.data import Allocation
-from talkingface.cli import main
+from talkingface.cli.main import main
 from tests.talkingface.bad_input_cases import ACCEPTED, CASES, QUICK, RUN, TINY, \
     add_bad_inputs
 

@@ -6,7 +6,7 @@ import shutil
 import pytest
 from pypdf import PdfReader
 
-from talkingface.cli import main
+from talkingface.cli.main import main
 # for the tests of the pipeline's bookkeeping, not of its figures: 3 sentences, less training
 # (the linear baseline only, 20 epochs), 4 simulated participants, no MLflow, and no ablations,
 # no voice-robust models, no ceiling decomposition. The suite shares one finished run made with
@@ -156,7 +156,7 @@ def test_replicate_writes_runs_report_and_mlflow(workdir, capsys):
 def _check_voices_and_real_speech(run, table_rows, text):
     """The voice-robust models and their scores on real recordings (stages voices and
     speech_eval), the default model of animate and the study, and the report's section."""
-    from talkingface.animate import find_model
+    from talkingface.stages.models import find_model
 
     with open(run / "voices" / "results.csv", newline="") as f:
         voices = {r["model"]: r for r in csv.DictReader(f)}
@@ -242,7 +242,7 @@ def test_errors_are_one_clear_line(workdir, capsys, argv, message):
 
 
 def test_ui_serves_the_same_store_on_localhost(workdir, monkeypatch, capsys):
-    import talkingface.cli as cli
+    import talkingface.cli.main as cli
 
     calls = []
     monkeypatch.setattr(cli, "serve", lambda cmd: calls.append(cmd) or 0)

@@ -10,8 +10,8 @@ import yaml
 from hypothesis import given
 from hypothesis import strategies as st
 
-from face_model.errors import ParameterError
-from face_model.settings import Interval, SettingError, rule_of
+from groundwork.errors import ParameterError
+from groundwork.settings import Interval, SettingError, rule_of
 from talkingface.config import (Config, apply_overrides, flatten, load_config, parse_set,
                                 parse_yaml, to_dict)
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from analysis.speech_set import SET_DIR, read_manifest
-from talkingface.cli import main
+from talkingface.cli.main import main
 from talkingface.config import load_config
 from talkingface.paths import RunPaths
 from talkingface.stages import REPLICATION, STAGES

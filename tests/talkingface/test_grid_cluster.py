@@ -10,12 +10,12 @@ import time
 
 import pytest
 
-from talkingface.child_runs import KEY_TAG, ChildLog
-from talkingface.cli import main
+from groundwork.errors import ParameterError
+from talkingface.cli.main import main
+from talkingface.cli.runs import check_workers_log
 from talkingface.config import apply_overrides, load_config
-from face_model.errors import ParameterError
 from talkingface.executor import check_reachable, map_tasks
-from talkingface.runs import check_workers_log
+from talkingface.stages.child_runs import KEY_TAG, ChildLog
 from talkingface.stages.foundation import fit_units_folder
 from talkingface.stages.grid import child_metrics, replicate_folder, run_grid
 
@@ -348,7 +348,7 @@ def _close_worker_and_its_nanny(code: int) -> None:
 def test_a_local_cluster_that_lost_every_worker_ends_in_one_line(monkeypatch):
     """No worker and no nanny to restart one: the grid cannot go on, and says so (it used to
     wait forever)."""
-    from face_model.errors import TalkingFaceError
+    from groundwork.errors import TalkingFaceError
     import talkingface.executor as executor
 
     monkeypatch.setattr(executor, "LOCAL_NO_WORKER_S", 3)
@@ -361,7 +361,7 @@ def test_a_local_cluster_that_lost_every_worker_ends_in_one_line(monkeypatch):
 
 
 def test_a_task_that_kills_every_worker_it_runs_on_is_one_line():
-    from face_model.errors import TalkingFaceError
+    from groundwork.errors import TalkingFaceError
 
     # os._exit ends the worker process itself: the scheduler runs the task again on the
     # restarted worker until its allowed failures are spent

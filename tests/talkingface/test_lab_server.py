@@ -27,9 +27,9 @@ from pathlib import Path
 import psutil
 import pytest
 
-from face_model.errors import TalkingFaceError
-from talkingface.cli import main
-from talkingface.server import PG_SEARCH, lab_server, postgres_bin, warn_trusting
+from groundwork.errors import TalkingFaceError
+from talkingface.cli.main import main
+from talkingface.experiments.server import PG_SEARCH, lab_server, postgres_bin, warn_trusting
 from tests.talkingface.browser import (alive, alive_processes, headless_chromium,
                                        processes_mentioning, save_png, wait_gone)
 

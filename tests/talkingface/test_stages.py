@@ -8,7 +8,7 @@ import json
 
 import pytest
 
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 from talkingface.config import Config, load_config
 from talkingface.paths import RunPaths
 from talkingface.stages import REPLICATION, STAGES, stale

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from talkingface.cli import main
+from talkingface.cli.main import main
 
 TINY = ["--set", "synth.n_sentences=4", "--set", "synth.workers=2"]
 
@@ -53,9 +53,9 @@ def test_train_logs_a_pyfunc_model_that_predicts_from_a_wav(workdir, capsys):
     import mlflow
     import mlflow.pyfunc
 
-    from face_model.audio import read_wav, write_wav
+    from groundwork.audio import read_wav, write_wav
     from mapping.checkpoint import AudioMapping
-    from talkingface.animate import load_animator
+    from talkingface.stages.models import load_animator
 
     assert main(["train", "--name", "t", *TINY,
                  "--set", "mapping.baselines=[linear]"]) == 0
@@ -100,7 +100,7 @@ def test_train_logs_a_pyfunc_model_that_predicts_from_a_wav(workdir, capsys):
     assert np.all(drawn[:5, :7] == animator.rest_.astype(np.float32))  # closed, neutral mouth
     smile = loaded.predict(str(wav), params={"expression": "smile"})
     assert np.abs(smile[:, 7:]).max() > 0
-    from face_model.audio import read_wav
+    from groundwork.audio import read_wav
     y, sr = read_wav(wav)
     np.testing.assert_allclose(loaded.predict({"audio": y, "sr": sr}), mups, rtol=0, atol=1e-5)
 
@@ -219,7 +219,7 @@ def test_bad_grids_are_refused_with_the_file_and_the_problem(workdir, capsys, gr
                                                              message):
     from talkingface.stages.ablations import load_grid
     from talkingface.config import Config
-    from face_model.errors import ParameterError
+    from groundwork.errors import ParameterError
 
     grid = workdir / "g.yaml"
     grid.write_text(grid_text)

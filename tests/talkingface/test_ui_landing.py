@@ -5,7 +5,7 @@ prints. A browser whose user chose MLflow's GenAI view keeps it.
 
 MLflow 3.17 reads the view (its "workflow type") from the URL's ``workflowType`` parameter, else
 from localStorage ``mlflow.workflowType_v1``, else ``genai``, whatever the experiment's
-``mlflow.experimentKind`` tag says; the project's MLflow app (``talkingface/mlflow_app.py``)
+``mlflow.experimentKind`` tag says; the project's MLflow app (``talkingface/experiments/mlflow_app.py``)
 sets that key to ``"machine_learning"`` where it is unset.
 
 The printed link lists the pipeline's own runs and the grids' parent runs, not the grids' many
@@ -37,13 +37,13 @@ from types import SimpleNamespace
 import psutil
 import pytest
 
-from talkingface.cli import _print_link_when_up, main
-from talkingface.mlflow_app import (ASSISTANT_KEY, DEFAULT_WORKFLOW_SCRIPT, NEWEST_FIRST_FLAT,
+from talkingface.cli.lab_server import EXPERIMENT
+from talkingface.cli.main import _print_link_when_up, main
+from talkingface.experiments.mlflow_app import (ASSISTANT_KEY, DEFAULT_WORKFLOW_SCRIPT, NEWEST_FIRST_FLAT,
                                     PIPELINE_FILTER, RUN_NAME, WORKFLOW_KEY, create_app,
                                     find_experiment, grid_filter, grid_link_text, grid_url,
                                     link_text, pipeline_url, runs_url, with_default_workflow)
-from talkingface.server import lab_server
-from talkingface.server_cli import EXPERIMENT
+from talkingface.experiments.server import lab_server
 from tests.talkingface.browser import (alive, alive_processes, click, displayed_with_text,
                                        headless_chromium, local_storage, page_headings,
                                        processes_mentioning, save_png, set_local_storage,
@@ -587,8 +587,8 @@ def test_the_app_under_gunicorn_or_waitress_is_mlflows_flask_app(monkeypatch):
 
 
 def test_ui_refuses_when_the_app_is_not_installed(workdir, monkeypatch, capsys):
-    import talkingface.cli as cli
-    import talkingface.mlflow_app as mlflow_app
+    import talkingface.cli.main as cli
+    import talkingface.experiments.mlflow_app as mlflow_app
 
     monkeypatch.setattr(mlflow_app.importlib.metadata, "entry_points", lambda **kw: [])
     started = []

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from face_model.corpus import corpus_hash, load_corpus
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 from mapping.checkpoint import AudioMapping
-from talkingface.cli import main
+from talkingface.cli.main import main
 from talkingface.config import Config, load_config
 
 TINY = ["--set", "synth.n_sentences=4", "--set", "synth.workers=2"]

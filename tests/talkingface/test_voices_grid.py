@@ -3,7 +3,7 @@ from pathlib import Path
 
 import pytest
 
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 from talkingface.config import Config, load_config
 from talkingface.stages.voices import DEFAULT_GRID, load_voices_grid
 
@@ -58,7 +58,7 @@ def test_a_child_may_change_only_voices_and_mapping(tmp_path, model, extra, name
 
 
 def test_a_malformed_grid_is_refused_before_a_run_is_touched(tmp_path, monkeypatch, capsys):
-    from talkingface.cli import main
+    from talkingface.cli.main import main
 
     monkeypatch.chdir(tmp_path)
     (tmp_path / "g.yaml").write_text("model: one\nchildren: [one]\n")

@@ -1,4 +1,4 @@
-"""Thread pools that add up to the cores (face_model.threads), at every process boundary the
+"""Thread pools that add up to the cores (groundwork.threads), at every process boundary the
 project starts: a grid's workers (Dask and the process pool) and the test workers."""
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import pytest
 import torch
 from threadpoolctl import threadpool_info
 
-from face_model import threads
-from face_model.threads import cores, limit_threads, thread_budget
+from groundwork import threads
+from groundwork.threads import cores, limit_threads, thread_budget
 from talkingface.executor import map_tasks
 
 

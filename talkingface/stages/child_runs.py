@@ -11,7 +11,7 @@ them; an unfinished run — left by a worker killed while it was logging — is 
 :meth:`ChildLog.prune` once the grid has ended. So a grid ends with exactly one child run per
 setting and seed, whatever died on the way.
 
-The stages learn their parent run from the entry point (:mod:`talkingface.runs`) through
+The stages learn their parent run from the entry point (:mod:`talkingface.cli.runs`) through
 :func:`logging_to`; without one (MLflow disabled, or a stage run alone) :func:`log_for` gives
 ``None`` and nothing is logged. This module imports MLflow only inside its functions.
 """

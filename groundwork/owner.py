@@ -21,7 +21,7 @@ import time
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
-from face_model.errors import TalkingFaceError
+from groundwork.errors import TalkingFaceError
 
 
 

@@ -1,4 +1,4 @@
-"""The content-keyed cache (face_model.cache) and what the mapping keeps in it: reused across
+"""The content-keyed cache (groundwork.cache) and what the mapping keeps in it: reused across
 runs, rebuilt when its inputs change, one valid entry when processes race, a damaged entry
 rebuilt, and cleaning."""
 from __future__ import annotations
@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from face_model.cache import ArrayCache, cache_size, clean_cache, content_key
 from face_model.corpus import load_corpus
-from face_model.errors import ParameterError
 from face_model.motion_units import fit_corpus_units
+from groundwork.cache import ArrayCache, cache_size, clean_cache, content_key
+from groundwork.errors import ParameterError
 from mapping import dataset
 from mapping.dataset import build_dataset
 

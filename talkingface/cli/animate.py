@@ -1,105 +1,30 @@
 """``talkingface animate`` and ``talkingface stream``: a face from any WAV file.
 
-The trained mapping comes from ``--model`` (a run name, a run folder or a ``.tfmap`` file) or, by
-default, from the most recent run under ``runs/`` that has a trained mapping. A run's model is
-its voice-robust model (stage ``voices``, trained on many voices for real speech) when it has
-one, else the paper's single-voice mapping (``mapping/<method>_utterance.tfmap``, which
-``--model`` can name as a file).
+The trained mapping comes from ``--model``, found by :func:`talkingface.stages.models.find_model`
+(a run name, a run folder or a ``.tfmap`` file; by default the most recent run with a trained
+mapping, and a run's voice-robust model when it has one).
 """
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 
-from face_model.atomic import atomic_file, check_output_file
-from face_model.audio import read_wav
-from face_model.errors import ParameterError
 from face_model.keyframes import KeyframeModel, write_keyframe_tracks
-from face_model.motion_units import MotionUnits
-from face_model.movie import write_mp4
 from face_model.render import FaceRenderer
-from mapping.animator import FaceAnimator, StreamingAnimator
-from mapping.checkpoint import AudioMapping
-from talkingface.live import MicrophoneStats, microphone_chunks, run_stream, wav_chunks
+from groundwork.atomic import atomic_file, check_output_file
+from groundwork.audio import read_wav
+from groundwork.errors import ParameterError
+from groundwork.movie import write_mp4
+from mapping.animator import StreamingAnimator
+from talkingface.cli.live import MicrophoneStats, microphone_chunks, run_stream, wav_chunks
+from talkingface.stages.models import load_animator
 
 
 CLIP_LEVEL = 0.999
 CLIP_WARN_FRACTION = 0.001
-
-
-def find_model(model: str | None, runs_dir="runs") -> tuple[Path, Path]:
-    """``(mapping .tfmap, motion_units.npz)`` for ``--model`` (see the module docstring)."""
-    runs = Path(runs_dir)
-    if model is None:
-        done = sorted(runs.glob("*/mapping/done.json"), key=lambda p: p.stat().st_mtime)
-        if not done:
-            raise ParameterError(
-                f"no trained mapping under {runs}/: run `make replicate` (or `talkingface train "
-                "--name NAME`) first, or pass --model with a run name or a .tfmap file")
-        run = done[-1].parent.parent
-    else:
-        p = Path(model)
-        if p.suffix == ".tfmap":
-            if p.is_dir():
-                raise ParameterError(f"--model {p} is a folder, not a .tfmap model file")
-            if not p.is_file():
-                raise ParameterError(f"--model {p}: file not found")
-            return p, model_units(p)
-        if p.is_file():
-            raise ParameterError(f"--model {p} is not a .tfmap model file; give a run name, a "
-                                 "run folder or a .tfmap file")
-        run = p if p.is_dir() else runs / model
-        if not (run / "mapping" / "done.json").is_file():
-            raise ParameterError(f"--model {model}: no trained mapping in {run}/mapping (train "
-                                 "it with `talkingface train --name NAME`)")
-    try:
-        done = json.loads((run / "mapping" / "done.json").read_text(encoding="utf-8"))
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise ParameterError(f"{run / 'mapping' / 'done.json'}: not valid JSON ({exc}); train "
-                             "the run again") from None
-    models = done.get("models", {})
-    if not models:
-        raise ParameterError(f"{run}/mapping holds no saved model")
-    robust = voices_default(run)
-    if robust is not None:  # the run's voice-robust model (stage voices) is the default
-        return robust, run / "units" / "motion_units.npz"
-    split = "utterance" if "utterance" in models else next(iter(models))
-    return run / "mapping" / models[split], run / "units" / "motion_units.npz"
-
-
-
-def voices_default(run: Path) -> Path | None:
-    """The voice-robust model of a run (``voices/done.json``: its ``model`` child), if any."""
-    done_file = run / "voices" / "done.json"
-    if not done_file.is_file():
-        return None
-    try:
-        done = json.loads(done_file.read_text(encoding="utf-8"))
-        return run / "voices" / done["models"][done["model"]]["tfmap"]
-    except (ValueError, UnicodeDecodeError, KeyError, TypeError) as exc:
-        raise ParameterError(f"{done_file}: not a finished voices stage ({exc!r}); make the "
-                             "run's voices stage again (talkingface replicate --name NAME)") \
-            from None
-
-
-def model_units(tfmap: Path) -> Path:
-    """The Motion Units of the run a ``.tfmap`` belongs to: ``<run>/mapping/x.tfmap`` or a
-    voice-robust model ``<run>/voices/<child>/x.tfmap``."""
-    for run in (tfmap.parent.parent, tfmap.parent.parent.parent):
-        units = run / "units" / "motion_units.npz"
-        if units.is_file():
-            return units
-    raise ParameterError(f"--model {tfmap}: the Motion Units of its run "
-                         f"({tfmap.parent.parent / 'units' / 'motion_units.npz'}) are missing")
-
-
-def load_animator(model: str | None, runs_dir="runs"):
-    tfmap, units = find_model(model, runs_dir)
-    return FaceAnimator(AudioMapping.load(tfmap), MotionUnits.load(units)), tfmap
 
 
 def read_speech(path) -> tuple[np.ndarray, int, str | None]:
@@ -173,7 +98,7 @@ def stream_file(wav, *, expression: str = "neutral", model: str | None = None, r
                 on_frame=None) -> dict:
     """Play a WAV through the :class:`~mapping.animator.StreamingAnimator` in chunks of
     ``chunk_s`` seconds, paced in real time unless ``paced`` is False; returns the figures of
-    :func:`talkingface.live.run_stream`."""
+    :func:`talkingface.cli.live.run_stream`."""
     stream, animator, tfmap = _streaming(model, expression, runs_dir)
     y, sr, warn = read_speech(wav)
     y = animator.mapping.at_model_rate(y, sr)
@@ -185,8 +110,8 @@ def stream_file(wav, *, expression: str = "neutral", model: str | None = None, r
 def stream_microphone(*, expression: str = "neutral", model: str | None = None,
                       runs_dir="runs", seconds: float | None = None, device=None,
                       chunk_s: float = 0.01, show: bool = False, on_frame=None) -> dict:
-    """Animate live from an input device (see :mod:`talkingface.live`) for ``seconds`` of
-    audio or until Ctrl-C; returns the figures of :func:`talkingface.live.run_stream` plus the
+    """Animate live from an input device (see :mod:`talkingface.cli.live`) for ``seconds`` of
+    audio or until Ctrl-C; returns the figures of :func:`talkingface.cli.live.run_stream` plus the
     device, its rate and the number of input overflows (samples the device dropped)."""
     stream, _, tfmap = _streaming(model, expression, runs_dir)
     mic = MicrophoneStats()

@@ -5,8 +5,8 @@ import re
 
 import pytest
 
-from face_model.errors import ParameterError
-from face_model.identifiers import check_identifier
+from groundwork.errors import ParameterError
+from groundwork.identifiers import check_identifier
 from study.design import check_participant_id, check_stimulus_id
 from talkingface.paths import RunPaths, check_run_name
 
@@ -64,7 +64,7 @@ def test_stimulus_ids():
 
 
 def test_the_command_line_refuses_a_report_name_with_a_newline(tmp_path, monkeypatch, capsys):
-    from talkingface.cli import main
+    from talkingface.cli.main import main
 
     monkeypatch.chdir(tmp_path)
     (tmp_path / "study").mkdir()

@@ -19,21 +19,21 @@ from pathlib import Path
 
 from analysis.speech_set import SET_DIR
 from data_synth.generate import synthesize_corpus
-from face_model.atomic import check_output_file
 from face_model.corpus import load_corpus
-from face_model.errors import TalkingFaceError
-from face_model.memory import keep_freed_memory
-from face_model.owner import acquire, release_all
-from talkingface import cache_cli, runs, server_cli, study_cli
-from talkingface.animate import animate_file, stream_file, stream_microphone
-from talkingface.cli_args import config_args, resolve_config, run_args, visual_source_arg
+from groundwork.atomic import check_output_file
+from groundwork.errors import TalkingFaceError
+from groundwork.memory import keep_freed_memory
+from groundwork.owner import acquire, release_all
+from talkingface.cli import cache as cache_cli, lab_server as server_cli, runs, study as study_cli
+from talkingface.cli.animate import animate_file, stream_file, stream_microphone
+from talkingface.cli.args import config_args, resolve_config, run_args, visual_source_arg
+from talkingface.cli.live import input_devices
 from talkingface.config import apply_overrides, dump_config, load_config
-from talkingface.experiment_log import (artifact_root, check_tracking, log_speech_eval_model,
+from talkingface.experiments.log import (artifact_root, check_tracking, log_speech_eval_model,
                                         mlflow_run, tracking_uri)
-from talkingface.live import input_devices
-from talkingface.mlflow_app import (APP_NAME, check_installed, find_experiment,
+from talkingface.experiments.mlflow_app import (APP_NAME, check_installed, find_experiment,
                                     grid_link_text, link_text)
-from talkingface.server import check_free
+from talkingface.experiments.server import check_free
 from talkingface.paths import RunPaths
 from talkingface.stages import run
 from talkingface.stages.foundation import fit_units_folder
@@ -173,7 +173,7 @@ def cmd_ui(args) -> int:
     check_free("127.0.0.1", args.port)  # a bad port, or one in use: one line, before MLflow
     check_installed()  # the app below is registered in this environment
     # MLflow's server with this project's app: a browser that has not chosen MLflow's GenAI
-    # or model-training view opens experiments on their runs table (talkingface/mlflow_app.py)
+    # or model-training view opens experiments on their runs table (talkingface/experiments/mlflow_app.py)
     cmd = [sys.executable, "-m", "mlflow", "server", "--backend-store-uri", uri,
            "--host", "127.0.0.1", "--port", str(args.port), "--app-name", APP_NAME]
     if uri.startswith("sqlite:"):
@@ -456,7 +456,7 @@ def main(argv=None) -> int:
         args = build_parser().parse_args(argv)
     except SystemExit as exc:  # --help, or a usage mistake (its line is printed)
         return exc.code
-    keep_freed_memory()  # every epoch's tensors reuse memory (face_model.memory)
+    keep_freed_memory()  # every epoch's tensors reuse memory (groundwork.memory)
     try:
         return args.func(args)
     except TalkingFaceError as exc:

@@ -6,6 +6,6 @@ logged model runs the project's own code and reads the ``.tfmap`` artifact as da
 """
 import mlflow.models
 
-from talkingface.pyfunc import MappingModel
+from talkingface.experiments.pyfunc import MappingModel
 
 mlflow.models.set_model(MappingModel())

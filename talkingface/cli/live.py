@@ -25,8 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 import soxr
 
-from face_model.errors import ParameterError
 from face_model.render import FaceRenderer
+from groundwork.errors import ParameterError
 
 
 @dataclass

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import re
 
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 
 
 def check_identifier(kind: str, value, pattern: str | re.Pattern, allowed_text: str) -> str:

@@ -3,19 +3,19 @@
     talkingface server [--folder mlflow-server] [--host 127.0.0.1] [--port 5000] [--db-port 5433]
 
 It prints the address colleagues log to, and the link to the runs of the project's experiment
-in the UI (:mod:`talkingface.mlflow_app`).
+in the UI (:mod:`talkingface.experiments.mlflow_app`).
 
-The library is :mod:`talkingface.server`; this module only parses, prints and waits.
+The library is :mod:`talkingface.experiments.server`; this module only parses, prints and waits.
 """
 from __future__ import annotations
 
 import signal
 from pathlib import Path
 
-from face_model.errors import TalkingFaceError
+from groundwork.errors import TalkingFaceError
 from talkingface.config import MlflowConfig
-from talkingface.mlflow_app import find_experiment, grid_link_text, link_text
-from talkingface.server import (DEFAULT_DB_PORT, DEFAULT_FOLDER, DEFAULT_HOST, DEFAULT_PORT,
+from talkingface.experiments.mlflow_app import find_experiment, grid_link_text, link_text
+from talkingface.experiments.server import (DEFAULT_DB_PORT, DEFAULT_FOLDER, DEFAULT_HOST, DEFAULT_PORT,
                                 LabServer)
 
 

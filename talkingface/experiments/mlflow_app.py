@@ -53,10 +53,10 @@ import urllib.parse
 import urllib.request
 from pathlib import Path
 
-from face_model.errors import TalkingFaceError
+from groundwork.errors import TalkingFaceError
 
 APP_NAME = "talkingface"  # mlflow server --app-name talkingface
-APP_TARGET = "talkingface.mlflow_app:create_app"
+APP_TARGET = "talkingface.experiments.mlflow_app:create_app"
 WORKFLOW_KEY = "mlflow.workflowType_v1"  # MLflow 3.17's key: "<key>_v<version>", JSON value
 DEFAULT_WORKFLOW = "machine_learning"
 RUNS_QUERY = f"workflowType={DEFAULT_WORKFLOW}"

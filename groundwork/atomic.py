@@ -12,7 +12,7 @@ import shutil
 from contextlib import contextmanager
 from pathlib import Path
 
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 
 
 def partial_path(path) -> Path:

@@ -8,7 +8,7 @@ accepts through the constructor that declares it (:func:`number`, :func:`integer
 :func:`check_order` or :func:`require` for rules between fields), so a config is checked however
 it is made: by its constructor, ``dataclasses.replace``, a YAML file or ``--set``.
 
-A refused value raises :class:`SettingError` (a :class:`~face_model.errors.ParameterError`),
+A refused value raises :class:`SettingError` (a :class:`~groundwork.errors.ParameterError`),
 ``"<key> is <value>; allowed: <what>"``. The dataclass does not know the section it sits in:
 ``talkingface.config`` prefixes the section with :meth:`SettingError.within`.
 """
@@ -19,7 +19,7 @@ import re
 from dataclasses import Field, dataclass, field, fields
 from numbers import Integral, Real
 
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 
 
 class SettingError(ParameterError):

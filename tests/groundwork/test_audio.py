@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import soundfile as sf
 
-from face_model.audio import AudioFileError, read_wav, write_wav
-from face_model.errors import CorpusError, ParameterError
+from groundwork.audio import AudioFileError, read_wav, write_wav
+from groundwork.errors import CorpusError, ParameterError
 
 SR = 22050
 

@@ -1,4 +1,4 @@
-"""face_model.memory: the memory of a training's freed tensors is reused, not faulted in again
+"""groundwork.memory: the memory of a training's freed tensors is reused, not faulted in again
 page by page (counted as the process's minor page faults, not timed)."""
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ PROBE = """
 import resource, sys
 sys.path.insert(0, {repo!r})
 if sys.argv[1] == "kept":
-    from face_model.memory import keep_freed_memory
+    from groundwork.memory import keep_freed_memory
     assert keep_freed_memory()
 import numpy as np, torch
 torch.set_num_threads(1)
@@ -40,7 +40,7 @@ def test_a_training_faults_in_far_fewer_pages_with_freed_memory_kept():
 
 
 def test_the_processes_it_starts_keep_freed_memory_too(monkeypatch):
-    from face_model import memory
+    from groundwork import memory
 
     monkeypatch.delenv("MALLOC_MMAP_THRESHOLD_", raising=False)
     monkeypatch.delenv("MALLOC_TRIM_THRESHOLD_", raising=False)

@@ -18,7 +18,7 @@ line. MLflow runs in a process group of its own, so stopping
 the server stops its web workers and job runners too: nothing is left running.
 
 Library code: no MLflow import (the server is a separate process); the CLI is
-:mod:`talkingface.server_cli`.
+:mod:`talkingface.cli.lab_server`.
 """
 from __future__ import annotations
 
@@ -42,8 +42,8 @@ import urllib.parse
 import urllib.request
 from pathlib import Path
 
-from face_model.errors import ParameterError, TalkingFaceError
-from talkingface.mlflow_app import APP_NAME, check_installed
+from groundwork.errors import ParameterError, TalkingFaceError
+from talkingface.experiments.mlflow_app import APP_NAME, check_installed
 
 DEFAULT_FOLDER = Path("mlflow-server")
 DEFAULT_HOST = "127.0.0.1"
@@ -399,7 +399,7 @@ class LabServer:
     def _start_mlflow(self) -> None:
         check_installed()  # the app below is registered in this environment
         # this project's app: MLflow's, opening experiments on their runs table in a browser
-        # that has not chosen MLflow's GenAI view (talkingface/mlflow_app.py)
+        # that has not chosen MLflow's GenAI view (talkingface/experiments/mlflow_app.py)
         cmd = [sys.executable, "-m", "mlflow", "server", "--backend-store-uri",
                self.backend_uri, "--artifacts-destination", str(self.artifacts),
                "--host", self.host, "--port", str(self.port), "--workers", "1",

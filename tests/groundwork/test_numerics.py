@@ -1,5 +1,5 @@
 """Linear algebra that does not depend on the processor or the BLAS thread count
-(face_model.numerics): the gesvd fallback when gesdd fails, one- and two-thread fits equal, and
+(groundwork.numerics): the gesvd fallback when gesdd fails, one- and two-thread fits equal, and
 the AMD EPYC failure (OpenBLAS Haswell kernels, two threads) reproduced in a subprocess."""
 from __future__ import annotations
 
@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 from threadpoolctl import threadpool_info, threadpool_limits
 
-from face_model import numerics
 from face_model.alignment import corpus_deformations
 from face_model.keyframes import KeyframeModel
 from face_model.motion_units import MotionUnits, fit_corpus_units
+from groundwork import numerics
 from talkingface.config import Config
 
 REPO_ROOT = Path(__file__).resolve().parents[2]

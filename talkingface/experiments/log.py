@@ -23,11 +23,11 @@ from analysis.evaluation import row_metrics
 from analysis.grid_summary import (best, forest_figure, grid_summary, read_replicates,
                                    summary_markdown, voices_markdown, voices_summary,
                                    write_summary)
-from face_model.errors import TalkingFaceError
+from groundwork.errors import TalkingFaceError
 from talkingface.config import flatten
 from talkingface.paths import RunPaths
 from talkingface.provenance import git_commit
-from talkingface.child_runs import ChildLog, logging_to
+from talkingface.stages.child_runs import ChildLog, logging_to
 from talkingface.stages.grid import GRID_KINDS, log_child, replicate_folder, replicate_seed
 from talkingface.stages.voices import read_results
 
@@ -175,7 +175,7 @@ def train_metrics(summary: dict, primary: str) -> dict:
 
 def log_train(mlf, summary: dict, out_dir: Path, cfg) -> None:
     """Log the mapping stage to the active MLflow run: metrics, tables, plots, models, pyfunc."""
-    from talkingface.pyfunc import log_mapping_model  # imports mlflow
+    from talkingface.experiments.pyfunc import log_mapping_model  # imports mlflow
 
     mlf.log_metrics(train_metrics(summary, cfg.mapping.method))
     for p in sorted(out_dir.iterdir()):
@@ -211,7 +211,7 @@ def _grid_parent(mlf, cfg, stage: str, folder: str, grid: Path, nested: bool) ->
 @contextmanager
 def grid_runs(mlf, cfg, grids: dict, *, nested: bool = True):
     """Within the block the grid stages of ``grids`` (stage → (stage tag, results folder name,
-    grid file)) log their child runs under a parent run each (:mod:`talkingface.child_runs`);
+    grid file)) log their child runs under a parent run each (:mod:`talkingface.stages.child_runs`);
     yields ``{stage: ChildLog}`` (empty without MLflow). A nested parent of a stage that
     failed is marked FAILED."""
     if mlf is None:

@@ -17,7 +17,7 @@ import numpy as np
 import soundfile as sf
 from scipy.signal import resample_poly
 
-from face_model.errors import CorpusError, ParameterError
+from groundwork.errors import CorpusError, ParameterError
 
 _UNKNOWN_LENGTH = 0xFFFFFFFF  # a streamed WAV's data size: read to the end of the file
 

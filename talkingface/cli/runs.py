@@ -3,23 +3,23 @@
 ``replicate`` runs :data:`talkingface.stages.REPLICATION` in order; ``train``, ``track``,
 ``ablate`` and ``study stimuli`` run their own stages (and whatever upstream stages are missing or
 stale). Reuse is decided by the stage layer alone (:mod:`talkingface.stages.base`); MLflow is
-written here and in :mod:`talkingface.experiment_log`, nowhere below.
+written here and in :mod:`talkingface.experiments.log`, nowhere below.
 """
 from __future__ import annotations
 
 import time
 
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 from talkingface.executor import check_reachable, scheduler_address
-from talkingface.experiment_log import (check_tracking, grid_runs, log_ablations,
+from talkingface.experiments.log import (check_tracking, grid_runs, log_ablations,
                                         log_replication, log_train, log_voices, mlflow_run,
                                         tracking_uri)
 from talkingface.paths import RunPaths
 from talkingface.stages import REPLICATION, preflight, prepare_run, run
-from talkingface.stages.base import time_summary
 from talkingface.stages.ablations import grid_path
-from talkingface.stages.grid import load_grid
+from talkingface.stages.base import time_summary
 from talkingface.stages.ceiling import grid_path as ceiling_grid_path, load_ceiling_grid
+from talkingface.stages.grid import load_grid
 from talkingface.stages.voices import grid_path as voices_grid_path, load_voices_grid
 
 

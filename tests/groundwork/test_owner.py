@@ -1,4 +1,4 @@
-"""One owner at a time (face_model.owner): a second process is refused naming the first; the
+"""One owner at a time (groundwork.owner): a second process is refused naming the first; the
 lock of a process that died is taken over; a process may hold a folder twice."""
 from __future__ import annotations
 
@@ -10,13 +10,13 @@ from pathlib import Path
 
 import pytest
 
-from face_model.owner import BusyError, acquire, hold, lock_path, owner_path, release_all
+from groundwork.owner import BusyError, acquire, hold, lock_path, owner_path, release_all
 
 REPO = Path(__file__).resolve().parents[2]
 HOLDER = """
 import sys, time
 sys.path.insert(0, {repo!r})
-from face_model.owner import hold
+from groundwork.owner import hold
 with hold({folder!r}, "run"):
     print("held", flush=True)
     time.sleep(600)

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 
 SUFFIX = ".npz"
 

@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from face_model.atomic import atomic_file
-from face_model.errors import TalkingFaceError
+from groundwork.atomic import atomic_file
+from groundwork.errors import TalkingFaceError
 
 FFMPEG_EXIT_TIMEOUT_S = 600  # ffmpeg's wait for the last frames to be encoded and muxed
 

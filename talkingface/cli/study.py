@@ -21,16 +21,16 @@ from pathlib import Path
 
 from analysis.perception_report import analyze_study, perception_section
 from analysis.report import Report
-from face_model.atomic import fresh_partial_folder, swap_in
-from face_model.errors import ParameterError
+from groundwork.atomic import fresh_partial_folder, swap_in
+from groundwork.errors import ParameterError
 from study.classifier import observer_classifier, visual_evidence
 from study.data import Allocation, data_path, read_rows
 from study.design import N_TRIALS, participant_seed, session_trials
 from study.runner import run_session, scripted_responder
 from study.simulate import RESPONDER_MODEL, make_observers, responder, simulate_study
 from study.stimuli import load_manifest
-from talkingface import runs
-from talkingface.cli_args import config_args, resolve_config, run_args
+from talkingface.cli import runs
+from talkingface.cli.args import config_args, resolve_config, run_args
 from talkingface.config import MAX_SEED
 from talkingface.paths import check_run_name
 from talkingface.provenance import git_commit

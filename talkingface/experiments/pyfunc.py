@@ -22,12 +22,12 @@ import numpy as np
 from mlflow.models import ModelSignature
 from mlflow.types.schema import ParamSchema, ParamSpec
 
-from face_model.errors import ParameterError
+from groundwork.errors import ParameterError
 from mapping.checkpoint import AudioMapping
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 MODEL_CODE = Path(__file__).with_name("pyfunc_model.py")  # models from code: nothing pickled
-CODE_PATHS = [str(REPO / p) for p in ("face_model", "mapping", "talkingface")]
+CODE_PATHS = [str(REPO / p) for p in ("groundwork", "face_model", "mapping", "talkingface")]
 
 
 class MappingModel(mlflow.pyfunc.PythonModel):
@@ -72,7 +72,7 @@ def _as_items(model_input) -> tuple[list, bool]:
 
 def log_mapping_model(mlf, model_path: Path, *, name: str = "mapping"):
     """Log ``model_path`` (an ``AudioMapping`` file) as a pyfunc model of the active run, from
-    code (:mod:`talkingface.pyfunc_model`): the logged model holds source and data, no pickle."""
+    code (:mod:`talkingface.experiments.pyfunc_model`): the logged model holds source and data, no pickle."""
     # No input schema: the input is a path, a dict or a list, which a column schema would turn
     # into a DataFrame; the params schema carries the expression.
     signature = ModelSignature(inputs=None,

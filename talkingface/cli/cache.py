@@ -3,7 +3,7 @@
     talkingface cache info  [--runs-dir runs]
     talkingface cache clean [--runs-dir runs] [--unused-days N]
 
-The cache (:mod:`face_model.cache`) keeps what grid tasks, stages and runs share (a corpus's
+The cache (:mod:`groundwork.cache`) keeps what grid tasks, stages and runs share (a corpus's
 features, the phones a recogniser hears in it); removing it costs only the time to make them
 again.
 """
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from face_model.cache import cache_size, clean_cache
+from groundwork.cache import cache_size, clean_cache
 from talkingface.paths import RunPaths
 
 

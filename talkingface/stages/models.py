@@ -1,0 +1,88 @@
+"""The trained models of a run, found from what a user names: ``--model`` of ``animate``,
+``stream`` and ``evaluate-speech``, and the stages that animate with a run's model.
+
+``--model`` is a run name, a run folder or a ``.tfmap`` file; by default, the most recent run under
+``runs/`` that has a trained mapping. A run's model is its voice-robust model (stage ``voices``,
+trained on many voices for real speech) when it has one, else the paper's single-voice mapping
+(``mapping/<method>_utterance.tfmap``, which ``--model`` can name as a file).
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from face_model.motion_units import MotionUnits
+from groundwork.errors import ParameterError
+from mapping.animator import FaceAnimator
+from mapping.checkpoint import AudioMapping
+
+
+def find_model(model: str | None, runs_dir="runs") -> tuple[Path, Path]:
+    """``(mapping .tfmap, motion_units.npz)`` for ``--model`` (see the module docstring)."""
+    runs = Path(runs_dir)
+    if model is None:
+        done = sorted(runs.glob("*/mapping/done.json"), key=lambda p: p.stat().st_mtime)
+        if not done:
+            raise ParameterError(
+                f"no trained mapping under {runs}/: run `make replicate` (or `talkingface train "
+                "--name NAME`) first, or pass --model with a run name or a .tfmap file")
+        run = done[-1].parent.parent
+    else:
+        p = Path(model)
+        if p.suffix == ".tfmap":
+            if p.is_dir():
+                raise ParameterError(f"--model {p} is a folder, not a .tfmap model file")
+            if not p.is_file():
+                raise ParameterError(f"--model {p}: file not found")
+            return p, model_units(p)
+        if p.is_file():
+            raise ParameterError(f"--model {p} is not a .tfmap model file; give a run name, a "
+                                 "run folder or a .tfmap file")
+        run = p if p.is_dir() else runs / model
+        if not (run / "mapping" / "done.json").is_file():
+            raise ParameterError(f"--model {model}: no trained mapping in {run}/mapping (train "
+                                 "it with `talkingface train --name NAME`)")
+    try:
+        done = json.loads((run / "mapping" / "done.json").read_text(encoding="utf-8"))
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise ParameterError(f"{run / 'mapping' / 'done.json'}: not valid JSON ({exc}); train "
+                             "the run again") from None
+    models = done.get("models", {})
+    if not models:
+        raise ParameterError(f"{run}/mapping holds no saved model")
+    robust = voices_default(run)
+    if robust is not None:  # the run's voice-robust model (stage voices) is the default
+        return robust, run / "units" / "motion_units.npz"
+    split = "utterance" if "utterance" in models else next(iter(models))
+    return run / "mapping" / models[split], run / "units" / "motion_units.npz"
+
+
+def voices_default(run: Path) -> Path | None:
+    """The voice-robust model of a run (``voices/done.json``: its ``model`` child), if any."""
+    done_file = run / "voices" / "done.json"
+    if not done_file.is_file():
+        return None
+    try:
+        done = json.loads(done_file.read_text(encoding="utf-8"))
+        return run / "voices" / done["models"][done["model"]]["tfmap"]
+    except (ValueError, UnicodeDecodeError, KeyError, TypeError) as exc:
+        raise ParameterError(f"{done_file}: not a finished voices stage ({exc!r}); make the "
+                             "run's voices stage again (talkingface replicate --name NAME)") \
+            from None
+
+
+def model_units(tfmap: Path) -> Path:
+    """The Motion Units of the run a ``.tfmap`` belongs to: ``<run>/mapping/x.tfmap`` or a
+    voice-robust model ``<run>/voices/<child>/x.tfmap``."""
+    for run in (tfmap.parent.parent, tfmap.parent.parent.parent):
+        units = run / "units" / "motion_units.npz"
+        if units.is_file():
+            return units
+    raise ParameterError(f"--model {tfmap}: the Motion Units of its run "
+                         f"({tfmap.parent.parent / 'units' / 'motion_units.npz'}) are missing")
+
+
+def load_animator(model: str | None, runs_dir="runs"):
+    """``(FaceAnimator, its .tfmap path)`` for ``--model`` (see :func:`find_model`)."""
+    tfmap, units = find_model(model, runs_dir)
+    return FaceAnimator(AudioMapping.load(tfmap), MotionUnits.load(units)), tfmap
