@@ -18,7 +18,7 @@ they are no further apart than in the generator's own closed neutral mouth. Ever
 the generator lies well above it (``s`` 4.3 px, ``t`` 5.1, ``uw`` 5.0, ``iy`` 5.6, ``aa`` 16.2).
 
 (a) Gate accuracy: the gate's class per frame (``GatedMLP.gate_classes``) against the labelled
-phone's class after the model's own small-class merges (as ``mapping.gate.gate_accuracy``
+phone's class after the model's own small-class merges (as ``mapping.phone_gate.gate_accuracy``
 measures it in-domain); viseme accuracy compares the visemes
 (``i a o f u m neutral``; silence is neutral) of the chosen class and of the labelled phone. A gate
 of 8 groups gives the viseme accuracy only; one group (or every class merged into one, or a

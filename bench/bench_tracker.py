@@ -18,12 +18,12 @@ import numpy as np
 from _common import parse_args, report
 
 from data_synth.generate import synthesize_corpus
-from data_synth.tracked import track_corpus
-from data_synth.video import VideoDifficulty, render_marker_video
-from face_model.detect import initial_markers_from_image
 from face_model.alignment import speaker_neutrals
 from face_model.corpus import load_corpus
+from face_model.detect import initial_markers_from_image
+from face_model.marker_video import VideoDifficulty, render_marker_video
 from face_model.motion_units import fit_corpus_units
+from face_model.tracked_corpus import track_corpus
 from face_model.tracker import MUTracker, track_points_lk
 from talkingface.config import Config
 

@@ -201,14 +201,6 @@ class FaceRenderer:
         out[:, 1] = np.maximum(out[:, 1], lo)
         return out
 
-    def render_sequence(self, markers: np.ndarray) -> np.ndarray:
-        """(n_frames, 79, 2) → (n_frames, height, width, 3) uint8."""
-        m = np.asarray(markers)
-        if m.ndim != 3 or m.shape[1:] != (N_MARKERS, 2):
-            raise ParameterError(f"markers must have shape (n_frames, {N_MARKERS}, 2), "
-                                 f"got {m.shape}")
-        return np.stack([self.render(f) for f in m])
-
 
 GRID_WIDTH_IN = 4.5  # narrower than the narrowest a report draws a grid (0.7 x 17 cm = 4.69 in)
 GRID_CELL_IN = 1.9  # a face's width when few columns leave room

@@ -13,7 +13,7 @@ from mapping.dataset import SPLITS, UttData, build_dataset, split_masks, trainin
 from mapping.experiment import METHODS, TrainedMethod, make_mapper, run_experiment
 from mapping.features import (MFCC_SETTINGS, ContextFeatures, FeatureNormalizer, audio_features,
                               mfcc, stack_context)
-from mapping.gated import GatedMLP
+from mapping.gated_mlp import GatedMLP
 from mapping.normalize import CMVN_MODES, CepstralNormalizer
 
 __all__ = ["BASELINES", "CMVN_MODES", "METHODS", "MFCC_SETTINGS", "SPLITS", "AugmentSettings",

@@ -1,7 +1,7 @@
 """A trained mapping that turns audio into MUPs, saved as one self-describing file.
 
 :class:`AudioMapping` holds the feature settings (sample rate, fps, MFCC count, deltas), a
-trained method (:class:`~mapping.gated.GatedMLP` or a baseline) and the silence rule. It accepts
+trained method (:class:`~mapping.gated_mlp.GatedMLP` or a baseline) and the silence rule. It accepts
 audio at any rate from 8 kHz to 192 kHz and resamples it to the training rate, so frame k is
 always centred at k / fps seconds and the mel filters are the ones the method was trained with.
 
@@ -34,7 +34,7 @@ from groundwork.audio import read_wav, resample
 from groundwork.errors import ParameterError
 from mapping.baselines import BASELINES, Baseline
 from mapping.features import audio_features, check_align, frame_rms_dbfs
-from mapping.gated import GatedMLP
+from mapping.gated_mlp import GatedMLP
 from mapping.recogniser import fit_length, recognise_windows
 from mapping.state import NUMERIC_KINDS, ArrayGroup
 

@@ -35,7 +35,7 @@ hyper-parameters, so no estimator reads a config object. Every value is checked 
 is made (:mod:`groundwork.settings`).
 
 The names below are those of :data:`mapping.experiment.METHODS`, :data:`mapping.dataset.SPLITS`,
-:data:`mapping.gate.N_CLASS_CHOICES` and ``MFCC_SETTINGS["n_mels"] - 1``, written out so loading
+:data:`mapping.phone_gate.N_CLASS_CHOICES` and ``MFCC_SETTINGS["n_mels"] - 1``, written out so loading
 a config imports neither torch nor librosa (a test keeps them equal).
 """
 from __future__ import annotations
@@ -50,10 +50,10 @@ SPLIT_NAMES = ("random_frames", "utterance")
 MAX_MFCC = 25  # MFCCs of 26 mel bands
 CMVN_NAMES = ("none", "mean", "meanvar")  # mapping.normalize.CMVN_MODES
 NOISE_COLOURS = ("white", "pink", "brown")  # mapping.augment.NOISE_BETA
-GATE_FRONT_END_NAMES = ("mfcc", "recogniser", "labels")  # mapping.gated.GATE_FRONT_ENDS
-MLP_INPUT_NAMES = ("mfcc", "phones")  # mapping.gated.MLP_INPUTS
+GATE_FRONT_END_NAMES = ("mfcc", "recogniser", "labels")  # mapping.gated_mlp.GATE_FRONT_ENDS
+MLP_INPUT_NAMES = ("mfcc", "phones")  # mapping.gated_mlp.MLP_INPUTS
 WINDOW_ALIGN_NAMES = ("centre", "right")  # mapping.features.WINDOW_ALIGNS
-PHONE_TRAINING_NAMES = ("recognised", "labels")  # mapping.gated.PHONE_TRAINING
+PHONE_TRAINING_NAMES = ("recognised", "labels")  # mapping.gated_mlp.PHONE_TRAINING
 
 
 @dataclass(frozen=True)
@@ -148,7 +148,7 @@ class MappingConfig:
     n_classes: int = choice(44, 8, 1)  # 44 phone classes | 8 viseme groups | 1 (a single MLP)
     gate_components: int = integer(4, ge=1)
     gate_covariance: str = choice("diag", "full", "tied", "spherical")
-    # smaller classes merge into their viseme group (mapping.gate)
+    # smaller classes merge into their viseme group (mapping.phone_gate)
     min_class_frames: int = integer(40, ge=1)
     # MLP bank: hidden units grow with the subset size, between these bounds
     hidden_min: int = integer(15, ge=1)

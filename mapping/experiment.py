@@ -22,9 +22,9 @@ from groundwork.errors import ParameterError
 from mapping.baselines import BASELINES, Baseline
 from mapping.config import MappingConfig
 from mapping.dataset import split_masks, training_copies
-from mapping.gate import gate_accuracy
-from mapping.gated import GatedMLP
+from mapping.gated_mlp import GatedMLP
 from mapping.nets import record_fits
+from mapping.phone_gate import gate_accuracy
 
 METHODS = ("gated_mlp", *BASELINES)
 # Seconds a training of each method takes per split (bench/bench_profile.py's fit seconds on

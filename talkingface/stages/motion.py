@@ -2,7 +2,7 @@
 
 ``tracking/``: rendered video of a corpus subset tracked at several image noise levels (raw
 Lucas–Kanade vs the MU-constrained fit), the error curve. ``tracked/``: the whole corpus rendered
-as marker video and tracked (``mapping.visual_source: tracked``; see :mod:`data_synth.tracked`).
+as marker video and tracked (``mapping.visual_source: tracked``; see :mod:`face_model.tracked_corpus`).
 ``render/``: a held-out sentence animated from its audio by the trained mapping (Fig. 6 style),
 the same moment in neutral, smile and sad (Fig. 7 style), and that sentence's keyframe tracks.
 """
@@ -14,15 +14,15 @@ from pathlib import Path
 import numpy as np
 
 from analysis.figures import tracking_curve
-from data_synth.tracked import track_corpus
-from data_synth.video import tracking_error_curve
 from face_model.alignment import speaker_neutrals
 from face_model.corpus import load_corpus
 from face_model.keyframes import KeyframeModel, write_keyframe_tracks
 from face_model.layout import mouth_opening
+from face_model.marker_video import tracking_error_curve
 from face_model.motion_units import MotionUnits
 from face_model.phones import PHONES
 from face_model.render import FaceRenderer, face_grid
+from face_model.tracked_corpus import track_corpus
 from talkingface.executor import map_tasks
 from talkingface.paths import RunPaths
 from talkingface.stages.base import read_done, write_csv

@@ -5,7 +5,6 @@ import pytest
 from hypothesis import given, strategies as st
 from scipy.spatial import cKDTree
 
-from data_synth.video import VideoDifficulty, render_marker_video
 from face_model.alignment import speaker_neutrals
 from face_model.detect import (
     detect_marker_dots,
@@ -14,6 +13,7 @@ from face_model.detect import (
     register_layout,
 )
 from face_model.layout import LEFT_OUTER_CORNER, N_MARKERS, RIGHT_OUTER_CORNER, default_layout
+from face_model.marker_video import VideoDifficulty, render_marker_video
 from face_model.motion_units import fit_corpus_units
 from face_model.tracker import init_from_mouth_corners
 from groundwork.errors import ParameterError

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from data_synth.video import VideoDifficulty, render_marker_video, tracking_error_curve
 from face_model.alignment import speaker_neutrals
 from face_model.layout import LEFT_OUTER_CORNER, RIGHT_OUTER_CORNER, default_layout
+from face_model.marker_video import VideoDifficulty, render_marker_video, tracking_error_curve
 from face_model.motion_units import MotionUnits, fit_corpus_units
 from face_model.mu_fit import (
     apply_beta,

@@ -19,7 +19,7 @@ import torch
 from mapping import nets
 from mapping.batched import fit_mlps
 from mapping.config import TrainSettings
-from mapping.gated import MLPBank
+from mapping.gated_mlp import MLPBank
 from mapping.nets import GRUNet, MLP, TDNN, NetRegressor, fit_many
 
 

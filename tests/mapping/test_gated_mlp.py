@@ -12,7 +12,7 @@ from face_model.phones import PHONES
 from groundwork.errors import NotFittedError, ParameterError
 from mapping.config import TrainSettings
 from mapping.dataset import UttData, split_masks
-from mapping.gated import GatedMLP, hidden_units
+from mapping.gated_mlp import GatedMLP, hidden_units
 
 A0, AK, N_FEAT = 3, 2, 4
 # Phone classes of the synthetic speech and how often each is spoken (unequal on purpose, so the

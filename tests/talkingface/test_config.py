@@ -293,7 +293,7 @@ def test_method_and_split_names_are_those_of_the_mapping_package():
     from mapping.config import MAX_MFCC, METHOD_NAMES, SPLIT_NAMES, MappingConfig
     from mapping.dataset import SPLITS
     from mapping.experiment import METHODS
-    from mapping.gate import N_CLASS_CHOICES
+    from mapping.phone_gate import N_CLASS_CHOICES
 
     assert METHOD_NAMES == METHODS and SPLIT_NAMES == SPLITS
     assert MAX_MFCC == MFCC_SETTINGS["n_mels"] - 1

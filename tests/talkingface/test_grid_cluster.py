@@ -313,7 +313,7 @@ def test_the_tracked_corpus_on_dask_is_the_process_pools_byte_for_byte(small_cor
                                                                       tmp_path):
     from functools import partial
 
-    from data_synth.tracked import track_corpus
+    from face_model.tracked_corpus import track_corpus
     from face_model.corpus import Corpus
     from face_model.motion_units import MotionUnits
 

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from data_synth.video import (
+from face_model.marker_video import (
     DEFAULT_SIZE,
     FPS,
     ImageMapping,

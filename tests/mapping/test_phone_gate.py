@@ -6,7 +6,7 @@ import pytest
 
 from face_model.phones import PHONES, viseme
 from groundwork.errors import NotFittedError, ParameterError
-from mapping.gate import PhoneGate, class_groups, confusion, merge_small_classes
+from mapping.phone_gate import PhoneGate, class_groups, confusion, merge_small_classes
 
 
 # -- class groupings ---------------------------------------------------------------------------

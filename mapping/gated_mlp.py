@@ -4,7 +4,7 @@ expression cascade Υ_k (§VI-B).
 Training, as in the paper:
 
 1. The gate's mixtures are fitted on the neutral training frames (Ψ_0), labelled with their
-   phone class (after the small-class rule of :mod:`mapping.gate`).
+   phone class (after the small-class rule of :mod:`mapping.phone_gate`).
 2. The neutral training frames are divided into subsets by the gate's decision (the paper
    classifies every sample with the mixtures); one three-layer MLP Ξ_0i per subset maps the
    7-frame audio context to the utterance MUPs. A subset smaller than ``min_class_frames`` is
@@ -47,9 +47,9 @@ from groundwork.errors import NotFittedError, ParameterError
 from mapping.bank import MLPBank, fit_banks, hidden_units  # noqa: F401 (hidden_units: API)
 from mapping.config import TrainSettings
 from mapping.features import ContextFeatures, check_context, check_seed
-from mapping.gate import COVARIANCE_TYPES, PhoneGate, class_groups, merge_small_classes
 from mapping.nets import MLP, NetRegressor, fit_many
 from mapping.normalize import check_cmvn
+from mapping.phone_gate import COVARIANCE_TYPES, PhoneGate, class_groups, merge_small_classes
 from mapping.recogniser import N_PHONES, label_windows, phone_inputs
 from mapping.state import (ArrayGroup, nest, part_name, settings_from_params,
                            settings_to_params)
@@ -95,7 +95,7 @@ class GatedMLP:
     gate_components : int
         Mixture components per class; ``gate_covariance`` their covariance type.
     min_class_frames : int
-        A class with fewer training frames joins its viseme group (:mod:`mapping.gate`).
+        A class with fewer training frames joins its viseme group (:mod:`mapping.phone_gate`).
     hidden_min, hidden_max : int
         Hidden units of the smallest and the largest subset's MLP.
     expression_model : {"cascade", "bank"}
@@ -356,7 +356,7 @@ class GatedMLP:
 
         Arrays: ``group_of_phone`` (44,), and the arrays of the parts under ``context/``
         (:class:`~mapping.features.ContextFeatures`), ``gate/``
-        (:class:`~mapping.gate.PhoneGate`), ``bank/`` (:class:`MLPBank`) and ``experts/<k>/``
+        (:class:`~mapping.phone_gate.PhoneGate`), ``bank/`` (:class:`MLPBank`) and ``experts/<k>/``
         (expression k's Υ_k, a :class:`~mapping.nets.NetRegressor`, or its
         :class:`MLPBank`). Parameters: the
         constructor's hyper-parameters (``train`` as a record), ``merges``, ``class_names``,

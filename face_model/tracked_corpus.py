@@ -2,7 +2,7 @@
 
 The paper did not have marker positions; it had video, and its tracker's output was the
 audio-visual training data. :func:`track_corpus` does the same to a synthetic corpus: every
-utterance is rendered as marker video (:func:`data_synth.video.render_marker_video`, sensor
+utterance is rendered as marker video (:func:`face_model.marker_video.render_marker_video`, sensor
 noise ``noise_sd``), its first-frame markers are placed (found in the image by default), and
 :class:`face_model.tracker.MUTracker` tracks it. The tracked markers are written as a corpus in
 the contract of DESIGN.md — same manifest, audio and phones, the tracked markers in the original
@@ -29,9 +29,9 @@ import cv2
 import numpy as np
 from tqdm.auto import tqdm
 
-from data_synth.video import INITS, VideoDifficulty, first_frame_markers, render_marker_video
 from face_model.alignment import speaker_neutrals
 from face_model.corpus import corpus_hash, write_manifest
+from face_model.marker_video import INITS, VideoDifficulty, first_frame_markers, render_marker_video
 from face_model.tracker import MUTracker
 from groundwork.errors import ParameterError
 from groundwork.memory import keep_freed_memory
@@ -107,7 +107,7 @@ def track_corpus(corpus, units, out_dir, *, noise_sd: float = 10.0, init: str = 
     noise_sd : float
         Image sensor noise of the rendered video, grey levels.
     init : {"image", "corners", "markers"}
-        How the first frame's markers are placed (:func:`data_synth.video.first_frame_markers`).
+        How the first frame's markers are placed (:func:`face_model.marker_video.first_frame_markers`).
     seed : int
         Seeds each utterance's video (skin texture, noise).
     workers : int

@@ -228,7 +228,7 @@ def gate_accuracy(mapper, data: list, masks: list) -> dict:
 
     ``mapper`` has ``gate_classes(features, phones)``, ``utterance_phones(d)``,
     ``group_of_phone_``, ``class_names_`` and
-    ``merges_`` (:class:`mapping.gated.GatedMLP`); ``data`` are :class:`mapping.dataset.UttData`
+    ``merges_`` (:class:`mapping.gated_mlp.GatedMLP`); ``data`` are :class:`mapping.dataset.UttData`
     with their training-frame ``masks``.
     """
     n = len(mapper.class_names_)

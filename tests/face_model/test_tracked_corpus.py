@@ -6,10 +6,10 @@ import json
 import numpy as np
 import pytest
 
-from data_synth.tracked import track_corpus, track_utterance
 from face_model.alignment import speaker_neutrals
 from face_model.corpus import Corpus, corpus_hash, load_corpus
 from face_model.motion_units import fit_corpus_units
+from face_model.tracked_corpus import track_corpus, track_utterance
 from groundwork.errors import ParameterError
 
 
