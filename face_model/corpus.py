@@ -201,6 +201,42 @@ def _load_utterance(root: Path, row: dict, line: int, resample_to: int | None) -
                      y, markers, phones, voice=row.get("voice") or "")
 
 
+def read_manifest(path, columns=MANIFEST_COLUMNS, *,
+                  not_found: str = "is its folder a corpus folder?") -> list[dict]:
+    """The rows of a ``manifest.csv``: the one reader of the file, for a corpus and for every
+    other folder of recordings listed the same way (the real-speech set).
+
+    Parameters
+    ----------
+    path : path-like
+        The manifest file.
+    columns : tuple of str
+        The columns it must have (others are kept as they are).
+    not_found : str
+        What the refusal of a missing file suggests, in parentheses.
+
+    Returns
+    -------
+    list of dict
+        One ``{column: text}`` per line after the header, in file order.
+
+    Raises
+    ------
+    CorpusError
+        The file is missing, or a required column is.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise CorpusError(f"{path}: manifest not found ({not_found})")
+    with open(path, newline="", encoding="utf-8-sig") as f:
+        reader = csv.DictReader(f)
+        missing = [c for c in columns if c not in (reader.fieldnames or [])]
+        if missing:
+            raise CorpusError(f"{path}: missing columns {missing}; required: "
+                              f"{', '.join(columns)}")
+        return list(reader)
+
+
 def load_corpus(root, *, resample_to: int | None = None) -> Corpus:
     """Load and validate a whole corpus folder.
 
@@ -219,8 +255,8 @@ def load_corpus(root, *, resample_to: int | None = None) -> Corpus:
     """
     root = Path(root)
     manifest = root / "manifest.csv"
-    if not manifest.is_file():
-        raise CorpusError(f"{manifest}: manifest not found (is {root} a corpus folder?)")
+    rows = read_manifest(manifest, MANIFEST_COLUMNS,
+                         not_found=f"is {root} a corpus folder?")
     info_path = root / "corpus.json"
     info = {}
     if info_path.is_file():
@@ -231,13 +267,6 @@ def load_corpus(root, *, resample_to: int | None = None) -> Corpus:
                               "corpus again") from None
         if not isinstance(info, dict):
             raise CorpusError(f"{info_path}: expected a JSON object, got {type(info).__name__}")
-    with open(manifest, newline="", encoding="utf-8-sig") as f:
-        reader = csv.DictReader(f)
-        missing = [c for c in MANIFEST_COLUMNS if c not in (reader.fieldnames or [])]
-        if missing:
-            raise CorpusError(f"{manifest}: missing columns {missing}; required: "
-                              f"{', '.join(MANIFEST_COLUMNS)}")
-        rows = list(reader)
     if not rows:
         raise CorpusError(f"{manifest}: no utterances listed")
     seen: set[str] = set()
