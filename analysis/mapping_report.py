@@ -216,14 +216,59 @@ def _visual_source_text(cfg: dict, tracked_dir: Path) -> str:
 
 def mapping_section(report, summary: dict, mapping_dir: Path, ablations_csv: Path | None,
                     forest: Path | None = None) -> None:
+    """The mapping part of the report: settings, Tables I–II beside the paper's, the lip
+    metrics, the split gap, the gate, the method ranking, the trajectories and (with
+    ``ablations_csv``) the ablations and the look-ahead curve.
+
+    Parameters
+    ----------
+    report : analysis.report.Report
+        The report the section is added to.
+    summary : dict
+        The train stage's summary (``config``, ``rows``, ``gate``, ``ranking``,
+        ``trajectories``).
+    mapping_dir : Path
+        The train stage's folder (its figures; the tracked corpus's ``done.json`` is read from
+        ``mapping_dir.parent / "tracked"``).
+    ablations_csv : Path or None
+        The ablation stage's ``results.csv`` (``replicates.csv`` and ``lookahead.png`` beside
+        it), or None without ablations.
+    forest : Path or None
+        The ablations' forest plot.
+    """
     cfg = summary["config"]["mapping"]
     method = cfg["method"]
     rows = summary["rows"]
     report.heading("Audio-to-MUP mapping (§VI) and its evaluation (§VII-A)", stage="mapping",
                    key="mapping")
+    report.paragraph(_mapping_settings_text(cfg))
+    report.paragraph(_visual_source_text(summary["config"], mapping_dir.parent / "tracked"))
+    _paper_tables(report, rows, method)
+    gap = split_gap(rows, method)
+    if gap is not None:
+        report.paragraph(
+            f"How much the frame split flatters: the mean test R over expressions is "
+            f"{gap:+.3f} higher on random_frames than on utterance. Drawing frames at random puts "
+            "the neighbours of a test frame, from the same sentence, in the training set.")
+    _gate_paragraphs(report, summary["gate"], cfg, mapping_dir)
+    _ranking_tables(report, summary["ranking"])
+    traj = mapping_dir / summary["trajectories"]
+    if traj.is_file():
+        report.figure(traj, "Predicted vs true MUPs of a test sentence per expression: the first "
+                      "three utterance MUPs and the first expression MUP.")
+    if ablations_csv is not None:
+        with open(ablations_csv, newline="", encoding="utf-8-sig") as f:
+            ab = list(csv.DictReader(f))
+        ablation_section(report, ab, ablations_csv.parent, forest)
+        lookahead_section(report, ab, ablations_csv.parent / "lookahead.png")
+
+
+def _mapping_settings_text(cfg: dict) -> str:
+    """One paragraph: features, gate, bank and expression model as configured, and how the
+    figures are computed."""
     expressions = (f"the cascade Υ<sub>k</sub> with {cfg['cascade_hidden']} hidden units"
                    if cfg["expression_model"] == "cascade" else "a bank retrained per expression")
-    report.paragraph(
+    return (
         f"Features: {cfg['n_mfcc']} MFCC per 30 fps frame{' with deltas' if cfg['deltas'] else ''}"
         f", context {cfg['context_back']} + 1 + {cfg['context_forward']} frames. Gate: one "
         f"Gaussian mixture ({cfg['gate_components']} {cfg['gate_covariance']} components) per "
@@ -234,7 +279,11 @@ def mapping_section(report, summary: dict, mapping_dir: Path, ablations_csv: Pat
         "the tracked MUP sequence) and divided per marker coordinate by its maximum absolute "
         "displacement in the database. Splits: random_frames (the paper's, 80 % of frames drawn "
         "at random) and utterance (80 % of the sentences; no sentence on both sides).")
-    report.paragraph(_visual_source_text(summary["config"], mapping_dir.parent / "tracked"))
+
+
+def _paper_tables(report, rows: list[dict], method: str) -> None:
+    """Tables I and II, ours beside the paper's, and the lips-and-face table beside Table II
+    (when the summary has its metrics)."""
     header = ["split", "expression", "R", "R paper", "ν<sub>d</sub>", "ν<sub>d</sub> paper",
               "ν<sub>d</sub>′", "ν<sub>d</sub>′ paper", "MSE", "MSE paper"]
     for part in ("train", "test"):
@@ -255,13 +304,11 @@ def mapping_section(report, summary: dict, mapping_dir: Path, ablations_csv: Pat
                           "region's normalised coordinates. /p b m/ closed: the fraction of "
                           "bilabial segments whose inner lips meet in the estimate (the truth's "
                           "own fraction beside it).")
-    gap = split_gap(rows, method)
-    if gap is not None:
-        report.paragraph(
-            f"How much the frame split flatters: the mean test R over expressions is "
-            f"{gap:+.3f} higher on random_frames than on utterance. Drawing frames at random puts "
-            "the neighbours of a test frame, from the same sentence, in the training set.")
-    for key, g in summary["gate"].items():
+
+
+def _gate_paragraphs(report, gate: dict, cfg: dict, mapping_dir: Path) -> None:
+    """The gate's frame accuracy and merged classes per split, and its confusion figure."""
+    for key, g in gate.items():
         merges = ", ".join(f"{a}->{b}" for a, b in g["merges"].items()) or "none"
         report.paragraph(
             f"Gate ({key.split('/')[1]} split): frame accuracy on neutral frames "
@@ -274,7 +321,11 @@ def mapping_section(report, summary: dict, mapping_dir: Path, ablations_csv: Pat
         report.figure(conf, "The gate's confusion on the neutral test frames of the utterance "
                       "split (rows: the frame's phone class; merged classes have empty rows).",
                       width=0.8)
-    for split, rk in summary["ranking"].items():
+
+
+def _ranking_tables(report, ranking: dict) -> None:
+    """Every method ranked by mean test R, one table per split."""
+    for split, rk in ranking.items():
         report.table(f"Methods ranked by mean test R ({split} split)",
                      ["rank", "method", "related work", "R", "MSE", "LVE (px)", "R lips",
                       "/p b m/ closed", "fit (s)"],
@@ -284,15 +335,6 @@ def mapping_section(report, summary: dict, mapping_dir: Path, ablations_csv: Pat
                      note="Mean over expressions of the test-set figures. Baselines are trained "
                           "per expression on the same frames and evaluated the same way.",
                      key=f"ranking_{split}")
-    traj = mapping_dir / summary["trajectories"]
-    if traj.is_file():
-        report.figure(traj, "Predicted vs true MUPs of a test sentence per expression: the first "
-                      "three utterance MUPs and the first expression MUP.")
-    if ablations_csv is not None:
-        with open(ablations_csv, newline="", encoding="utf-8-sig") as f:
-            ab = list(csv.DictReader(f))
-        ablation_section(report, ab, ablations_csv.parent, forest)
-        lookahead_section(report, ab, ablations_csv.parent / "lookahead.png")
 
 
 def ablation_section(report, ab: list[dict], ab_dir: Path, forest: Path | None) -> None:

@@ -4,8 +4,8 @@ study (:mod:`analysis.perception_models` fits the models).
 :func:`simulate_counts` draws participants who answer each of a face's 15 cells once;
 :func:`model_recovery` attributes data simulated from each model (default generators: the fits
 to the paper's synthetic face) by BIC and by CV; :func:`power_visual_drop` simulates the
-visual-only block (assumptions in its text). :func:`mcnemar_exact` here is the vectorised exact
-p of :func:`analysis.stats.mcnemar_exact`, for thousands of simulated studies at once.
+visual-only block (assumptions in its text), testing thousands of simulated studies at once
+with :func:`analysis.stats.mcnemar_exact` on arrays of counts.
 :func:`fit_study` gathers what the report shows of one study's models: the fits and their
 comparison, bootstrap intervals and the power of the next study.
 """
@@ -15,7 +15,7 @@ import functools
 
 import numpy as np
 import pandas as pd
-from scipy import optimize, special, stats
+from scipy import optimize, special
 
 from analysis.perception_models import (
     K,
@@ -35,13 +35,29 @@ from analysis.perception_models import (
     predict,
     seeded_rng,
 )
+from analysis.stats import mcnemar_exact
 from analysis.study_data import PAPER_TALLIES, trials_from_tallies
 from groundwork.errors import ParameterError
 from study.design import AUDIO, EXPRESSIONS, FACES, RESPONSES
 
 
 def simulate_counts(model: str, params: Params, n_participants: int, seed) -> FaceCounts:
-    """Participants answering one face's 15 cells once each, drawn from ``model``."""
+    """Participants answering one face's 15 cells once each, drawn from ``model``.
+
+    Parameters
+    ----------
+    model : {"flmp", "wtav"}
+    params : Params
+        The model's supports (and weight, for WTAV).
+    n_participants : int
+    seed : int or SeedSequence
+
+    Returns
+    -------
+    FaceCounts
+        One-hot answers: visual (n, 3, 4), audio (n, 3, 4), bimodal (n, 3, 3, 4); participants
+        ``S001`` ….
+    """
     n = check_count("n_participants", n_participants)
     pred = predict(model, params)
     probs = np.concatenate([pred["visual"], pred["audio"], pred["bimodal"].reshape(-1, K)])
@@ -55,7 +71,8 @@ def simulate_counts(model: str, params: Params, n_participants: int, seed) -> Fa
 
 @functools.lru_cache(maxsize=8)
 def paper_fits(face: str = "synthetic", lam: float = 0.05) -> dict[str, FitResult]:
-    """Both models fitted to the paper's tallies (Tables III–VII as 20 participants)."""
+    """Both models fitted to the paper's tallies (Tables III–VII as 20 participants), for
+    ``face`` (synthetic or real), with ``lam`` the L2 penalty on the logits; cached."""
     if face not in FACES:
         raise ParameterError(f"face {face!r}; allowed: {', '.join(FACES)}")
     counts = face_counts(trials_from_tallies(PAPER_TALLIES))[face]
@@ -65,9 +82,28 @@ def paper_fits(face: str = "synthetic", lam: float = 0.05) -> dict[str, FitResul
 def model_recovery(generators: dict | None = None, *, n_sims: int = 10,
                    n_participants: int = 20, lam: float = 0.05, cv: bool = True,
                    seed: int = 0) -> dict:
-    """Simulate ``n_sims`` data sets from each model (``generators[model]`` a Params; default
-    the fits to the paper's synthetic face) and attribute each by BIC (and LOPO-CV).
-    ``confusion[criterion][g][c]``: data from ``MODELS[g]`` attributed to ``MODELS[c]``."""
+    """Simulate ``n_sims`` data sets from each model and attribute each by BIC (and LOPO-CV).
+
+    Parameters
+    ----------
+    generators : dict of str to Params, optional
+        The parameters each model simulates from (default: the fits to the paper's synthetic
+        face).
+    n_sims, n_participants : int
+        Data sets per model, and participants per data set.
+    lam : float
+        The L2 penalty on the logits of every fit.
+    cv : bool
+        Attribute by leave-one-participant-out CV too (slower).
+    seed : int
+
+    Returns
+    -------
+    dict
+        ``confusion[criterion][g][c]``: data from ``MODELS[g]`` attributed to ``MODELS[c]``;
+        ``recovered[criterion][model]``: those attributed to the model that made them; and the
+        settings.
+    """
     n_sims = check_count("n_sims", n_sims)
     gens = generators or {m: f.params for m, f in paper_fits("synthetic", lam).items()}
     children = np.random.SeedSequence([int(seed), TAGS["recovery"]]).spawn(len(MODELS) * n_sims)
@@ -86,13 +122,6 @@ def model_recovery(generators: dict | None = None, *, n_sims: int = 10,
                           for c in crits}}
 
 
-def mcnemar_exact(b, c) -> np.ndarray:
-    """Exact two-sided McNemar p-value from the discordant counts (elementwise): the binomial
-    test of ``b`` successes in ``b + c`` trials with p = 1/2."""
-    b, c = np.asarray(b), np.asarray(c)
-    return np.minimum(1.0, 2 * stats.binom.cdf(np.minimum(b, c), b + c, 0.5))
-
-
 def power_visual_drop(drop: float = 0.15, *, n_grid=tuple(range(5, 105, 5)),
                       n_sims: int = 2000, alpha: float = 0.05, target: float = 0.8,
                       base=None, unit: str = "participant", seed: int = 0) -> dict:
@@ -109,7 +138,36 @@ def power_visual_drop(drop: float = 0.15, *, n_grid=tuple(range(5, 105, 5)),
     (of 3) differs between faces, McNemar's test generalised to three trials;
     ``unit='pair'`` — exact McNemar on (participant, expression) pairs, correct vs not. Two
     sided at ``alpha``. All n of the grid share the simulated participants (the first n of
-    n_max). ``n_required``: the smallest grid n from which power stays >= ``target``.
+    n_max).
+
+    Parameters
+    ----------
+    drop : float
+        The drop in mean recognition (a proportion, e.g. 0.15 for 15 points).
+    n_grid : iterable of int
+        Numbers of participants to compute the power at.
+    n_sims : int
+        Simulated studies.
+    alpha, target : float
+        The test's level, and the power wanted.
+    base : FitResult, Params or array_like (3, K), optional
+        The real face's visual supports.
+    unit : {"participant", "pair"}
+        What the exact test counts (see above).
+    seed : int
+
+    Returns
+    -------
+    dict
+        ``power`` per grid n, ``n_required`` (the smallest grid n from which power stays
+        >= ``target``, or None), the recognition rates of both faces, the shrink factor ``t``
+        and the settings.
+
+    Raises
+    ------
+    ParameterError
+        An empty grid, an unknown unit, ``alpha`` or ``target`` outside (0, 1), or a drop the
+        real face's recognition cannot make.
     """
     n_sims, grid = check_count("n_sims", n_sims), np.array(sorted(set(n_grid)), int)
     if grid.size == 0 or grid[0] < 1:
@@ -140,7 +198,7 @@ def power_visual_drop(drop: float = 0.15, *, n_grid=tuple(range(5, 105, 5)),
         worse, better = np.cumsum(d < 0, 1), np.cumsum(d > 0, 1)
     else:
         worse, better = np.cumsum((c_r & ~c_s).sum(-1), 1), np.cumsum((c_s & ~c_r).sum(-1), 1)
-    p = mcnemar_exact(worse[:, grid - 1], better[:, grid - 1])
+    p = mcnemar_exact(worse[:, grid - 1], better[:, grid - 1])["p_exact"]
     power = (p <= alpha).mean(0)
     reach = [i for i in range(grid.size) if (power[i:] >= target).all()]
     return {"drop": float(drop), "shrink_t": float(t), "recognition_real": r.tolist(),
@@ -152,8 +210,24 @@ def power_visual_drop(drop: float = 0.15, *, n_grid=tuple(range(5, 105, 5)),
 def fit_study(df: pd.DataFrame, *, lam: float = 0.05, bootstrap: int = 200,
               seed: int = 0) -> dict:
     """Both models for both faces with their comparison (LOPO-CV included), bootstrap
-    intervals (``bootstrap`` resamples; 0 skips them) and the power of the 15-point visual
-    drop from the data's real-face FLMP fit. JSON-ready."""
+    intervals and the power of the 15-point visual drop from the data's real-face FLMP fit.
+
+    Parameters
+    ----------
+    df : DataFrame
+        Validated judgments (:func:`analysis.study_data.load_study_data`).
+    lam : float
+        The L2 penalty on the logits.
+    bootstrap : int
+        Bootstrap resamples of participants (0 skips the intervals).
+    seed : int
+
+    Returns
+    -------
+    dict
+        JSON-ready: ``faces`` (each model's fit and their ``comparison``), ``bootstrap``,
+        ``power`` (or its ``error``) and the settings.
+    """
     lam = check_lam(lam)
     bootstrap = check_count("bootstrap", bootstrap, lo=0)
     counts = face_counts(df)

@@ -40,7 +40,6 @@ head motion, no noise).
 """
 from __future__ import annotations
 
-import csv
 import dataclasses
 import json
 from dataclasses import dataclass, field
@@ -55,6 +54,7 @@ from data_synth.backends import ESPEAK_SPEAKER, voice_speaker
 from data_synth.config import SynthConfig
 from data_synth.face import articulate, make_speaker
 from data_synth.flite import VOICE as FLITE_VOICE
+from face_model.corpus import read_manifest
 from face_model.layout import mouth_opening
 from face_model.phones import BILABIALS, PHONE_INDEX, PHONES, VISEMES, viseme
 from groundwork.errors import ParameterError
@@ -171,14 +171,12 @@ def training_speakers(corpus_dir) -> frozenset:
     was synthesised with: its manifest's ``voice`` column (``engine:voice``), or, without one,
     the single voice of its ``backend`` (``corpus.json``: espeak's formant voice is built from
     no real speaker, flite's default is :data:`data_synth.flite.VOICE`), through
-    :func:`data_synth.backends.voice_speaker`."""
+    :func:`data_synth.backends.voice_speaker`. A folder without a manifest is a
+    :class:`~groundwork.errors.CorpusError` saying the manifest is needed."""
     root = Path(corpus_dir)
-    path = root / "manifest.csv"
-    if not path.is_file():
-        raise ParameterError(f"{path}: the training corpus's manifest is needed to tell seen "
-                             "from unseen speakers")
-    with open(path, newline="", encoding="utf-8-sig") as f:
-        voices = {row.get("voice") or "" for row in csv.DictReader(f)}
+    rows = read_manifest(root / "manifest.csv", (), not_found="the training corpus's manifest "
+                         "is needed to tell seen from unseen speakers")
+    voices = {row.get("voice") or "" for row in rows}
     if "" in voices:
         info = json.loads((root / "corpus.json").read_text(encoding="utf-8"))
         backend = (info.get("settings") or {}).get("backend", "espeak")

@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from face_model.corpus import PhoneSegment, read_phones
+from face_model.corpus import read_manifest as read_manifest_rows
 from face_model.phones import PHONE_INDEX, PHONES
 from groundwork.audio import read_wav
 from groundwork.errors import CorpusError
@@ -179,18 +180,9 @@ def read_labels(path, duration_s: float) -> tuple[PhoneSegment, ...]:
 def read_manifest(set_dir=SET_DIR) -> list[dict]:
     """The manifest's rows, with every column present and non-empty (``label_origin`` may be
     empty), ids unique, and ``label_source`` one of :data:`LABEL_SOURCES`."""
-    set_dir = Path(set_dir)
-    path = set_dir / MANIFEST
-    if not path.is_file():
-        raise CorpusError(f"{path}: manifest not found (--set-dir must be a folder holding "
-                          f"{MANIFEST})")
-    with open(path, newline="", encoding="utf-8-sig") as f:
-        reader = csv.DictReader(f)
-        missing = [c for c in MANIFEST_COLUMNS if c not in (reader.fieldnames or [])]
-        if missing:
-            raise CorpusError(f"{path}: missing columns {missing}; need "
-                              f"{', '.join(MANIFEST_COLUMNS)}")
-        rows = list(reader)
+    path = Path(set_dir) / MANIFEST
+    rows = read_manifest_rows(path, MANIFEST_COLUMNS,
+                              not_found=f"--set-dir must be a folder holding {MANIFEST}")
     if not rows:
         raise CorpusError(f"{path}: no recordings listed")
     seen = set()

@@ -83,28 +83,57 @@ def _pairs(df, block, expression, audio) -> pd.DataFrame:
     return sub.pivot(index="participant_id", columns="face", values="response")[list(FACES)]
 
 
-def mcnemar_exact(b: int, c: int) -> dict:
+def mcnemar_exact(b, c) -> dict:
     """Exact conditional and mid-p McNemar tests from the discordant counts ``b`` and ``c``.
 
     Given ``n = b + c``, min(b, c) ~ Binomial(n, 1/2) under the null. Exact p = min(1,
     2·P(X ≤ min)); mid-p = 2·P(X ≤ min) − P(X = min), and 1 − P(X = b)/2 when b = c, as defined
     by Fagerland, Lydersen & Laake (2013, BMC Med Res Methodol 13:91, supplement eqs. 1–2).
     No discordant pairs: both p values are 1.
+
+    Parameters
+    ----------
+    b, c : int or array_like of int
+        The discordant counts (e.g. pairs correct on the synthetic face only, and on the real
+        face only). Arrays are tested elementwise (broadcast together), e.g. thousands of
+        simulated studies at once (:func:`analysis.planning.power_visual_drop`).
+
+    Returns
+    -------
+    dict
+        ``b``, ``c``, ``n_discordant`` (``b + c``), ``p_exact``, ``p_midp``: Python numbers for
+        scalar counts, arrays of the broadcast shape for arrays.
+
+    Raises
+    ------
+    ParameterError
+        A negative or non-integer count.
     """
-    if min(b, c) < 0 or int(b) != b or int(c) != c:
-        raise ParameterError(f"discordant counts must be non-negative integers, got b={b!r}, "
-                             f"c={c!r}")
-    n, k = int(b + c), int(min(b, c))
-    if n == 0:
-        return {"b": int(b), "c": int(c), "n_discordant": 0, "p_exact": 1.0, "p_midp": 1.0}
+    b_arr, c_arr = np.asarray(b), np.asarray(c)
+    if b_arr.ndim == 0 and c_arr.ndim == 0:
+        if min(b, c) < 0 or int(b) != b or int(c) != c:
+            raise ParameterError(f"discordant counts must be non-negative integers, got b={b!r}, "
+                                 f"c={c!r}")
+        out = _mcnemar_p(np.asarray(int(b)), np.asarray(int(c)))
+        return {"b": int(b), "c": int(c), "n_discordant": int(b + c),
+                **{k: float(v) for k, v in out.items()}}
+    if b_arr.dtype.kind not in "iu" or c_arr.dtype.kind not in "iu" or (b_arr < 0).any() \
+            or (c_arr < 0).any():
+        raise ParameterError(f"discordant counts must be non-negative integers, got arrays of "
+                             f"{b_arr.dtype} (min {b_arr.min(initial=0)}) and {c_arr.dtype} "
+                             f"(min {c_arr.min(initial=0)})")
+    return {"b": b_arr, "c": c_arr, "n_discordant": b_arr + c_arr, **_mcnemar_p(b_arr, c_arr)}
+
+
+def _mcnemar_p(b: np.ndarray, c: np.ndarray) -> dict:
+    """``p_exact`` and ``p_midp`` of :func:`mcnemar_exact`, elementwise, for checked counts."""
+    n, k = b + c, np.minimum(b, c)
     pmf = stats.binom.pmf(k, n, 0.5)
-    if b == c:
-        exact, mid = 1.0, 1.0 - 0.5 * pmf
-    else:
-        cdf2 = 2.0 * stats.binom.cdf(k, n, 0.5)
-        exact, mid = min(1.0, cdf2), cdf2 - pmf
-    return {"b": int(b), "c": int(c), "n_discordant": n, "p_exact": float(exact),
-            "p_midp": float(mid)}
+    cdf2 = 2.0 * stats.binom.cdf(k, n, 0.5)
+    tie, none = b == c, n == 0
+    exact = np.where(tie, 1.0, np.minimum(1.0, cdf2))
+    mid = np.where(none, 1.0, np.where(tie, 1.0 - 0.5 * pmf, cdf2 - pmf))
+    return {"p_exact": exact, "p_midp": mid}
 
 
 def stuart_maxwell(table, labels=RESPONSES) -> dict:

@@ -2,8 +2,9 @@
 
 :func:`read_study` (and :func:`load_study_data`, its table alone) reads every
 ``sub-*/sub-*_task-emotion_beh.csv`` of a study folder into one table and refuses, naming the
-file and the row: an unknown code (block, face, expression, audio, response, sequence), a
-duplicated trial, a row that contradicts the design (e.g. a visual-only trial with sound).
+file and the row: an unknown code (block, face, expression, audio, response, sequence: the
+codes of :data:`study.columns.ALLOWED_CODES`), a duplicated trial, a row that contradicts the
+design (e.g. a visual-only trial with sound).
 Files are read as UTF-8 with or without a byte-order mark (a CSV saved by Excel has one).
 
 An incomplete data set is refused too, naming each participant and their number of judgments:
@@ -27,8 +28,6 @@ analysis is checked against known tables.
 """
 from __future__ import annotations
 
-import csv
-import io
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,17 +36,15 @@ import numpy as np
 import pandas as pd
 
 from groundwork.errors import ParameterError
-from study.data import COLUMNS, Allocation, sidecar_path
+from study.columns import (ALLOWED_CODES, BLOCK_SIZES, COLUMNS, REQUIRED_COLUMNS, csv_text,
+                           read_data_file)
+from study.data import Allocation, data_path, sidecar_path
 from study.design import (AUDIO, EXPRESSIONS, FACES, N_TRIALS, RESPONSES, SEQUENCES,
                           check_participant_id)
 
 FACE_CODE = {"synthetic": "S", "real": "R"}
 RESPONSE_LABEL = {"neutral": "Neutral", "happy": "Happy", "sad": "Sad", "not_sure": "Not sure"}
 TABLE_OF_AUDIO = {"normal": "V", "good": "VI", "bad": "VII"}
-BLOCK_SIZES = {("visual", 0): 6, ("audio", 0): 3, ("bimodal", 1): 9, ("bimodal", 2): 9}
-_ALLOWED = {"block": ("visual", "audio", "bimodal"), "face": (*FACES, "none"),
-            "expression": (*EXPRESSIONS, "none"), "audio": (*AUDIO, "none"),
-            "response": RESPONSES, "sequence": SEQUENCES}
 # The paper's tallies (counts of 20 participants), rows neutral, happy, sad, not sure; columns
 # (neutral S, neutral R, smile S, smile R, sad S, sad R), or audio tracks 1–3 for Table IV.
 PAPER_TALLIES = {
@@ -61,8 +58,6 @@ PAPER_TALLIES = {
     "VII": np.array([[13, 14, 14, 13, 0, 0], [0, 0, 2, 4, 0, 0], [7, 6, 0, 0, 20, 20],
                      [0, 0, 4, 3, 0, 0]]),
 }
-REQUIRED = ("participant_id", "sequence", "block", "period", "trial_index", "face",
-            "expression", "audio", "response")
 
 
 def _fail(path, line, msg):
@@ -95,23 +90,31 @@ class StudyData:
     incomplete: tuple  # of Incomplete
 
 
-def _read_csv(path: Path) -> tuple[list | None, list[dict]]:
-    """Header and complete rows of a data file (a last line cut short by a crash is the trial
-    that was in progress: not a judgment)."""
-    raw = path.read_bytes()
-    if raw and not raw.endswith(b"\n"):
-        raw = raw[:raw.rfind(b"\n") + 1]
-    reader = csv.DictReader(io.StringIO(raw.decode("utf-8-sig"), newline=""))
-    rows = list(reader)
-    return reader.fieldnames, rows
-
-
 def read_study(study_dir, *, allow_incomplete: bool = False) -> StudyData:
     """All judgments of a study folder, validated, and its incomplete sessions (see the
-    module text); refused if any session is incomplete, unless ``allow_incomplete``.
+    module text).
 
-    ``trials`` has the contract's columns (``period`` and ``trial_index`` as ints,
-    ``simulated`` as bool) plus ``file`` and ``row`` (where each judgment came from).
+    Parameters
+    ----------
+    study_dir : path
+        A study folder (``study.data`` layout).
+    allow_incomplete : bool
+        Analyse the complete sessions and list the others, instead of refusing the folder.
+
+    Returns
+    -------
+    StudyData
+        ``trials`` has the contract's columns (``period`` and ``trial_index`` as ints,
+        ``simulated`` as bool) plus ``file`` and ``row`` (where each judgment came from);
+        ``incomplete`` the sessions that are not complete.
+
+    Raises
+    ------
+    ParameterError
+        No data file; a file lacking a required column (:data:`study.columns.REQUIRED_COLUMNS`);
+        a row with an unknown code or that contradicts the design (naming the file and the row);
+        a participant in two files; an incomplete session without ``allow_incomplete``; no
+        complete session.
     """
     root = Path(study_dir)
     files = sorted(root.glob("sub-*/sub-*_task-emotion_beh.csv"))
@@ -120,8 +123,8 @@ def read_study(study_dir, *, allow_incomplete: bool = False) -> StudyData:
     slots = _slots(root)
     frames, incomplete, problems = [], [], []
     for path in files:
-        fields, rows = _read_csv(path)
-        missing = [c for c in REQUIRED if c not in (fields or [])]
+        fields, rows, _ = read_data_file(path)  # a torn last line: the trial in progress
+        missing = [c for c in REQUIRED_COLUMNS if c not in (fields or [])]
         if missing:
             raise ParameterError(f"{path}: missing columns {missing}")
         df, short = _check_participant(path, rows)
@@ -204,7 +207,7 @@ def _check_participant(path: Path, rows: list[dict]) -> tuple[pd.DataFrame, str 
     """The participant's rows, validated, and what is missing ("has 0 of 3 judgments in the
     audio block"; None for a complete session)."""
     if not rows:
-        return pd.DataFrame(columns=[*REQUIRED, "file", "row"]), \
+        return pd.DataFrame(columns=[*REQUIRED_COLUMNS, "file", "row"]), \
             f"has no judgments in {path.name}"
     pid = rows[0]["participant_id"]
     try:
@@ -213,7 +216,7 @@ def _check_participant(path: Path, rows: list[dict]) -> tuple[pd.DataFrame, str 
         _fail(path, 2, str(exc))
     seen_trials: dict[int, int] = {}
     for line, r in enumerate(rows, start=2):
-        for col, allowed in _ALLOWED.items():
+        for col, allowed in ALLOWED_CODES.items():
             if r[col] not in allowed:
                 _fail(path, line, f"{col} {r[col]!r} is not a known code; allowed: "
                       f"{', '.join(allowed)}")
@@ -301,7 +304,18 @@ def _table(df: pd.DataFrame, name: str, title: str, rows: tuple, columns: list,
 
 
 def tallies(df: pd.DataFrame) -> dict[str, Tally]:
-    """Tables III–VII (keys ``III`` … ``VII``) from validated data."""
+    """The paper's Tables III–VII from validated data.
+
+    Parameters
+    ----------
+    df : DataFrame
+        One row per judgment (:func:`read_study`'s ``trials``, or :func:`trials_from_tallies`).
+
+    Returns
+    -------
+    dict of str to Tally
+        Keys ``III`` … ``VII``; counts of participants, responses × columns.
+    """
     face_cols = [(e, FACE_CODE[f]) for e in EXPRESSIONS for f in FACES]
     vis = df[df["block"] == "visual"]
     out = {"III": _table(vis, "III", "Emotion inference based on the animation sequences "
@@ -319,9 +333,30 @@ def tallies(df: pd.DataFrame) -> dict[str, Tally]:
 
 
 def trials_from_tallies(tables: dict, *, seed: int = 0) -> pd.DataFrame:
-    """Trial-level data that reproduce given Tables III–VII exactly (``tables[name]`` a
-    response × column count array in the layout of :func:`tallies`).
+    """Trial-level data that reproduce given Tables III–VII exactly.
 
+    Parameters
+    ----------
+    tables : dict of str to array-like
+        ``tables[name]`` for ``III`` … ``VII``: a response × column count array in the layout
+        of :func:`tallies`, shape (4, 6), or (4, 3) for Table IV.
+    seed : int
+        Seeds the order in which each column's responses are dealt to the participants.
+
+    Returns
+    -------
+    DataFrame
+        27 judgments per participant (``T01`` …), the required contract columns and
+        ``simulated`` (True).
+
+    Raises
+    ------
+    ParameterError
+        A table missing or of the wrong shape, negative counts, or columns that count
+        different numbers of participants.
+
+    Notes
+    -----
     Every table column must sum to the same number of participants n. Each column's responses
     are dealt to the n participants in a seeded random order, so the data are one consistent
     set of n complete sessions; sequences alternate SR, RS. Tallies do not say which answers
@@ -377,16 +412,36 @@ def trials_from_tallies(tables: dict, *, seed: int = 0) -> pd.DataFrame:
 
 
 def write_study_data(df: pd.DataFrame, study_dir) -> Path:
-    """Write a DataFrame of judgments as study data files (the contract's columns; missing ones
-    blank), one per participant."""
+    """Write a DataFrame of judgments as study data files, one per participant, in the format
+    the study writes (:func:`study.columns.csv_text`).
+
+    Parameters
+    ----------
+    df : DataFrame
+        One row per judgment (e.g. :func:`trials_from_tallies`); the contract's columns
+        (:data:`study.columns.COLUMNS`) it lacks are written blank, booleans as
+        ``true``/``false``.
+    study_dir : path
+        The study folder; ``sub-<id>/sub-<id>_task-emotion_beh.csv`` is written (replaced)
+        for every participant.
+
+    Returns
+    -------
+    pathlib.Path
+        ``study_dir``.
+
+    Raises
+    ------
+    ParameterError
+        A participant id that cannot name a data file (:func:`study.design.check_participant_id`).
+    """
     root = Path(study_dir)
     for pid, rows in df.groupby("participant_id", sort=True):
-        sub = root / f"sub-{pid}"
-        sub.mkdir(parents=True, exist_ok=True)
-        with open(sub / f"sub-{pid}_task-emotion_beh.csv", "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=COLUMNS, lineterminator="\n")
-            w.writeheader()
-            for _, r in rows.sort_values("trial_index").iterrows():
-                w.writerow({c: (str(r[c]).lower() if isinstance(r.get(c), (bool, np.bool_))
-                                else r[c]) if c in r else "" for c in COLUMNS})
+        path = data_path(root, str(pid))
+        path.parent.mkdir(parents=True, exist_ok=True)
+        records = [{c: (str(r[c]).lower() if isinstance(r.get(c), (bool, np.bool_)) else r[c])
+                    if c in r else "" for c in COLUMNS}
+                   for _, r in rows.sort_values("trial_index").iterrows()]
+        with open(path, "w", newline="") as f:
+            f.write(csv_text(records))
     return root

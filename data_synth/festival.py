@@ -58,7 +58,7 @@ from data_synth.flite import FLITE_TO_CLASS
 from data_synth.speech import (RawPhone, SpeechBackend, SynthRequest, SynthResult,
                                run_program)
 from data_synth.text import is_speakable, to_ascii
-from groundwork.audio import read_wav, resample
+from groundwork.audio import read_wav, resample, seconds_to_samples
 from groundwork.errors import ParameterError
 
 FESTIVAL = "festival"
@@ -217,7 +217,7 @@ def _to_result(wav: Path, seg: Path, voice: str, text: str) -> SynthResult:
             raise ParameterError(f"festival: unreadable segment line {line!r} for "
                                  f"{text!r}; expected 'symbol end_seconds'") from None
         phones.append(RawPhone(start, sym))
-        start = max(start, int(round(end_s * OUTPUT_SAMPLE_RATE)))
+        start = max(start, seconds_to_samples(end_s, OUTPUT_SAMPLE_RATE))
     return SynthResult(audio=audio, sample_rate=OUTPUT_SAMPLE_RATE, phones=phones)
 
 

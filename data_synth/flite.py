@@ -52,7 +52,7 @@ import numpy as np
 from data_synth.speech import (RawPhone, SpeechBackend, SynthRequest, SynthResult,
                                run_program)
 from data_synth.text import to_ascii
-from groundwork.audio import read_wav, resample
+from groundwork.audio import read_wav, resample, seconds_to_samples
 from groundwork.errors import ParameterError
 
 FLITE = "flite"
@@ -212,7 +212,7 @@ def _synthesize_one(req: SynthRequest, wav: Path, voice: str) -> SynthResult:
     phones, start = [], 0
     for sym, end_s in parse_psdur(proc.stdout, text=req.text):
         phones.append(RawPhone(start, sym))
-        start = max(start, int(round(end_s * OUTPUT_SAMPLE_RATE)))
+        start = max(start, seconds_to_samples(end_s, OUTPUT_SAMPLE_RATE))
     return SynthResult(audio=audio, sample_rate=OUTPUT_SAMPLE_RATE, phones=phones)
 
 

@@ -35,6 +35,7 @@ from data_synth.text import select_sentences
 from face_model.corpus import EXPRESSIONS, FPS, write_manifest, write_utterance
 from face_model.layout import LAYOUT_VERSION
 from groundwork.atomic import fresh_partial_folder, swap_in
+from groundwork.audio import seconds_to_samples
 from groundwork.errors import ParameterError
 
 
@@ -58,6 +59,24 @@ def draw_voice(cfg, seed: int, speaker: int, expression: str, sentence: int) -> 
     Drawn from its own generator, seeded by ``(seed, VOICE_STREAM, speaker, expression,
     sentence)``: the same utterance gets the same voice whatever else the corpus holds, and no
     other draw of the corpus changes. A voice of weight 0 is never drawn.
+
+    Parameters
+    ----------
+    cfg : SynthConfig
+        Its ``voices`` (``engine:voice`` strings) and ``voice_weights`` (equal when empty).
+    seed : int
+        The corpus seed.
+    speaker : int
+        The speaker's index.
+    expression : str
+        One of the corpus expressions.
+    sentence : int
+        The sentence's index.
+
+    Returns
+    -------
+    str
+        ``engine:voice``.
     """
     w = np.asarray(cfg.voice_weights or [1.0] * len(cfg.voices), dtype=np.float64)
     rng = np.random.default_rng([seed, VOICE_STREAM, speaker, EXPRESSIONS.index(expression),
@@ -77,7 +96,25 @@ def _check(cfg) -> None:
 
 
 def plan_corpus(cfg, seed: int) -> tuple[list[Speaker], list[UtterancePlan]]:
-    """The speakers and the utterances to generate, in manifest order."""
+    """The speakers and the utterances to generate, in manifest order.
+
+    Parameters
+    ----------
+    cfg : SynthConfig
+    seed : int
+        The corpus seed.
+
+    Returns
+    -------
+    speakers : list of Speaker
+    plans : list of UtterancePlan
+        Speaker by speaker, expression by expression, sentence by sentence.
+
+    Raises
+    ------
+    ParameterError
+        An unknown expression, no speaker, or a negative nuisance magnitude.
+    """
     _check(cfg)
     sentences = select_sentences(cfg.n_sentences, cfg.text_file)
     speakers = [make_speaker(i, cfg, seed) for i in range(cfg.speakers)]
@@ -100,7 +137,39 @@ def plan_corpus(cfg, seed: int) -> tuple[list[Speaker], list[UtterancePlan]]:
 
 
 def build_utterance(plan: UtterancePlan, speaker: Speaker, result, backend, cfg, seed: int):
-    """Audio (float, padded), phone segments, and markers (n_frames, 79, 2) for one utterance."""
+    """Audio, phone segments and markers of one utterance (paper §IV-A).
+
+    Parameters
+    ----------
+    plan : UtterancePlan
+    speaker : Speaker
+    result
+        The speech engine's output for ``plan`` (PCM16 ``audio`` at ``sample_rate`` Hz, with
+        its phone timing).
+    backend
+        The speech engine that produced it.
+    cfg : SynthConfig
+        Silence before and after the speech (s), noise, coarticulation, expression and head
+        motion settings.
+    seed : int
+        The corpus seed (with the speaker, expression and sentence it seeds the utterance's
+        draws).
+
+    Returns
+    -------
+    audio : ndarray, shape (n_frames · sr / 30,), float64
+        The speech padded with ``cfg.lead_silence_s`` and at least ``cfg.trail_silence_s`` of
+        silence, plus noise, full scale 1.
+    segments : list of PhoneSegment
+        Contiguous 44-class phones covering ``audio`` (start and end in seconds).
+    markers : ndarray, shape (n_frames, 79, 2), float32
+        Image coordinates in pixels at 30 fps, head motion and marker noise included.
+
+    Raises
+    ------
+    ParameterError
+        A sample rate without an integer hop at 30 fps.
+    """
     rng = np.random.default_rng([seed, plan.speaker, EXPRESSIONS.index(plan.expression),
                                  plan.sentence_index])
     sr = result.sample_rate
@@ -109,7 +178,7 @@ def build_utterance(plan: UtterancePlan, speaker: Speaker, result, backend, cfg,
                              f"at {FPS} fps")
     hop = sr // FPS
     speech = result.audio.astype(np.float64) / 32768.0
-    lead = int(round(cfg.lead_silence_s * sr))
+    lead = seconds_to_samples(cfg.lead_silence_s, sr)
     n_frames = int(np.ceil((lead + len(speech) + cfg.trail_silence_s * sr) / hop))
     audio = np.zeros(n_frames * hop)
     audio[lead:lead + len(speech)] = speech

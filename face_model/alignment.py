@@ -29,10 +29,20 @@ def _check_markers(markers: np.ndarray, name: str = "markers") -> np.ndarray:
 
 
 def similarity_params(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares similarity mapping point sets ``src`` → ``dst`` (each (n_frames, k, 2)).
+    """Least-squares similarity mapping point sets ``src`` → ``dst``, frame by frame (the
+    Umeyama solution, in closed form for 2D).
 
-    Returns ``A`` (n_frames, 2, 2) = scale · rotation and ``t`` (n_frames, 2) with
-    ``dst ≈ src @ A.T + t``.
+    Parameters
+    ----------
+    src, dst : ndarray, shape (n_frames, k, 2)
+        Corresponding points, pixels; k >= 2.
+
+    Returns
+    -------
+    A : ndarray, shape (n_frames, 2, 2)
+        Scale · rotation.
+    t : ndarray, shape (n_frames, 2)
+        Translation, pixels; ``dst ≈ src @ A.T + t``.
     """
     mu_s = src.mean(1, keepdims=True)
     mu_d = dst.mean(1, keepdims=True)
@@ -47,7 +57,20 @@ def similarity_params(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.
 
 
 def affine_params(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares (exact for three points) affine map ``src`` → ``dst``; shapes as above."""
+    """Least-squares (exact for three points) affine map ``src`` → ``dst``, frame by frame.
+
+    Parameters
+    ----------
+    src, dst : ndarray, shape (n_frames, k, 2)
+        Corresponding points, pixels; k >= 3, not collinear.
+
+    Returns
+    -------
+    A : ndarray, shape (n_frames, 2, 2)
+        The linear part.
+    t : ndarray, shape (n_frames, 2)
+        Translation, pixels; ``dst ≈ src @ A.T + t``.
+    """
     n, k, _ = src.shape
     X = np.concatenate([src, np.ones((n, k, 1))], axis=2)  # (n, k, 3)
     sol = np.linalg.solve(np.einsum("nki,nkj->nij", X, X), np.einsum("nki,nkj->nij", X, dst))
@@ -56,18 +79,29 @@ def affine_params(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndar
 
 def align_markers(markers: np.ndarray, *, reference: np.ndarray | None = None,
                   model: str = "similarity") -> np.ndarray:
-    """Map every frame so that its glasses markers best match ``reference``.
+    """Map every frame so that its glasses markers best match ``reference`` (paper §IV-A:
+    the glasses are rigid with the head, so this removes the global head motion).
 
     Parameters
     ----------
-    markers : ndarray, shape (n_frames, 79, 2), pixels
+    markers : ndarray, shape (n_frames, 79, 2)
+        Marker positions, pixels.
     reference : ndarray, shape (3, 2), optional
-        Target glasses positions; default: the canonical layout's.
+        Target glasses positions, pixels; default: the canonical layout's.
     model : {"similarity", "affine"}
+        Least-squares similarity, or the affine map the three points determine (see the
+        module text).
 
     Returns
     -------
     ndarray, shape (n_frames, 79, 2)
+        Aligned positions, pixels, float64.
+
+    Raises
+    ------
+    ParameterError
+        Markers of another shape or not finite, an unknown ``model``, a ``reference`` not
+        (3, 2).
     """
     m = _check_markers(markers)
     if model not in ALIGNMENTS:
@@ -92,8 +126,26 @@ def unflatten(vectors: np.ndarray) -> np.ndarray:
 
 
 def speaker_neutrals(corpus, *, model: str = "similarity") -> dict[str, np.ndarray]:
-    """Each speaker's neutral face (79, 2): the median over its neutral utterances of the aligned
-    first frame (the paper's tracker likewise assumes a neutral, frontal first frame)."""
+    """Each speaker's neutral face: the median over its neutral utterances of the aligned
+    first frame (the paper's tracker likewise assumes a neutral, frontal first frame, §V).
+
+    Parameters
+    ----------
+    corpus : Corpus
+        A loaded corpus (:func:`face_model.corpus.load_corpus`).
+    model : {"similarity", "affine"}
+        The alignment (:func:`align_markers`).
+
+    Returns
+    -------
+    dict of str to ndarray
+        Speaker → neutral face, shape (79, 2), pixels in the aligned frame.
+
+    Raises
+    ------
+    ParameterError
+        A speaker has no neutral utterance.
+    """
     firsts: dict[str, list] = {}
     for u in corpus.utterances:
         if u.expression == "neutral":
@@ -108,7 +160,23 @@ def speaker_neutrals(corpus, *, model: str = "similarity") -> dict[str, np.ndarr
 
 def corpus_deformations(corpus, *, model: str = "similarity",
                         neutrals: dict | None = None) -> dict[str, np.ndarray]:
-    """Per utterance id, the aligned deformations (n_frames, 158) from the speaker's neutral."""
+    """The deformations the Motion Units are learned from (paper §IV-A): aligned positions
+    minus the speaker's neutral face.
+
+    Parameters
+    ----------
+    corpus : Corpus
+        A loaded corpus.
+    model : {"similarity", "affine"}
+        The alignment (:func:`align_markers`).
+    neutrals : dict of str to ndarray, optional
+        Speaker → neutral face (79, 2); default :func:`speaker_neutrals` of ``corpus``.
+
+    Returns
+    -------
+    dict of str to ndarray
+        Utterance id → deformations, shape (n_frames, 158), pixels, x/y interleaved.
+    """
     neutrals = neutrals if neutrals is not None else speaker_neutrals(corpus, model=model)
     return {u.utt_id: flatten(align_markers(u.markers, model=model) - neutrals[u.speaker][None])
             for u in corpus.utterances}

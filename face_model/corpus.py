@@ -34,6 +34,7 @@ EXPRESSIONS = ("neutral", "smile", "sad")
 MANIFEST_COLUMNS = ("utt_id", "speaker", "expression", "text", "n_frames", "fps",
                     "sample_rate", "audio", "markers", "phones")
 OPTIONAL_COLUMNS = ("voice",)  # written only when some row has it
+_FILE_COLUMNS = ("audio", "markers", "phones")  # the columns that name an utterance's files
 FPS = 30
 # Rates with an integer hop at 30 fps; anything else is refused or resampled to DEFAULT_SR.
 SUPPORTED_SR = (22050, 44100, 48000, 24000, 32000, 96000)
@@ -42,6 +43,9 @@ DEFAULT_SR = 22050
 
 @dataclass(frozen=True)
 class PhoneSegment:
+    """One line of a phone file: ``phone`` (one of the 44 classes) from ``start_s`` to
+    ``end_s``, seconds from the start of the audio."""
+
     start_s: float
     end_s: float
     phone: str
@@ -49,7 +53,25 @@ class PhoneSegment:
 
 @dataclass
 class Utterance:
-    """One validated utterance; arrays are loaded and checked."""
+    """One validated utterance; arrays are loaded and checked.
+
+    Attributes
+    ----------
+    utt_id, speaker, expression, text : str
+        The manifest's fields (``expression`` one of :data:`EXPRESSIONS`).
+    fps : int
+        Video frame rate, 30.
+    sample_rate : int
+        Audio sample rate, Hz.
+    audio : ndarray of float32, shape (n_samples,)
+        Mono speech in [-1, 1].
+    markers : ndarray of float32, shape (n_frames, 79, 2)
+        Marker positions, image pixels, head motion included; frame k at k / fps s.
+    phones : list of PhoneSegment
+        In time order.
+    voice : str
+        The manifest's optional ``voice`` (``engine:voice``), "" when absent.
+    """
 
     utt_id: str
     speaker: str
@@ -80,6 +102,18 @@ class Utterance:
 
 @dataclass
 class Corpus:
+    """A loaded corpus (:func:`load_corpus`).
+
+    Attributes
+    ----------
+    root : pathlib.Path
+        Its folder.
+    info : dict
+        ``corpus.json`` (empty when the folder has none).
+    utterances : list of Utterance
+        In manifest order; ``corpus[utt_id]`` finds one by id.
+    """
+
     root: Path
     info: dict
     utterances: list  # list[Utterance]
@@ -104,6 +138,19 @@ class Corpus:
 def read_phones(path: Path, duration_s: float, fps: int = 30) -> list[PhoneSegment]:
     """A phone file of the corpus contract (``start_s,end_s,phone``): segments in time order,
     44-class phones, finite times, no overlap, ending by one frame after the audio.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The phone file.
+    duration_s : float
+        The audio's duration, seconds.
+    fps : int
+        Video frame rate (the last segment may end up to one frame after the audio).
+
+    Returns
+    -------
+    list of PhoneSegment
 
     Raises
     ------
@@ -174,7 +221,7 @@ def _load_utterance(root: Path, row: dict, line: int, resample_to: int | None) -
         raise CorpusError(f"{where}: fps, n_frames and sample_rate must be integers") from exc
     if fps != FPS:
         raise CorpusError(f"{where}: fps {fps}; the corpus format requires {FPS}")
-    paths = {k: root / row[k] for k in ("audio", "markers", "phones")}
+    paths = {k: root / row[k] for k in _FILE_COLUMNS}
     for k, p in paths.items():
         if not p.is_file():
             raise CorpusError(f"{where}: {k} file {p} not found")
@@ -202,7 +249,8 @@ def _load_utterance(root: Path, row: dict, line: int, resample_to: int | None) -
 
 
 def read_manifest(path, columns=MANIFEST_COLUMNS, *,
-                  not_found: str = "is its folder a corpus folder?") -> list[dict]:
+                  not_found: str = "is its folder a corpus folder?",
+                  error: type = CorpusError) -> list[dict]:
     """The rows of a ``manifest.csv``: the one reader of the file, for a corpus and for every
     other folder of recordings listed the same way (the real-speech set).
 
@@ -214,6 +262,9 @@ def read_manifest(path, columns=MANIFEST_COLUMNS, *,
         The columns it must have (others are kept as they are).
     not_found : str
         What the refusal of a missing file suggests, in parentheses.
+    error : type
+        The exception raised (a :class:`~groundwork.errors.TalkingFaceError`): the caller's
+        own kind of refusal, e.g. ``ParameterError`` for the study's stimulus list.
 
     Returns
     -------
@@ -222,18 +273,17 @@ def read_manifest(path, columns=MANIFEST_COLUMNS, *,
 
     Raises
     ------
-    CorpusError
+    CorpusError (or ``error``)
         The file is missing, or a required column is.
     """
     path = Path(path)
     if not path.is_file():
-        raise CorpusError(f"{path}: manifest not found ({not_found})")
+        raise error(f"{path}: manifest not found ({not_found})")
     with open(path, newline="", encoding="utf-8-sig") as f:
         reader = csv.DictReader(f)
         missing = [c for c in columns if c not in (reader.fieldnames or [])]
         if missing:
-            raise CorpusError(f"{path}: missing columns {missing}; required: "
-                              f"{', '.join(columns)}")
+            raise error(f"{path}: missing columns {missing}; required: {', '.join(columns)}")
         return list(reader)
 
 
@@ -247,6 +297,10 @@ def load_corpus(root, *, resample_to: int | None = None) -> Corpus:
     resample_to : int, optional
         Resample audio whose rate has no integer hop at 30 fps to this rate (Hz) instead of
         refusing it.
+
+    Returns
+    -------
+    Corpus
 
     Raises
     ------
@@ -281,14 +335,40 @@ def load_corpus(root, *, resample_to: int | None = None) -> Corpus:
 
 def write_utterance(root, *, utt_id: str, audio: np.ndarray, sr: int, markers: np.ndarray,
                     phones: list) -> dict:
-    """Write one utterance's three files under ``root`` and return its manifest path fields."""
+    """Write one utterance's three files under ``root``.
+
+    Parameters
+    ----------
+    root : path-like
+        The corpus folder (``audio/``, ``markers/``, ``phones/`` are created in it).
+    utt_id : str
+        Names the files.
+    audio : ndarray, shape (n_samples,)
+        Mono speech in [-1, 1], written as PCM16.
+    sr : int
+        Sample rate, Hz.
+    markers : array_like, shape (n_frames, 79, 2)
+        Marker positions, pixels (written as float32).
+    phones : list of PhoneSegment
+        Written with times rounded to 10 µs.
+
+    Returns
+    -------
+    dict
+        The manifest's path fields ``audio``, ``markers``, ``phones`` (relative to ``root``).
+
+    Raises
+    ------
+    ParameterError
+        Markers of another shape.
+    """
     root = Path(root)
     markers = np.asarray(markers, dtype=np.float32)
     if markers.ndim != 3 or markers.shape[1:] != (N_MARKERS, 2):
         raise ParameterError(f"markers for {utt_id} must be (n_frames, 79, 2), got {markers.shape}")
     rel = {"audio": f"audio/{utt_id}.wav", "markers": f"markers/{utt_id}.npy",
            "phones": f"phones/{utt_id}.csv"}
-    for sub in ("audio", "markers", "phones"):
+    for sub in _FILE_COLUMNS:
         (root / sub).mkdir(parents=True, exist_ok=True)
     write_wav(root / rel["audio"], audio, sr)
     np.save(root / rel["markers"], markers, allow_pickle=False)
@@ -301,8 +381,17 @@ def write_utterance(root, *, utt_id: str, audio: np.ndarray, sr: int, markers: n
 
 
 def write_manifest(root, rows: list[dict]) -> None:
-    """Write ``manifest.csv`` (rows hold the :data:`MANIFEST_COLUMNS`, and the
-    :data:`OPTIONAL_COLUMNS` that any row has, after them)."""
+    """Write ``manifest.csv`` in ``root``.
+
+    Parameters
+    ----------
+    root : path-like
+        The corpus folder.
+    rows : list of dict
+        One per utterance, in order; each holds the :data:`MANIFEST_COLUMNS` (other keys are
+        left out), and the :data:`OPTIONAL_COLUMNS` that any row has are written after them
+        (blank where a row lacks one).
+    """
     optional = tuple(c for c in OPTIONAL_COLUMNS if any(c in r for r in rows))
     with open(Path(root) / "manifest.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=MANIFEST_COLUMNS + optional, lineterminator="\n")
@@ -313,13 +402,30 @@ def write_manifest(root, rows: list[dict]) -> None:
 
 
 def corpus_hash(root) -> str:
-    """SHA-256 over the manifest and every file it lists (in manifest order)."""
+    """SHA-256 over the manifest and every file it lists (in manifest order).
+
+    Parameters
+    ----------
+    root : path-like
+        The corpus folder.
+
+    Returns
+    -------
+    str
+        The digest, 64 hexadecimal characters.
+
+    Raises
+    ------
+    FileNotFoundError
+        The manifest or a file it lists is missing.
+    CorpusError
+        The manifest lacks one of the ``audio``, ``markers``, ``phones`` columns.
+    """
     root = Path(root)
     h = hashlib.sha256()
     manifest = root / "manifest.csv"
     h.update(manifest.read_bytes())
-    with open(manifest, newline="", encoding="utf-8-sig") as f:
-        for row in csv.DictReader(f):
-            for k in ("audio", "markers", "phones"):
-                h.update((root / row[k]).read_bytes())
+    for row in read_manifest(manifest, _FILE_COLUMNS):
+        for k in _FILE_COLUMNS:
+            h.update((root / row[k]).read_bytes())
     return h.hexdigest()

@@ -11,16 +11,18 @@ selection itself, in three steps:
    neighbourhood. At rest the inner-lip dots are closer than a dot width and merge into one peak
    (as they do on a real face); that is expected and handled below.
 2. :func:`register_layout` — the subject's neutral face (79 points) is registered to the dots
-   by a trimmed similarity ICP started from the dots' centroid and spread, with no rotation (the
-   first frame is frontal). The mouth corners are the dots matched to markers 46 and 55.
+   by a trimmed similarity ICP started from the dots' centroid and spread, with small rotations
+   only (the first frame is frontal). The mouth corners are the dots matched to markers 46 and
+   55.
 3. The neutral mesh is placed by those two corners
    (:func:`face_model.tracker.init_from_mouth_corners`, the paper's step); the similarity is
    re-fitted to all the dots from there (two points fix it loosely: a corner one pixel off tilts
-   the forehead by three), then refined by the MU model: markers are matched to their nearest dot (both ways nearest, within ``match_px``) and
-   Eq. 5 is fitted to the matches (:func:`face_model.mu_fit.fit_linear`), a few times. This also
-   handles a first frame that is not neutral (a sentence spoken smiling from its start). A marker
-   that owns a dot alone starts on the dot's centre; markers sharing a merged dot, or with none,
-   start on the fitted face.
+   the forehead by three), then refined by the MU model: each marker takes the strongest
+   confident dot within a radius (``radii``, shrinking; a dot two markers claim goes to neither)
+   and Eq. 5 is fitted to the matches (:func:`face_model.mu_fit.fit_linear`), a few times. This
+   also handles a first frame that is not neutral (a sentence spoken smiling from its start). A
+   marker that owns a dot alone starts on the dot's centre; markers sharing a merged dot, or
+   with none, start on the fitted face.
 
 Everything is in image pixels, OpenCV's convention (pixel centres on integers).
 """
@@ -57,12 +59,20 @@ def _gray(image, name: str = "image") -> np.ndarray:
 
 @dataclass(frozen=True)
 class DotResponse:
-    """The matched-filter response of an image and its local maxima.
+    """The matched-filter response of an image and its local maxima (:func:`dot_response`).
 
-    ``response``: the top-hat of the Gaussian-filtered image (H, W); ``noise``: a robust
-    standard deviation of the filtered image's fine detail (sensor noise plus skin texture),
-    grey levels; ``peaks`` (n, 2): sub-pixel (x, y) of every local maximum above 3 ``noise``,
-    strongest first; ``strength`` (n,): the response there.
+    Attributes
+    ----------
+    response : ndarray of float32, shape (H, W)
+        The top-hat of the Gaussian-filtered image, grey levels.
+    noise : float
+        A robust standard deviation (1.4826 · MAD) of the filtered image's fine detail
+        (sensor noise plus skin texture), grey levels.
+    peaks : ndarray, shape (n, 2)
+        Sub-pixel (x, y) of every local maximum above 3 ``noise``, image pixels, strongest
+        first.
+    strength : ndarray, shape (n,)
+        The response at each peak, grey levels.
     """
 
     response: np.ndarray
@@ -71,12 +81,44 @@ class DotResponse:
     strength: np.ndarray
 
     def dots(self, min_contrast: float = 35.0, z: float = 6.0) -> np.ndarray:
-        """The peaks at least ``max(min_contrast, z · noise)`` high: the confident dots."""
+        """The confident dots: the peaks at least ``max(min_contrast, z · noise)`` high.
+
+        Parameters
+        ----------
+        min_contrast : float
+            Least response, grey levels.
+        z : float
+            Least response in units of ``noise``.
+
+        Returns
+        -------
+        ndarray, shape (n_dots, 2)
+            (x, y) image pixels, strongest first.
+        """
         return self.peaks[self.strength >= max(min_contrast, z * self.noise)]
 
 
 def dot_response(image, *, dot_sigma: float = 1.0, max_peaks: int = 20000) -> DotResponse:
-    """Matched filter for the marker dots (see the module text) and its local maxima."""
+    """Matched filter for the marker dots (see the module text, step 1) and its local maxima.
+
+    Parameters
+    ----------
+    image : array_like, (H, W) grey or (H, W, 3) RGB, grey levels 0–255
+        At least 16 × 16 pixels.
+    dot_sigma : float
+        The dots' Gaussian radius, pixels (the matched filter's σ).
+    max_peaks : int
+        More local maxima than this is refused (not an image of a marked face).
+
+    Returns
+    -------
+    DotResponse
+
+    Raises
+    ------
+    ParameterError
+        An image of another shape or with NaN / inf, ``dot_sigma`` not > 0, too many peaks.
+    """
     img = _gray(image)
     if not (np.isfinite(dot_sigma) and dot_sigma > 0):
         raise ParameterError(f"dot_sigma must be > 0, got {dot_sigma!r}")
@@ -119,20 +161,36 @@ def detect_marker_dots(image, *, dot_sigma: float = 1.0, min_contrast: float = 3
     image : array_like, (H, W) grey or (H, W, 3) RGB, grey levels 0–255
     dot_sigma : float
         The dots' Gaussian radius, pixels (the matched filter's σ).
+    min_contrast : float
+        Least response, grey levels.
+    z : float
+        Least response in noise standard deviations.
 
     Returns
     -------
-    ndarray, shape (n_dots, 2): (x, y) image pixels.
+    ndarray, shape (n_dots, 2)
+        (x, y) image pixels.
+
+    Raises
+    ------
+    ParameterError
+        As :func:`dot_response`.
     """
     return dot_response(image, dot_sigma=dot_sigma).dots(min_contrast, z)
 
 
 @dataclass(frozen=True)
 class LayoutMatch:
-    """A similarity registration of a face layout to detected dots.
+    """A similarity registration of a face layout to detected dots (:func:`register_layout`).
 
-    ``placed``: the layout under the similarity (79, 2); ``dot_of``: index of each marker's
-    matched dot, −1 when unmatched; ``rms_px``: RMS distance of the matched pairs.
+    Attributes
+    ----------
+    placed : ndarray, shape (79, 2)
+        The layout under the similarity, image pixels.
+    dot_of : ndarray of int, shape (79,)
+        Index of each marker's matched dot, −1 when unmatched.
+    rms_px : float
+        RMS distance of the matched pairs, pixels (inf when none matched).
     """
 
     placed: np.ndarray
@@ -141,6 +199,7 @@ class LayoutMatch:
 
     @property
     def n_matched(self) -> int:
+        """Markers with a matched dot."""
         return int((self.dot_of >= 0).sum())
 
 
@@ -197,7 +256,32 @@ def register_layout(dots, layout, *, trim: float = 0.8, iterations: int = 100,
     shifted by ``starts_shift`` × the face size in x and in y (a sparse or lopsided set of dots
     has its centroid off the face's). The run with the most dots within ``inlier_px`` of a
     marker wins (then the smallest trimmed RMS). The result matches those inlier dots; its
-    ``rms_px`` is theirs. Needs at least a quarter as many dots as markers.
+    ``rms_px`` is theirs.
+
+    Parameters
+    ----------
+    dots : array_like, shape (n, 2)
+        Detected dot centres, image pixels; at least a quarter as many as markers (19).
+    layout : array_like, shape (79, 2)
+        The face to place (the subject's neutral), pixels.
+    trim : float
+        Fraction of the closest pairs each ICP step solves for.
+    iterations : int
+        At most this many ICP steps per start.
+    starts_scale, starts_shift, starts_angle : sequence of float
+        The starts (see above): factors of the dots' spread, shifts as fractions of the face
+        size, rotations in radians.
+    inlier_px : float
+        A dot within this distance of a placed marker is an inlier, pixels.
+
+    Returns
+    -------
+    LayoutMatch
+
+    Raises
+    ------
+    ParameterError
+        Points of the wrong shape or not finite, or too few dots.
     """
     dots = as_points(dots, "dots", (2,), stacked=True)
     lay = as_points(layout, "layout", (N_MARKERS, 2), stacked=False)
@@ -232,12 +316,33 @@ def find_mouth_corners(image, neutral, *, response: DotResponse | None = None,
                        **detect) -> tuple[np.ndarray, np.ndarray]:
     """The two outer mouth corners (left, right) in a frontal image of a marked face.
 
-    ``neutral`` is the subject's neutral face (79, 2) in any frame of similar proportions. The
-    face is registered to the confident dots (:func:`register_layout`); each corner is then the
-    strongest confident dot within ``search_px`` of the registered corner (the registered
-    corner itself when noise hides its dot). ``response`` (an already computed
-    :func:`dot_response`) and ``detect`` (``min_contrast``, ``z`` of :meth:`DotResponse.dots`)
-    are optional. Raises ParameterError naming the figures when too few dots fit the face.
+    The face is registered to the confident dots (:func:`register_layout`); each corner is
+    then the strongest confident dot within ``search_px`` of the registered corner (the
+    registered corner itself when noise hides its dot). This is the paper's manual selection
+    of the two corners (§V), automated.
+
+    Parameters
+    ----------
+    image : array_like, (H, W) or (H, W, 3)
+        The first frame, grey levels 0–255.
+    neutral : array_like, shape (79, 2)
+        The subject's neutral face, pixels, in any frame of similar proportions.
+    response : DotResponse, optional
+        :func:`dot_response` of ``image``, if already computed.
+    search_px : float
+        How far from the registered corner its dot is looked for, pixels.
+    **detect
+        ``min_contrast``, ``z`` of :meth:`DotResponse.dots` (which dots are confident).
+
+    Returns
+    -------
+    left, right : ndarray, shape (2,)
+        The outer mouth corners (markers 46 and 55), (x, y) image pixels.
+
+    Raises
+    ------
+    ParameterError
+        Naming the figures, when too few dots fit the face.
     """
     resp = dot_response(image) if response is None else response
     dots = resp.dots(**detect)
@@ -274,7 +379,19 @@ def initial_markers_from_image(image, units, expression: str = "neutral", *, neu
     snap_px : float
         A last round matches every response peak (also the faint ones) within ``snap_px``;
         then a marker whose own peak lies within ``snap_px`` of the fit starts on the peak.
-    detect : ``min_contrast``, ``z`` of :meth:`DotResponse.dots` (the registration's dots).
+    **detect
+        ``min_contrast``, ``z`` of :meth:`DotResponse.dots` (the registration's dots).
+
+    Returns
+    -------
+    ndarray, shape (79, 2)
+        The first frame's markers, image pixels.
+
+    Raises
+    ------
+    ParameterError
+        Too few dots fit the face (:func:`find_mouth_corners`), or too few markers found a
+        dot in a round.
     """
     s0 = as_points(neutral, "neutral", (N_MARKERS, 2), stacked=False)
     resp = dot_response(image)

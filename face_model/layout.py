@@ -61,6 +61,7 @@ class FaceLayout:
     triangles : ndarray of int, shape (n_triangles, 3)
         Mesh over the 76 skin markers (Fig. 2b); the mouth opening and the glasses are excluded.
     version : str
+        :data:`LAYOUT_VERSION`, recorded by the corpora made with it.
     """
 
     neutral: np.ndarray
@@ -174,6 +175,11 @@ def mouth_opening(markers) -> np.ndarray:
     -------
     ndarray, shape (n_frames,)
         In the dtype of ``markers``' mean (float32 markers give float32).
+
+    Raises
+    ------
+    ParameterError
+        Markers of another shape.
     """
     m = np.asarray(markers)
     if m.ndim != 3 or m.shape[1:] != (N_MARKERS, 2):

@@ -23,8 +23,7 @@ centred on its bounding box over the utterance. Every random choice comes from `
 
 :func:`tracking_error_curve` renders utterances at several noise levels, tracks them with
 :class:`face_model.tracker.MUTracker` and returns the marker errors of raw Lucas–Kanade and of
-the MU-constrained tracker (it lives here, not in ``face_model``, because ``face_model`` must
-not import ``data_synth``).
+the MU-constrained tracker.
 """
 from __future__ import annotations
 
@@ -76,14 +75,20 @@ class VideoDifficulty:
         σ of a Gaussian blur applied to every frame, pixels (0: none).
     illumination_change : float
         Relative brightness change over the sequence: the frames are multiplied by
-        ``1 + illumination_change · p(t)`` with ``p`` rising from 0 to 1 (``ramp``, linear over the
-        sequence) or jumping from 0 to 1 at the middle frame (``step``). 0.3 = 30 % brighter at
-        the end; negative values darken.
+        ``1 + illumination_change · p(t)`` with ``p`` rising from 0 to 1 (``ramp``, linear over
+        the sequence) or jumping from 0 to 1 at the middle frame (``step``). 0.3 = 30 %
+        brighter at the end; negative values (> −1) darken.
     illumination_profile : {"ramp", "step"}
+        The shape of ``p(t)``.
     occlusion : tuple or None
         ``(start_s, duration_s, (x0, y0, x1, y1))``: a flat box (image pixels, x0 ≤ x < x1,
         y0 ≤ y < y1) drawn over the face in the frames with ``start_s ≤ k / 30 < start_s +
         duration_s`` — a hand passing in front of the face.
+
+    Raises
+    ------
+    ParameterError
+        A value outside those ranges.
     """
 
     noise_sd: float = 0.0
@@ -135,7 +140,15 @@ class VideoDifficulty:
 
 @dataclass(frozen=True)
 class ImageMapping:
-    """``image = scale · markers + offset`` (pixels → pixels); ``offset`` is (x, y)."""
+    """``image = scale · markers + offset``: from marker pixels to the video's image pixels.
+
+    Attributes
+    ----------
+    scale : float
+        Image pixels per marker pixel.
+    offset : tuple of float
+        (x, y) image pixels.
+    """
 
     scale: float
     offset: tuple = field(default=(0.0, 0.0))
@@ -259,8 +272,15 @@ def render_marker_video(markers, *, size: tuple = DEFAULT_SIZE, scale: float = 1
     Returns
     -------
     frames : ndarray of uint8, shape (n_frames, height, width)
+        Grey levels; frame k is at k / 30 s.
     mapping : ImageMapping
         ``mapping.to_image(markers)`` gives the dot centres in image pixels.
+
+    Raises
+    ------
+    ParameterError
+        Markers of another shape, empty or not finite; a size below 32 pixels or a scale not
+        > 0; markers that do not fit the frame at that scale.
     """
     m = _check_markers(markers)
     difficulty = VideoDifficulty() if difficulty is None else difficulty
@@ -315,9 +335,35 @@ INITS = ("markers", "corners", "image")
 
 
 def first_frame_markers(frame, truth, units, expression: str, neutral, init: str) -> np.ndarray:
-    """The tracker's starting markers (79, 2, image pixels) on the first ``frame``: the true
-    ones (``truth``), the neutral face placed by the true mouth corners, or the markers found in
-    the image (see :func:`tracking_error_curve`)."""
+    """The tracker's starting markers on the first frame of a rendered video.
+
+    Parameters
+    ----------
+    frame : ndarray of uint8, shape (height, width)
+        The first frame.
+    truth : array_like, shape (79, 2)
+        The true markers of that frame, image pixels.
+    units : MotionUnits
+        The MU model (``init="image"`` refines its placement with it).
+    expression : str
+        The utterance's expression state.
+    neutral : array_like, shape (79, 2)
+        The speaker's neutral face in the aligned frame, pixels.
+    init : {"markers", "corners", "image"}
+        The true markers; the neutral face placed by the true mouth corners (the paper's
+        manual initialisation, §V); or the markers found in the image
+        (:func:`face_model.detect.initial_markers_from_image`).
+
+    Returns
+    -------
+    ndarray, shape (79, 2)
+        Image pixels.
+
+    Raises
+    ------
+    ParameterError
+        An unknown ``init``, or (``image``) a face not found in the frame.
+    """
     if init == "markers":
         return np.asarray(truth, dtype=np.float64)
     if init == "corners":
@@ -332,9 +378,19 @@ def first_frame_markers(frame, truth, units, expression: str, neutral, init: str
 class TrackingErrorCurve:
     """Mean marker error (marker pixels) against the ground truth, one entry per noise level.
 
-    ``lk_px``: raw Lucas–Kanade chained through the sequence; ``constrained_px``: the
-    MU-constrained tracker (§V); ``measured_px``: the Lucas–Kanade measurements ``ζ(t)`` inside
-    the constrained tracker (one LK step from the constrained positions).
+    Attributes
+    ----------
+    noise_sd : ndarray, shape (n_levels,)
+        The sensor noise levels, grey levels.
+    lk_px : ndarray, shape (n_levels,)
+        Raw Lucas–Kanade chained through the sequence.
+    measured_px : ndarray, shape (n_levels,)
+        The Lucas–Kanade measurements ``ζ(t)`` inside the constrained tracker (one LK step
+        from the constrained positions).
+    constrained_px : ndarray, shape (n_levels,)
+        The MU-constrained tracker (§V).
+    n_frames : int
+        Frames tracked per level (over all utterances).
     """
 
     noise_sd: np.ndarray
@@ -373,6 +429,10 @@ def tracking_error_curve(utterances, units, *, neutrals, noise_levels=(0.0, 10.0
         Sensor noise standard deviations, grey levels.
     difficulty : VideoDifficulty, optional
         Other difficulty settings; its ``noise_sd`` is replaced by each level.
+    size, scale
+        Frame size and image pixels per marker pixel (:func:`render_marker_video`).
+    seed : int
+        Seeds each utterance's video (one seed per utterance, drawn from this one).
     tracker : MUTracker, optional
         Default: ``MUTracker()``.
     init : {"markers", "corners", "image"}
@@ -384,6 +444,11 @@ def tracking_error_curve(utterances, units, *, neutrals, noise_levels=(0.0, 10.0
     Returns
     -------
     TrackingErrorCurve
+
+    Raises
+    ------
+    ParameterError
+        An unknown ``init``, no noise level or utterance, a speaker without a neutral face.
     """
     tracker = MUTracker() if tracker is None else tracker
     base = VideoDifficulty() if difficulty is None else difficulty

@@ -35,8 +35,29 @@ from groundwork.numerics import lstsq, one_blas_thread
 
 
 def as_points(x, name: str, shape: tuple, *, stacked: bool | None = None) -> np.ndarray:
-    """``x`` as float64 of ``shape`` (``stacked=False``), ``(n, *shape)`` (``True``) or either
-    (``None``), finite; a ParameterError naming ``name`` otherwise."""
+    """``x`` as a finite float64 array of points, checked.
+
+    Parameters
+    ----------
+    x : array_like
+        The points.
+    name : str
+        The parameter's name, for the message.
+    shape : tuple of int
+        The shape of one item, e.g. ``(79, 2)`` for a face or ``(2,)`` for a point.
+    stacked : bool or None
+        ``False``: ``x`` is one item of ``shape``; ``True``: a stack ``(n, *shape)``;
+        ``None``: either.
+
+    Returns
+    -------
+    ndarray of float64
+
+    Raises
+    ------
+    ParameterError
+        Naming ``name``: another shape, or NaN / inf values.
+    """
     a = np.asarray(x, dtype=np.float64)
     ndims = {None: (len(shape), len(shape) + 1), False: (len(shape),),
              True: (len(shape) + 1,)}[stacked]
@@ -50,7 +71,9 @@ def as_points(x, name: str, shape: tuple, *, stacked: bool | None = None) -> np.
 
 
 def check_units(units, expression: str) -> None:
-    """``units`` are fitted MotionUnits and ``expression`` is one of their states."""
+    """Refuse (:class:`~groundwork.errors.ParameterError`) ``units`` that are not fitted
+    MotionUnits, or an ``expression`` that is neither ``neutral`` nor one of their
+    expressions."""
     if not hasattr(units, "components_"):
         raise ParameterError("units must be fitted MotionUnits (call fit() or "
                              "MotionUnits.load())")
@@ -66,9 +89,11 @@ def model_basis(units, expression: str = "neutral", *, neutral=None):
     Parameters
     ----------
     units : MotionUnits
+        Fitted MUs.
     expression : str
+        ``neutral`` (the utterance MUs only) or one of the units' expressions.
     neutral : array_like (79, 2), optional
-        ``s_0``; default: the canonical layout's neutral.
+        ``s_0``, pixels in the aligned frame; default: the canonical layout's neutral.
 
     Returns
     -------
@@ -89,20 +114,59 @@ def model_basis(units, expression: str = "neutral", *, neutral=None):
 
 
 def apply_beta(beta, points) -> np.ndarray:
-    """``T_β(points)``: ``beta`` (n, 6) in the paper's order, ``points`` (n, k, 2) → (n, k, 2)."""
+    """``T_β(points)``, the global motion of Eq. 5, frame by frame.
+
+    Parameters
+    ----------
+    beta : array_like, shape (n, 6)
+        ``[β_1 … β_6]`` in the paper's order (the module text).
+    points : array_like, shape (n, k, 2)
+        Points in the model frame, pixels.
+
+    Returns
+    -------
+    ndarray, shape (n, k, 2)
+        The points in the image, pixels.
+    """
     beta = np.asarray(beta, dtype=np.float64)
     A = beta[:, :4].reshape(-1, 2, 2)
     return np.einsum("nij,nkj->nki", A, points) + beta[:, None, 4:]
 
 
 def similarity_beta(angle, scale, tx, ty) -> np.ndarray:
-    """(n, 6) β from arrays of angle (rad), scale, t_x, t_y (pixels)."""
+    """β of a similarity, in the paper's order.
+
+    Parameters
+    ----------
+    angle : array_like, shape (n,)
+        Rotation, radians.
+    scale : array_like, shape (n,)
+        Isotropic scale.
+    tx, ty : array_like, shape (n,)
+        Translation, pixels.
+
+    Returns
+    -------
+    ndarray, shape (n, 6)
+        ``[a, −b, b, a, t_x, t_y]`` with ``a = scale cos(angle)``, ``b = scale sin(angle)``.
+    """
     a, b = scale * np.cos(angle), scale * np.sin(angle)
     return np.stack(np.broadcast_arrays(a, -b, b, a, tx, ty), axis=-1).astype(np.float64)
 
 
 def beta_to_similarity(beta) -> np.ndarray:
-    """(n, 6) β → (n, 4): angle (rad), scale, t_x, t_y (pixels)."""
+    """The similarity nearest a β (the mean of its two estimates of ``a`` and of ``b``).
+
+    Parameters
+    ----------
+    beta : array_like, shape (n, 6)
+        ``[β_1 … β_6]`` in the paper's order.
+
+    Returns
+    -------
+    ndarray, shape (n, 4)
+        Angle (rad), scale, t_x, t_y (pixels).
+    """
     beta = np.asarray(beta, dtype=np.float64)
     a = 0.5 * (beta[:, 0] + beta[:, 3])
     b = 0.5 * (beta[:, 2] - beta[:, 1])
@@ -183,7 +247,8 @@ def _n_active(units, expression: str) -> int:
 
 
 def min_markers(units, expression: str) -> int:
-    """Fewest markers Eq. 12 needs: its ``4 + 2 (A_0 [+ A_k])`` unknowns, two rows a marker."""
+    """Fewest markers Eq. 12 needs for ``units`` in state ``expression``: its
+    ``4 + 2 (A_0 [+ A_k])`` unknowns at two rows a marker, i.e. ``2 + A_0 [+ A_k]``."""
     return 2 + _n_active(units, expression)
 
 
@@ -215,6 +280,13 @@ def fit_linear(zeta, units, expression: str = "neutral", *, neutral=None,
     Returns
     -------
     MUFit
+
+    Raises
+    ------
+    ParameterError
+        Unfitted units or an unknown expression; ``zeta``, ``neutral`` or ``weights`` of the
+        wrong shape, not finite or (weights) negative; a frame with fewer markers of non-zero
+        weight than :func:`min_markers`.
     """
     check_units(units, expression)
     base, basis, z, w = _prepare(zeta, units, expression, neutral, weights,
@@ -267,7 +339,9 @@ def fit_nonlinear(zeta, units, expression: str = "neutral", *, neutral=None,
 
     Independent of Eq. 12: each frame starts from ``c = 0`` and the similarity that best maps
     the base shape onto ``ζ``, then Levenberg–Marquardt with the analytic Jacobian. Same
-    parameters and result type as :func:`fit_linear`; about 1–2 ms per frame.
+    parameters, result type and errors as :func:`fit_linear` (a frame needs only
+    ``(5 + A_0 [+ A_k]) // 2`` markers, two equations each for its ``4 + A_0 [+ A_k]``
+    unknowns); about 1–2 ms per frame.
     """
     check_units(units, expression)
     base, basis, z, w = _prepare(zeta, units, expression, neutral, weights,

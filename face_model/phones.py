@@ -92,12 +92,31 @@ assert N_PHONES == 44, N_PHONES
 
 
 def viseme(phone: str) -> str:
-    """The viseme (``i a o f u m`` or ``neutral``) of a phone class."""
+    """The viseme (``i a o f u m`` or ``neutral``) of a phone class (a :data:`PHONES` label);
+    :class:`~groundwork.errors.ParameterError` for any other label."""
     return _TABLE[check_phone(phone)][0]
 
 
 def check_phone(phone: str, *, source: str = "") -> str:
-    """Return ``phone`` if it is one of the 44 classes, else raise ``ParameterError``."""
+    """Return ``phone`` if it is one of the 44 classes.
+
+    Parameters
+    ----------
+    phone : str
+        A phone label.
+    source : str
+        Where it was read (a file, a line), for the message.
+
+    Returns
+    -------
+    str
+        ``phone``, unchanged.
+
+    Raises
+    ------
+    ParameterError
+        ``phone`` is not one of :data:`PHONES`; the message lists them.
+    """
     if phone not in PHONE_INDEX:
         where = f" in {source}" if source else ""
         raise ParameterError(

@@ -92,7 +92,7 @@ def _pts(p: np.ndarray) -> np.ndarray:
 
 
 class FaceRenderer:
-    """Draw faces from markers into RGB images.
+    """Draw faces from markers into RGB images (the paper's Figs. 6 and 7).
 
     Parameters
     ----------
@@ -103,7 +103,12 @@ class FaceRenderer:
     mesh : bool
         Draw the skin mesh (the paper's Fig. 2b triangles) faintly over the skin.
     neutral : ndarray (79, 2), optional
-        The neutral face the auxiliary parts are attached to (default: the layout's).
+        The neutral face the auxiliary parts are attached to, pixels (default: the layout's).
+
+    Raises
+    ------
+    ParameterError
+        An empty crop, a size below 16 pixels, or a ``neutral`` of another shape.
     """
 
     def __init__(self, size=(368, 400), crop=(136.0, 50.0, 504.0, 450.0), mesh: bool = True,
@@ -124,7 +129,24 @@ class FaceRenderer:
         return (p - self._offset) * self._scale
 
     def render(self, markers: np.ndarray) -> np.ndarray:
-        """One RGB image (height, width, 3) uint8 of the face with these markers (79, 2)."""
+        """One face.
+
+        Parameters
+        ----------
+        markers : ndarray, shape (79, 2)
+            Marker positions, pixels, in the frame of the layout (head motion included, if
+            any).
+
+        Returns
+        -------
+        ndarray of uint8, shape (height, width, 3)
+            RGB.
+
+        Raises
+        ------
+        ParameterError
+            Markers of another shape or not finite.
+        """
         m = _check_markers(markers)
         aux = _aux()
         disp = m - self.neutral
@@ -209,12 +231,29 @@ GRID_TITLE_PT = 7.5
 
 def face_grid(images: list, titles: list, path, *, ncols: int = 5,
               width_in: float | None = None) -> Path:
-    """Rendered faces (RGB arrays) in a grid with a title under each (Figs. 4, 6, 7 style),
-    written as a PNG (200 dpi) to ``path``; returns the path.
+    """Rendered faces in a grid with a title under each (Figs. 4, 6, 7 style), as a PNG.
 
     The grid is ``width_in`` wide (by default :data:`GRID_CELL_IN` a column, at most
     :data:`GRID_WIDTH_IN`), and a report draws it at least that wide, so its titles print at
     :data:`GRID_TITLE_PT` or more.
+
+    Parameters
+    ----------
+    images : list of ndarray, each (height, width, 3) uint8
+        RGB faces (:meth:`FaceRenderer.render`), all of the first one's size.
+    titles : list of str
+        One per image.
+    path : path-like
+        The PNG file (200 dpi); its folder is created.
+    ncols : int
+        Faces per row.
+    width_in : float, optional
+        The grid's width, inches.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
     """
     from matplotlib.figure import Figure  # the figure alone: no pyplot, no backend to choose
 

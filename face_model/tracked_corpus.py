@@ -30,9 +30,11 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from face_model.alignment import speaker_neutrals
-from face_model.corpus import corpus_hash, write_manifest
-from face_model.marker_video import INITS, VideoDifficulty, first_frame_markers, render_marker_video
+from face_model.corpus import corpus_hash, read_manifest, write_manifest
+from face_model.marker_video import (INITS, VideoDifficulty, first_frame_markers,
+                                     render_marker_video)
 from face_model.tracker import MUTracker
+from groundwork.atomic import fresh_partial_folder, swap_in
 from groundwork.errors import ParameterError
 from groundwork.memory import keep_freed_memory
 from groundwork.threads import limit_threads, thread_budget
@@ -40,9 +42,21 @@ from groundwork.threads import limit_threads, thread_budget
 
 @dataclass(frozen=True)
 class TrackedUtterance:
-    """One utterance tracked: ``markers`` (n, 79, 2) float32 in marker pixels, ``mups``
-    (n, A_0 + A_k), ``error_px`` (n,) mean distance to the original markers per frame,
-    ``residual_px`` (n,) the fit's RMS residual."""
+    """One utterance as the tracker saw it.
+
+    Attributes
+    ----------
+    utt_id : str
+        The utterance's id in the corpus.
+    markers : ndarray of float32, shape (n_frames, 79, 2)
+        The tracked markers, pixels, in the corpus's marker coordinates.
+    mups : ndarray, shape (n_frames, A_0 + A_k)
+        The fitted Motion Unit parameters of each frame (paper §V, Eq. 5).
+    error_px : ndarray, shape (n_frames,)
+        Mean distance of the tracked markers to the original ones per frame, pixels.
+    residual_px : ndarray, shape (n_frames,)
+        RMS residual of the fit per frame, pixels.
+    """
 
     utt_id: str
     markers: np.ndarray
@@ -53,7 +67,30 @@ class TrackedUtterance:
 
 def track_utterance(utt, units, neutral, *, noise_sd: float = 10.0, init: str = "image",
                     seed: int = 0, tracker=None) -> TrackedUtterance:
-    """Render one corpus utterance as marker video and track it (see the module text)."""
+    """Render one corpus utterance as marker video and track it (paper §V).
+
+    Parameters
+    ----------
+    utt : Utterance
+        A corpus utterance (``utt_id``, ``expression``, ``markers`` (n_frames, 79, 2) pixels).
+    units : MotionUnits
+        The tracker's fitted MU model.
+    neutral : ndarray, shape (79, 2)
+        The speaker's neutral face, pixels (:func:`face_model.alignment.speaker_neutrals`).
+    noise_sd : float
+        Image sensor noise of the rendered video, grey levels.
+    init : {"image", "corners", "markers"}
+        How the first frame's markers are placed
+        (:func:`face_model.marker_video.first_frame_markers`).
+    seed : int
+        Seeds the video (skin texture, noise).
+    tracker : MUTracker, optional
+        The tracker; a default :class:`face_model.tracker.MUTracker` when omitted.
+
+    Returns
+    -------
+    TrackedUtterance
+    """
     tracker = MUTracker() if tracker is None else tracker
     frames, mapping = render_marker_video(utt.markers, seed=seed,
                                           difficulty=VideoDifficulty(noise_sd=float(noise_sd)))
@@ -85,9 +122,20 @@ def _track_one(job) -> TrackedUtterance:
 
 
 def track_job(setup: tuple, job: tuple) -> TrackedUtterance:
-    """One utterance tracked in a process of its own (a task of a scheduler's ``map_fn``):
-    ``setup`` = (units, neutrals, noise_sd, init), ``job`` = (utt_id, speaker, expression,
-    markers, seed)."""
+    """One utterance tracked in a process of its own (a task of a scheduler's ``map_fn``).
+
+    Parameters
+    ----------
+    setup : tuple
+        ``(units, neutrals, noise_sd, init)``: the MU model, ``{speaker: neutral (79, 2)}``,
+        the video noise (grey levels) and the first-frame placement.
+    job : tuple
+        ``(utt_id, speaker, expression, markers, seed)``, markers (n_frames, 79, 2) pixels.
+
+    Returns
+    -------
+    TrackedUtterance
+    """
     with _Serial(setup) as serial:
         cv2.setNumThreads(1)
         return next(serial.imap(_track_one, [job]))
@@ -98,101 +146,155 @@ def track_corpus(corpus, units, out_dir, *, noise_sd: float = 10.0, init: str = 
                  overwrite: bool = False, map_fn=None) -> dict:
     """Track every utterance of ``corpus`` and write the tracked corpus to ``out_dir``.
 
+    The folder is built beside ``out_dir`` and swapped in when complete
+    (:mod:`groundwork.atomic`): an interrupted run leaves a previous ``out_dir`` as it was.
+
     Parameters
     ----------
     corpus : Corpus
         A loaded corpus (``face_model.corpus.load_corpus``) with its ``root``.
     units : MotionUnits
         The tracker's MU model.
+    out_dir : path-like
+        The tracked corpus's folder.
     noise_sd : float
         Image sensor noise of the rendered video, grey levels.
     init : {"image", "corners", "markers"}
-        How the first frame's markers are placed (:func:`face_model.marker_video.first_frame_markers`).
+        How the first frame's markers are placed
+        (:func:`face_model.marker_video.first_frame_markers`).
     seed : int
         Seeds each utterance's video (skin texture, noise).
     workers : int
         Processes (0: all cores; 1: this process).
+    progress : bool
+        Show a progress bar (this machine's pool only).
+    overwrite : bool
+        Replace an existing ``out_dir``; otherwise an existing folder is refused.
     map_fn : callable, optional
         Where the utterances are tracked instead of this machine's process pool:
         ``map_fn(track_job, {i: (setup, job)})`` returns ``{i: TrackedUtterance}`` (e.g. the
         project's executor on a Dask cluster; ``workers`` is then its business). The result
         is the same wherever it runs: each utterance has its own seed.
-    overwrite : bool
-        Replace an existing ``out_dir``; otherwise an existing folder is refused.
 
     Returns
     -------
     dict
         Summary: utterances, frames, mean and 95th-percentile marker error (pixels), seconds.
+
+    Raises
+    ------
+    ParameterError
+        An unknown ``init``, a negative or non-finite ``noise_sd``, or an existing ``out_dir``
+        without ``overwrite``.
     """
     if init not in INITS:
         raise ParameterError(f"init {init!r}; allowed: {', '.join(INITS)}")
     if not (np.isfinite(noise_sd) and noise_sd >= 0):
         raise ParameterError(f"noise_sd must be a finite number >= 0, got {noise_sd!r}")
     out = Path(out_dir)
-    if out.exists():
-        if not overwrite:
-            raise ParameterError(f"{out} exists; pass overwrite=True to replace it")
-        shutil.rmtree(out)
+    if out.exists() and not overwrite:
+        raise ParameterError(f"{out} exists; pass overwrite=True to replace it")
     t0 = time.perf_counter()
-    neutrals = speaker_neutrals(corpus, model=units.metadata_.get("alignment", "similarity"))
-    seeds = np.random.SeedSequence(seed).generate_state(len(corpus.utterances))
-    n = len(corpus.utterances)
-    jobs = [(u.utt_id, u.speaker, u.expression, np.asarray(u.markers), int(sd))
-            for u, sd in zip(corpus.utterances, seeds)]
-    setup = (units, neutrals, float(noise_sd), init)
-    workers = min(os.cpu_count() or 1, n) if workers <= 0 else min(workers, n)
-    tmp = out.with_name(out.name + ".partial")
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    (tmp / "markers").mkdir(parents=True)
-    results = []
-    if map_fn is not None:
-        done = map_fn(track_job, {i: (setup, job) for i, job in enumerate(jobs)})
-        results = [done[i] for i in range(n)]
-        for r in results:
-            np.save(tmp / "markers" / f"{r.utt_id}.npy", r.markers, allow_pickle=False)
-    else:
-        # spawn, not fork: a process that has run OpenCV or torch holds thread pools that a
-        # forked child inherits half-locked (it hangs)
-        with (mp.get_context("spawn").Pool(workers, initializer=_init_worker,
-                                              initargs=(*setup, thread_budget(workers)))
-              if workers > 1 else _Serial(setup)) as pool, \
-                tqdm(total=n, desc="tracking corpus", unit="utt", disable=not progress) as bar:
-            for r in pool.imap(_track_one, jobs):
-                np.save(tmp / "markers" / f"{r.utt_id}.npy", r.markers, allow_pickle=False)
-                results.append(r)
-                bar.update()
+    setup, jobs = _setup_and_jobs(corpus, units, noise_sd=noise_sd, init=init, seed=seed)
+    tmp = fresh_partial_folder(out)
+    results = _track_all(setup, jobs, tmp / "markers", workers=workers, progress=progress,
+                         map_fn=map_fn)
     src = Path(corpus.root)
-    with open(src / "manifest.csv", newline="", encoding="utf-8-sig") as f:
-        listed = {row["utt_id"]: row for row in csv.DictReader(f)}
-    manifest = []
-    for r in results:  # the utterances tracked, in corpus order, with their audio and phones
-        row = dict(listed[r.utt_id])
-        for key in ("audio", "phones"):
-            (tmp / row[key]).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(src / row[key], tmp / row[key])
-        row["markers"] = f"markers/{r.utt_id}.npy"
-        manifest.append(row)
-    write_manifest(tmp, manifest)
-    with open(tmp / "tracking.csv", "w", newline="") as f:
-        w = csv.writer(f, lineterminator="\n")
-        w.writerow(["utt_id", "frames", "error_px_mean", "error_px_max", "residual_px_mean"])
-        for r in results:
-            w.writerow([r.utt_id, len(r.error_px), f"{r.error_px.mean():.4f}",
-                        f"{r.error_px.max():.4f}", f"{np.nanmean(r.residual_px):.4f}"])
-    all_err = np.concatenate([r.error_px for r in results])
-    summary = {"utterances": n, "frames": int(len(all_err)),
-               "error_px_mean": float(all_err.mean()),
-               "error_px_p95": float(np.percentile(all_err, 95)),
-               "seconds": time.perf_counter() - t0}
+    _write_corpus_files(src, tmp, results)
+    _write_tracking_csv(tmp / "tracking.csv", results)
+    summary = _summary(results, time.perf_counter() - t0)
     info = dict(corpus.info)
     info.update(source="tracked", source_corpus_hash=corpus_hash(src),
                 tracker={"noise_sd": float(noise_sd), "init": init, "seed": int(seed)},
                 tracking=summary)
     (tmp / "corpus.json").write_text(json.dumps(info, indent=1))
-    tmp.rename(out)
+    swap_in(tmp, out)
     return summary
+
+
+def _setup_and_jobs(corpus, units, *, noise_sd: float, init: str, seed: int
+                    ) -> tuple[tuple, list[tuple]]:
+    """What every worker needs (:func:`track_job`'s ``setup``) and one job per utterance, in
+    corpus order, each with its own seed drawn from ``seed``."""
+    neutrals = speaker_neutrals(corpus, model=units.metadata_.get("alignment", "similarity"))
+    seeds = np.random.SeedSequence(seed).generate_state(len(corpus.utterances))
+    jobs = [(u.utt_id, u.speaker, u.expression, np.asarray(u.markers), int(sd))
+            for u, sd in zip(corpus.utterances, seeds)]
+    return (units, neutrals, float(noise_sd), init), jobs
+
+
+def _track_all(setup: tuple, jobs: list[tuple], markers_dir: Path, *, workers: int,
+               progress: bool, map_fn=None) -> list[TrackedUtterance]:
+    """Every job tracked, in job order, by ``map_fn`` or by this machine's pool of ``workers``
+    processes (0: one per core); each one's markers saved in ``markers_dir`` (as it comes
+    from the pool)."""
+    markers_dir.mkdir()
+    n = len(jobs)
+    if map_fn is not None:
+        done = map_fn(track_job, {i: (setup, job) for i, job in enumerate(jobs)})
+        results = [done[i] for i in range(n)]
+        for r in results:
+            _save_markers(markers_dir, r)
+        return results
+    workers = min(os.cpu_count() or 1, n) if workers <= 0 else min(workers, n)
+    results = []
+    with _process_pool(setup, workers) as pool, \
+            tqdm(total=n, desc="tracking corpus", unit="utt", disable=not progress) as bar:
+        for r in pool.imap(_track_one, jobs):
+            _save_markers(markers_dir, r)
+            results.append(r)
+            bar.update()
+    return results
+
+
+def _save_markers(markers_dir: Path, r: TrackedUtterance) -> None:
+    np.save(markers_dir / f"{r.utt_id}.npy", r.markers, allow_pickle=False)
+
+
+def _process_pool(setup: tuple, workers: int):
+    """A pool of ``workers`` processes, each set up with ``setup`` and its share of the cores'
+    threads; for one worker, this process (:class:`_Serial`). Used as a context manager."""
+    if workers <= 1:
+        return _Serial(setup)
+    # spawn, not fork: a process that has run OpenCV or torch holds thread pools that a
+    # forked child inherits half-locked (it hangs)
+    return mp.get_context("spawn").Pool(workers, initializer=_init_worker,
+                                        initargs=(*setup, thread_budget(workers)))
+
+
+def _write_corpus_files(src: Path, dest: Path, results: list[TrackedUtterance]) -> None:
+    """The manifest of the utterances tracked, in corpus order, their audio and phone files
+    copied from the corpus at ``src`` and their markers the tracked ones."""
+    listed = {row["utt_id"]: row for row in read_manifest(src / "manifest.csv")}
+    manifest = []
+    for r in results:
+        row = dict(listed[r.utt_id])
+        for key in ("audio", "phones"):
+            (dest / row[key]).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src / row[key], dest / row[key])
+        row["markers"] = f"markers/{r.utt_id}.npy"
+        manifest.append(row)
+    write_manifest(dest, manifest)
+
+
+def _write_tracking_csv(path: Path, results: list[TrackedUtterance]) -> None:
+    """``tracking.csv``: per utterance, frames, mean and max marker error and mean fit residual
+    (pixels)."""
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f, lineterminator="\n")
+        w.writerow(["utt_id", "frames", "error_px_mean", "error_px_max", "residual_px_mean"])
+        for r in results:
+            w.writerow([r.utt_id, len(r.error_px), f"{r.error_px.mean():.4f}",
+                        f"{r.error_px.max():.4f}", f"{np.nanmean(r.residual_px):.4f}"])
+
+
+def _summary(results: list[TrackedUtterance], seconds: float) -> dict:
+    """Utterances, frames, mean and 95th-percentile marker error (pixels), ``seconds``."""
+    all_err = np.concatenate([r.error_px for r in results])
+    return {"utterances": len(results), "frames": int(len(all_err)),
+            "error_px_mean": float(all_err.mean()),
+            "error_px_p95": float(np.percentile(all_err, 95)),
+            "seconds": seconds}
 
 
 class _Serial:

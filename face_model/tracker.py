@@ -74,6 +74,11 @@ def init_from_mouth_corners(neutral, left_corner, right_corner) -> np.ndarray:
     -------
     ndarray, shape (79, 2)
         Marker positions in the image, pixels.
+
+    Raises
+    ------
+    ParameterError
+        Points of the wrong shape or not finite, or corners less than a pixel apart.
     """
     s0 = as_points(neutral, "neutral", (N_MARKERS, 2), stacked=False)
     left = as_points(left_corner, "left_corner", (2,), stacked=False)
@@ -137,14 +142,25 @@ def track_points_lk(frames, init_points, *, win_size: int = 13, max_level: int =
     Parameters
     ----------
     frames : ndarray of uint8, shape (n_frames, H, W) or (n_frames, H, W, 3)
+        Grey or RGB frames, n_frames >= 2.
     init_points : array_like, shape (79, 2)
         Positions in the first frame, image pixels.
+    win_size, max_level, lk_iterations, lk_epsilon
+        Lucas–Kanade's window (pixels), pyramid levels and stopping rule, as for
+        :class:`MUTracker`.
 
     Returns
     -------
     tracks : ndarray (n_frames, 79, 2)
-        A lost point keeps its last position.
+        Image pixels; a lost point keeps its last position.
     found : ndarray of bool (n_frames, 79)
+        Lucas–Kanade found the point in that frame (all True in the first).
+
+    Raises
+    ------
+    ParameterError
+        Frames that are not uint8, of another shape or fewer than two; points of the wrong
+        shape; out-of-range Lucas–Kanade settings.
     """
     f = _check_frames(frames)
     p = as_points(init_points, "init_points", (N_MARKERS, 2), stacked=False)
@@ -164,12 +180,20 @@ class TrackResult:
 
     Attributes
     ----------
-    markers : ndarray (n_frames, 79, 2)     tracked (MU-constrained) positions, image pixels
-    measured : ndarray (n_frames, 79, 2)    the Lucas–Kanade measurements ``ζ(t)``
-    used : ndarray of bool (n_frames, 79)   found by Lucas–Kanade and kept by the fit
-    mups : ndarray (n_frames, A_0 + A_k)    ``c_0`` then ``c_k`` (``MotionUnits.transform`` order)
-    beta : ndarray (n_frames, 6)            ``[β_1 … β_6]``, model frame → image pixels
-    residual_px : ndarray (n_frames,)       RMS distance of the used ``ζ(t)`` from the fit
+    markers : ndarray (n_frames, 79, 2)
+        Tracked (MU-constrained) positions, image pixels.
+    measured : ndarray (n_frames, 79, 2)
+        The Lucas–Kanade measurements ``ζ(t)``, image pixels.
+    used : ndarray of bool (n_frames, 79)
+        Found by Lucas–Kanade and kept by the fit (all False in a frame that held the last
+        fit for want of points).
+    mups : ndarray (n_frames, A_0 + A_k)
+        ``c_0`` then ``c_k`` (``MotionUnits.transform`` order).
+    beta : ndarray (n_frames, 6)
+        ``[β_1 … β_6]`` of Eq. 5, model frame → image pixels.
+    residual_px : ndarray (n_frames,)
+        RMS distance of the used ``ζ(t)`` from the fit, pixels (NaN in a frame that held the
+        last fit).
     """
 
     markers: np.ndarray
@@ -297,6 +321,13 @@ class MUTracker:
         Returns
         -------
         TrackResult
+
+        Raises
+        ------
+        ParameterError
+            Invalid tracker settings, frames, units, expression or ``neutral``; both or
+            neither of ``init_markers`` and ``corners``; initial markers outside the frames;
+            a first frame with too few markers to fit.
         """
         lk = self._check_params()
         f = _check_frames(frames)

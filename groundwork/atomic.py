@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -23,17 +24,51 @@ def partial_path(path) -> Path:
 
 
 @contextmanager
-def atomic_file(path):
+def atomic_file(path, *, fsync: bool = False, unique: bool = False):
     """Yield a temporary path to write; on success it becomes ``path``, on failure it is
-    removed and ``path`` is untouched."""
+    removed and ``path`` is untouched.
+
+    Parameters
+    ----------
+    path : path-like
+        The final name; its folder must exist.
+    fsync : bool
+        Flush the written file to disk (``os.fsync``) before it is renamed into place, so that
+        after a power cut ``path`` holds the previous or the new contents, never a short file.
+    unique : bool
+        Write under a temporary name of its own (``tempfile.mkstemp`` beside ``path``:
+        ``.<name>.<random>``, created readable by its owner only) instead of
+        :func:`partial_path`, for a file that several processes may write at the same time.
+
+    Yields
+    ------
+    pathlib.Path
+        The temporary file to write (and close) inside the ``with`` block.
+    """
     path = Path(path)
-    tmp = partial_path(path)
+    if unique:
+        fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+        os.close(fd)
+        tmp = Path(name)
+    else:
+        tmp = partial_path(path)
     try:
         yield tmp
+        if fsync:
+            _fsync(tmp)
         os.replace(tmp, path)
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+def _fsync(path: Path) -> None:
+    """Flush a closed file's data to disk."""
+    fd = os.open(path, os.O_RDWR)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 def fresh_partial_folder(folder, *, keep=None) -> Path:

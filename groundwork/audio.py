@@ -28,7 +28,23 @@ class AudioFileError(CorpusError, ParameterError):
 
 
 def seconds_to_samples(seconds: float, sr: int) -> int:
-    """Nearest sample index of a time in seconds at sample rate ``sr`` (Hz)."""
+    """The number of samples nearest to a duration (or the sample index nearest to a time).
+
+    The project's one seconds → samples conversion: ``int(round(seconds * sr))``, Python's
+    rounding (halves to even). Callers that need at least one sample wrap it in ``max(1, …)``.
+
+    Parameters
+    ----------
+    seconds : float
+        Duration or time, in seconds.
+    sr : int or float
+        Sample rate, in Hz.
+
+    Returns
+    -------
+    int
+        Samples.
+    """
     return int(round(seconds * sr))
 
 
@@ -116,7 +132,21 @@ def read_wav(path, *, mix_to_mono: bool = False) -> tuple[np.ndarray, int]:
 
 
 def write_wav(path, y: np.ndarray, sr: int) -> None:
-    """Write mono audio as 16-bit PCM. ``y`` is float in [-1, 1] or already int16."""
+    """Write mono audio as a 16-bit PCM WAV file.
+
+    Parameters
+    ----------
+    path : path-like
+    y : ndarray, shape (n_samples,)
+        Float in [-1, 1] (scaled by 32767, rounded and clipped), or already int16.
+    sr : int
+        Sample rate, in Hz.
+
+    Raises
+    ------
+    ParameterError
+        ``y`` is not 1-D, or holds NaN or inf.
+    """
     y = np.asarray(y)
     if y.ndim != 1:
         raise ParameterError(f"write_wav: y must be 1-D mono audio, got shape {y.shape}")
@@ -132,7 +162,24 @@ def write_wav(path, y: np.ndarray, sr: int) -> None:
 
 
 def resample(y: np.ndarray, *, sr_in: int, sr_out: int) -> np.ndarray:
-    """Polyphase resampling (scipy ``resample_poly``) from ``sr_in`` to ``sr_out`` Hz."""
+    """Polyphase resampling (scipy ``resample_poly``) from ``sr_in`` to ``sr_out`` Hz.
+
+    Parameters
+    ----------
+    y : ndarray, shape (n_samples,)
+    sr_in, sr_out : int
+        Sample rates, in Hz.
+
+    Returns
+    -------
+    ndarray, shape (about n_samples · sr_out / sr_in,), float32
+        ``y`` itself (as float32) when the rates are equal.
+
+    Raises
+    ------
+    ParameterError
+        A sample rate that is not positive.
+    """
     if sr_in <= 0 or sr_out <= 0:
         raise ParameterError(f"resample: sample rates must be positive, got {sr_in} → {sr_out}")
     if sr_in == sr_out:

@@ -35,7 +35,19 @@ SUFFIX = ".npz"
 
 
 def content_key(*parts) -> str:
-    """The SHA-256 of ``parts`` (JSON-able values) as hex: the key of an entry."""
+    """The key of an entry: the SHA-256 of what it is made from.
+
+    Parameters
+    ----------
+    *parts : JSON-able values
+        E.g. a corpus hash, a settings dict and a version string of the computation; dicts
+        are serialised with sorted keys, anything else JSON cannot hold by ``str``.
+
+    Returns
+    -------
+    str
+        64 hexadecimal characters.
+    """
     text = json.dumps(parts, sort_keys=True, default=str)
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
@@ -44,8 +56,17 @@ class ArrayCache:
     """Entries of named arrays under ``root``, keyed by content (see the module docstring).
 
     ``get_or_make(kind, key, make)`` returns the arrays of an entry, calling ``make()`` (which
-    returns ``{name: ndarray}``) only when the entry is missing or unreadable. ``hits`` and
-    ``misses`` count this object's lookups.
+    returns ``{name: ndarray}``) only when the entry is missing or unreadable.
+
+    Parameters
+    ----------
+    root : path-like
+        The cache folder (``cache/`` beside ``runs/``); created when the first entry is written.
+
+    Attributes
+    ----------
+    hits, misses : int
+        This object's lookups answered from an entry, and those that built one.
     """
 
     def __init__(self, root):
@@ -54,6 +75,8 @@ class ArrayCache:
         self.misses = 0
 
     def path(self, kind: str, key: str) -> Path:
+        """The entry's file, ``<root>/<kind>/<key>.npz``; ``kind`` (``mfcc``, ``phones``)
+        must be a Python identifier (else :class:`~groundwork.errors.ParameterError`)."""
         if not kind.isidentifier():
             raise ParameterError(f"cache kind {kind!r} must be an identifier")
         return self.root / kind / f"{key}{SUFFIX}"
@@ -96,6 +119,24 @@ class ArrayCache:
         return path
 
     def get_or_make(self, kind: str, key: str, make) -> dict:
+        """The arrays of an entry, built by ``make`` when it is missing or unreadable.
+
+        Parameters
+        ----------
+        kind : str
+            The family of entries (a folder of the cache; an identifier).
+        key : str
+            The entry's :func:`content_key`.
+        make : callable
+            ``make() -> {name: ndarray}``, called at most once, under the key's lock: a
+            process racing for the same key waits and reads this one's entry.
+
+        Returns
+        -------
+        dict of str to ndarray
+            The entry's arrays (``make``'s own when it was called; a failure to store them,
+            e.g. a full disk, costs the reuse only).
+        """
         arrays = self.get(kind, key)
         if arrays is not None:
             self.hits += 1
@@ -115,14 +156,32 @@ class ArrayCache:
 
 
 def cache_size(root) -> tuple[int, int]:
-    """``(entries, bytes)`` of the cache at ``root``."""
+    """``(entries, bytes)`` of the cache at ``root`` (interrupted writes not counted)."""
     files = [p for p in Path(root).glob(f"*/*{SUFFIX}") if not p.name.startswith(".")]
     return len(files), sum(p.stat().st_size for p in files)
 
 
 def clean_cache(root, *, unused_days: float | None = None) -> tuple[int, int]:
-    """Remove the cache's entries (all, or those not used for ``unused_days`` days) and what
-    interrupted writes left; returns ``(entries, bytes)`` removed."""
+    """Remove the cache's entries and what interrupted writes left (``talkingface cache clean``).
+
+    Parameters
+    ----------
+    root : path-like
+        The cache folder; a missing one is nothing to clean.
+    unused_days : float, optional
+        Remove only the entries not used (read or written) for this many days; None: remove
+        the whole folder.
+
+    Returns
+    -------
+    tuple of int
+        ``(entries, bytes)`` removed (interrupted writes count in bytes only).
+
+    Raises
+    ------
+    ParameterError
+        ``unused_days`` negative or not a number.
+    """
     root = Path(root)
     if unused_days is not None and not unused_days >= 0:
         raise ParameterError(f"--unused-days must be a number of days >= 0, got {unused_days}")

@@ -28,6 +28,11 @@ def check_identifier(kind: str, value, pattern: str | re.Pattern, allowed_text: 
     allowed_text : str
         What is allowed, in words, for the message.
 
+    Returns
+    -------
+    str
+        ``value``, unchanged.
+
     Raises
     ------
     ParameterError

@@ -27,7 +27,15 @@ _DONE = False
 
 
 def keep_freed_memory() -> bool:
-    """Keep freed blocks in this process (and its children); True when glibc took it."""
+    """Keep freed blocks in this process (and its children); see the module text.
+
+    Safe to call more than once; a user's own ``MALLOC_*`` variables are kept.
+
+    Returns
+    -------
+    bool
+        True when glibc took the thresholds; False elsewhere (nothing changed).
+    """
     global _DONE
     os.environ.setdefault("MALLOC_MMAP_THRESHOLD_", str(MMAP_THRESHOLD))
     os.environ.setdefault("MALLOC_TRIM_THRESHOLD_", str(TRIM_THRESHOLD))

@@ -33,7 +33,22 @@ class VideoError(TalkingFaceError):
 def ffmpeg_command(path, size, *, fps: int, audio_path, quality: int,
                    macro_block_size: int) -> list[str]:
     """ffmpeg's arguments: raw RGB frames on stdin, H.264 (and AAC) into ``path`` — the command
-    ``imageio_ffmpeg.write_frames`` builds for the same settings."""
+    ``imageio_ffmpeg.write_frames`` builds for the same settings.
+
+    Parameters
+    ----------
+    path : path-like
+        The output file.
+    size : (width, height)
+        Frame size in pixels.
+    fps, audio_path, quality, macro_block_size
+        As for :func:`write_mp4`.
+
+    Returns
+    -------
+    list of str
+        The command line, starting with ``imageio_ffmpeg``'s ffmpeg executable.
+    """
     import imageio_ffmpeg  # ffmpeg: an optional, heavy dependency, imported when used
 
     w, h = int(size[0]), int(size[1])
@@ -54,7 +69,13 @@ def ffmpeg_command(path, size, *, fps: int, audio_path, quality: int,
 
 def check_mp4(path) -> None:
     """Refuse a file that is not a whole MP4: its top-level boxes must span the file exactly
-    and hold a ``moov`` (the index ffmpeg writes last) and an ``mdat``."""
+    and hold a ``moov`` (the index ffmpeg writes last) and an ``mdat``.
+
+    Raises
+    ------
+    VideoError
+        Naming the file and its size.
+    """
     path = Path(path)
     size = path.stat().st_size
     kinds, pos = set(), 0

@@ -56,8 +56,27 @@ def single_threaded(func):
 def svd(a, *, full_matrices: bool = False, compute_uv: bool = True):
     """``numpy.linalg.svd`` on one BLAS thread, with ``gesvd`` when ``gesdd`` does not converge.
 
-    Same signature and return values as ``numpy.linalg.svd`` for 2-D ``a``; the two drivers
-    agree to rounding (~1e-15 relative), so callers that fix signs get the same axes."""
+    The two drivers agree to rounding (~1e-15 relative), so callers that fix signs get the
+    same axes.
+
+    Parameters
+    ----------
+    a : array_like, shape (M, N)
+        The matrix.
+    full_matrices : bool
+        ``u`` (M, M) and ``vh`` (N, N) instead of the reduced (M, K) and (K, N),
+        K = min(M, N).
+    compute_uv : bool
+        Return ``u`` and ``vh`` too; otherwise the singular values alone.
+
+    Returns
+    -------
+    u : ndarray, shape (M, K) or (M, M)
+    s : ndarray, shape (K,)
+        Singular values, descending.
+    vh : ndarray, shape (K, N) or (N, N)
+        As ``numpy.linalg.svd`` returns them (``s`` alone when not ``compute_uv``).
+    """
     a = np.asarray(a)
     try:
         return np.linalg.svd(a, full_matrices=full_matrices, compute_uv=compute_uv)
@@ -67,8 +86,21 @@ def svd(a, *, full_matrices: bool = False, compute_uv: bool = True):
 
 
 def pinv(a, *, rtol: float | None = None) -> np.ndarray:
-    """Moore–Penrose pseudo-inverse through :func:`svd` (numpy's default cut-off
-    ``max(M, N) · eps`` relative to the largest singular value)."""
+    """Moore–Penrose pseudo-inverse through :func:`svd`.
+
+    Parameters
+    ----------
+    a : array_like, shape (M, N)
+        The matrix (converted to float64).
+    rtol : float, optional
+        Singular values at or below ``rtol`` times the largest are treated as zero; default
+        numpy's ``max(M, N) · eps``.
+
+    Returns
+    -------
+    ndarray, shape (N, M)
+        Computed in ``numpy.linalg.pinv``'s order of operations (zeros for an empty ``a``).
+    """
     a = np.asarray(a, dtype=np.float64)
     if a.size == 0:
         return np.zeros(a.shape[::-1])
@@ -81,7 +113,20 @@ def pinv(a, *, rtol: float | None = None) -> np.ndarray:
 @single_threaded
 def lstsq(a, b) -> np.ndarray:
     """Least-squares solution of ``a x = b`` (``numpy.linalg.lstsq(a, b, rcond=None)[0]``) on
-    one BLAS thread, with scipy's QR-based ``gelsy`` when the SVD-based ``gelsd`` fails."""
+    one BLAS thread, with scipy's QR-based ``gelsy`` when the SVD-based ``gelsd`` fails.
+
+    Parameters
+    ----------
+    a : array_like, shape (M, N)
+        The design matrix.
+    b : array_like, shape (M,) or (M, K)
+        The right-hand side(s).
+
+    Returns
+    -------
+    ndarray, shape (N,) or (N, K)
+        The minimum-norm least-squares solution.
+    """
     try:
         return np.linalg.lstsq(a, b, rcond=None)[0]
     except np.linalg.LinAlgError:

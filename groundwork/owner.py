@@ -45,7 +45,8 @@ class BusyError(TalkingFaceError):
 
 
 def owner_of(folder) -> str:
-    """Who holds ``folder``, in words (from its owner file)."""
+    """Who holds ``folder``, in words (from its owner file): ``"process N (command, started
+    YYYY-MM-DD HH:MM:SS)"``, or ``"another process"`` when the file is missing or unreadable."""
     try:
         info = json.loads(owner_path(folder).read_text(encoding="utf-8"))
         started = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(info["started"]))
@@ -56,9 +57,26 @@ def owner_of(folder) -> str:
 
 @contextmanager
 def hold(folder, what: str = "folder"):
-    """Hold ``folder`` for the block (its parent folder is created when missing);
-    :class:`BusyError` when another process holds it: ``<what> <folder> is in use by process N
-    (command, started ...)``."""
+    """Hold ``folder`` for the block (a context manager; see the module text).
+
+    Parameters
+    ----------
+    folder : path-like
+        The folder to own; it need not exist (its parent folder is created when missing).
+    what : str
+        What the folder is, for the refusal (``"run"``, ``"study folder"``).
+
+    Yields
+    ------
+    pathlib.Path
+        ``folder``. A hold this process already has is counted, not taken again.
+
+    Raises
+    ------
+    BusyError
+        Another process holds it: ``<what> <folder> is in use by process N (command,
+        started ...)``.
+    """
     folder = Path(folder)
     key = folder.resolve()
     if key in _HELD:
@@ -94,7 +112,10 @@ def hold(folder, what: str = "folder"):
 
 
 def acquire(folder, what: str = "folder") -> Path:
-    """Hold ``folder`` until :func:`release_all` (the end of the command that asked)."""
+    """Hold ``folder`` until :func:`release_all` (the end of the command that asked).
+
+    Parameters and errors as :func:`hold`; returns ``folder`` as a ``Path``.
+    """
     return _COMMAND.enter_context(hold(folder, what))
 
 

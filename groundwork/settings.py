@@ -23,10 +23,19 @@ from groundwork.errors import ParameterError
 
 
 class SettingError(ParameterError):
-    """A config value outside what its field allows.
+    """A config value outside what its field allows: ``"<key> is <value>; allowed: <allowed>"``.
 
-    ``key`` is the field's name within its section; ``related`` names the sibling fields that
-    ``allowed`` mentions, so :meth:`within` can prefix them too.
+    Parameters
+    ----------
+    key : str
+        The field's name within its section (``n_utterance``), or ``section.key`` once
+        :meth:`within` has prefixed it.
+    value : object
+        The value refused (a tuple is shown as a list, as YAML writes it).
+    allowed : str
+        What the field accepts, in words (``"an integer >= 1"``).
+    related : tuple of str
+        The sibling fields that ``allowed`` mentions, so :meth:`within` can prefix them too.
     """
 
     def __init__(self, key: str, value, allowed: str, related: tuple = ()):
@@ -38,7 +47,18 @@ class SettingError(ParameterError):
         return SettingError, (self.key, self.value, self.allowed, self.related)
 
     def within(self, section: str) -> "SettingError":
-        """The same error with its key (and the fields it mentions) as ``section.key``."""
+        """The same error with its key (and the fields it mentions) as ``section.key``.
+
+        Parameters
+        ----------
+        section : str
+            The config section the dataclass sits in (``units``, ``mapping``).
+
+        Returns
+        -------
+        SettingError
+            A new error; this one is unchanged.
+        """
         allowed = self.allowed
         for name in self.related:
             allowed = re.sub(rf"(?<![\w.]){re.escape(name)}\b", f"{section}.{name}", allowed)
@@ -61,7 +81,17 @@ def _is_seq(v) -> bool:
 
 @dataclass(frozen=True)
 class Interval:
-    """Finite numbers (or integers) between optional bounds; ``*_open``: the bound excluded."""
+    """Finite numbers (or integers) between optional bounds.
+
+    Parameters
+    ----------
+    integer : bool
+        Integers only (never a bool); otherwise any finite real number.
+    lo, hi : float or None
+        The bounds; None: unbounded on that side.
+    lo_open, hi_open : bool
+        The bound itself is excluded (``>`` / ``<`` rather than ``>=`` / ``<=``).
+    """
 
     integer: bool = False
     lo: float | None = None
@@ -70,6 +100,7 @@ class Interval:
     hi_open: bool = False
 
     def accepts(self, v) -> bool:
+        """Whether ``v`` is of the kind and within the bounds."""
         if not (_is_int(v) if self.integer else _is_real(v)):
             return False
         return ((self.lo is None or (v > self.lo if self.lo_open else v >= self.lo))
@@ -89,6 +120,7 @@ class Interval:
 
     @property
     def allowed(self) -> str:
+        """What is accepted, in words (``"an integer >= 1"``), for :class:`SettingError`."""
         kind = "an integer" if self.integer else "a finite number"
         return f"{kind} {self.bounds}".rstrip()
 
@@ -191,7 +223,22 @@ def _interval(integer, gt, ge, lt, le) -> Interval:
 
 
 def number(default: float, *, gt=None, ge=None, lt=None, le=None) -> Field:
-    """A finite number, with optional bounds (``gt``: > , ``ge``: >= , ``lt``: <, ``le``: <=)."""
+    """A dataclass field holding a finite number, with optional bounds.
+
+    Parameters
+    ----------
+    default : float
+        The default value (the paper's, where it gives one); it must obey the bounds.
+    gt, ge : float, optional
+        Lower bound, excluded (``gt``: >) or included (``ge``: >=); give at most one.
+    lt, le : float, optional
+        Upper bound, excluded (``lt``: <) or included (``le``: <=); give at most one.
+
+    Returns
+    -------
+    dataclasses.Field
+        A field whose rule :func:`check_fields` applies.
+    """
     return _ruled(default, _interval(False, gt, ge, lt, le))
 
 
@@ -222,7 +269,17 @@ def choice(default, *others) -> Field:
 
 
 def subset(default: tuple, values: tuple, *, empty_ok: bool = False) -> Field:
-    """A tuple of distinct members of ``values`` (non-empty unless ``empty_ok``)."""
+    """A tuple of distinct members of ``values`` (non-empty unless ``empty_ok``).
+
+    Parameters
+    ----------
+    default : tuple of str
+        The default selection.
+    values : tuple of str
+        Everything that may be selected.
+    empty_ok : bool
+        Accept an empty selection.
+    """
     return _ruled(default, Subset(tuple(values), empty_ok))
 
 
@@ -243,7 +300,18 @@ def rule_of(f: Field):
 
 # -- checking -------------------------------------------------------------------------------
 def check_fields(cfg) -> None:
-    """Raise :class:`SettingError` for the first field of ``cfg`` its rule refuses."""
+    """Check every field of a config dataclass against the rule it was declared with.
+
+    Parameters
+    ----------
+    cfg : dataclass instance
+        Called from its ``__post_init__``.
+
+    Raises
+    ------
+    SettingError
+        For the first field (in declaration order) whose rule refuses its value.
+    """
     for f in fields(cfg):
         rule, value = rule_of(f), getattr(cfg, f.name)
         if rule is not None and not rule.accepts(value):
@@ -251,14 +319,47 @@ def check_fields(cfg) -> None:
 
 
 def require(cfg, name: str, ok: bool, allowed: str, related: tuple = ()) -> None:
-    """A rule between fields: refuse ``cfg.<name>`` unless ``ok``."""
+    """A rule between fields: refuse ``cfg.<name>`` unless ``ok``.
+
+    Parameters
+    ----------
+    cfg : dataclass instance
+        The config being checked.
+    name : str
+        The field blamed in the message.
+    ok : bool
+        The rule's verdict, computed by the caller.
+    allowed : str
+        What is allowed, in words, naming the other fields involved.
+    related : tuple of str
+        The other fields ``allowed`` names (prefixed by :meth:`SettingError.within`).
+
+    Raises
+    ------
+    SettingError
+        When not ``ok``.
+    """
     if not ok:
         raise SettingError(name, getattr(cfg, name), allowed, related)
 
 
 def check_order(cfg, low: str, high: str) -> None:
     """Refuse ``cfg.<low> > cfg.<high>``, naming the field that differs from its default (the
-    one the user most likely set)."""
+    one the user most likely set).
+
+    Parameters
+    ----------
+    cfg : dataclass instance
+        The config being checked.
+    low, high : str
+        Names of two numeric fields that must satisfy ``low <= high``.
+
+    Raises
+    ------
+    SettingError
+        Blaming ``high`` (``"at least <low> (<value>)"``) when it was changed or ``low`` was
+        not, else ``low`` (``"at most <high> (<value>)"``).
+    """
     lo, hi = getattr(cfg, low), getattr(cfg, high)
     if lo <= hi:
         return

@@ -17,7 +17,8 @@ from threadpoolctl import threadpool_limits
 
 
 def cores() -> int:
-    """The cores this process may run on (its CPU affinity, else the machine's count)."""
+    """The cores this process may run on (its CPU affinity, else the machine's count; at
+    least 1)."""
     try:
         return max(1, len(os.sched_getaffinity(0)))
     except (AttributeError, OSError):
@@ -25,14 +26,36 @@ def cores() -> int:
 
 
 def thread_budget(processes: int) -> int:
-    """Threads per process when ``processes`` processes work at once: ``cores // processes``,
-    at least 1."""
+    """Threads per process when ``processes`` processes work at once.
+
+    Parameters
+    ----------
+    processes : int
+        How many processes share this machine's cores (values below 1 count as 1).
+
+    Returns
+    -------
+    int
+        ``cores() // processes``, at least 1.
+    """
     return max(1, cores() // max(1, int(processes)))
 
 
 def limit_threads(n: int) -> int:
     """Set this process's torch intra-op threads and every loaded BLAS/OpenMP pool to ``n``
-    (and the environment, for what it starts); returns ``n``."""
+    (and the environment, for what it starts).
+
+    Parameters
+    ----------
+    n : int
+        Threads; values below 1 count as 1. Usually :func:`thread_budget` of the processes
+        working at once.
+
+    Returns
+    -------
+    int
+        The number of threads set.
+    """
     n = max(1, int(n))
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[var] = str(n)

@@ -28,6 +28,7 @@ import numpy as np
 
 from face_model.alignment import unflatten
 from face_model.layout import default_layout
+from groundwork.audio import seconds_to_samples
 from groundwork.errors import ParameterError
 from mapping.checkpoint import rest_mups
 from mapping.features import (MFCC_SETTINGS, algorithmic_latency_s, hop_samples, mfcc,
@@ -64,9 +65,12 @@ class FaceAnimator:
 
     @property
     def silence_dbfs(self) -> float:
+        """The level (dBFS) below which a frame is silent and gets :attr:`rest_`."""
         return self.mapping.silence_dbfs
 
     def check_expression(self, expression: str) -> str:
+        """``expression`` if the mapping estimates it, else a ParameterError naming those it
+        does."""
         return self.mapping.check_expression(expression)
 
     def mups(self, y: np.ndarray, sr: int, expression: str = "neutral") -> np.ndarray:
@@ -117,7 +121,7 @@ class StreamingAnimator:
         self.expression = animator.check_expression(expression)
         self.sr, self.fps = m.sample_rate, m.fps
         self.hop = hop_samples(self.sr, self.fps)
-        self.half = int(round(MFCC_SETTINGS["window_s"] * self.sr)) // 2
+        self.half = seconds_to_samples(MFCC_SETTINGS["window_s"], self.sr) // 2
         # a right-aligned window reads the stream delayed by this many samples of silence
         self.delay = window_future(self.sr) if m.window_align == "right" else 0
         ctx = m.mapper.context_
@@ -193,7 +197,8 @@ class StreamingAnimator:
         return StreamFrame(k, k / self.fps, mups[0], markers, self._feats[k])
 
     def push(self, chunk: np.ndarray) -> list[StreamFrame]:
-        """Add mono samples (any length); return the frames that became complete."""
+        """Add mono samples (any length) at the mapping's sample rate; return the frames that
+        became complete (each of :class:`StreamFrame`), in order."""
         if self._done:
             raise ParameterError("the stream was flushed; call reset() to start a new one")
         chunk = np.asarray(chunk, dtype=np.float32)

@@ -23,6 +23,7 @@ import librosa
 import numpy as np
 import scipy.signal as sps
 
+from groundwork.audio import seconds_to_samples
 from groundwork.errors import ParameterError
 from mapping.config import AugmentSettings
 
@@ -48,7 +49,19 @@ def _audio(y) -> np.ndarray:
 # -- noise ----------------------------------------------------------------------------------
 def mix_at_snr(y: np.ndarray, noise: np.ndarray, snr_db: float) -> np.ndarray:
     """``y + g·noise`` with g such that 10·log10(P_y / P_{g·noise}) = ``snr_db`` (powers over
-    the whole signal). ``noise`` has ``len(y)`` samples. Silent input is returned unchanged."""
+    the whole signal). Silent input (or noise) returns ``y`` unchanged.
+
+    Parameters
+    ----------
+    y : ndarray, shape (n_samples,)
+    noise : ndarray, shape (n_samples,)
+    snr_db : float
+        Signal-to-noise ratio, in dB.
+
+    Returns
+    -------
+    ndarray, shape (n_samples,), ``y``'s dtype
+    """
     y = _audio(y)
     if len(noise) != len(y):
         raise ParameterError(f"noise has {len(noise)} samples, the signal {len(y)}")
@@ -83,8 +96,22 @@ def fit_length(x: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
 
 def babble(others: list, n: int, rng: np.random.Generator, *, n_talkers: int = 4
            ) -> np.ndarray:
-    """The sum of ``n_talkers`` utterances drawn from ``others`` (audio at the same rate), each
-    cropped or looped to ``n`` samples at a random offset and scaled to unit RMS."""
+    """The sum of ``n_talkers`` utterances drawn from ``others``, each cropped or looped to
+    ``n`` samples at a random offset and scaled to unit RMS.
+
+    Parameters
+    ----------
+    others : list of ndarray, each (n_samples_i,)
+        Audio of other utterances, at the rate of the signal it is mixed into.
+    n : int
+        Samples of the result.
+    rng : numpy.random.Generator
+    n_talkers : int
+
+    Returns
+    -------
+    ndarray, shape (n,), float64
+    """
     if not others:
         raise ParameterError("babble needs the audio of other utterances")
     idx = rng.choice(len(others), size=n_talkers, replace=len(others) < n_talkers)
@@ -123,7 +150,7 @@ def image_method_rir(room, source, mic, *, rt60: float, sr: int, half_taps: int 
         raise ParameterError(f"rt60 {rt60} s is impossible in a {size.tolist()} m room by "
                              f"Sabine's formula (absorption {absorption:.2f})")
     beta = math.sqrt(1.0 - absorption)
-    n_out = int(round(rt60 * sr))
+    n_out = seconds_to_samples(rt60, sr)
     dmax = SPEED_OF_SOUND * n_out / sr
 
     def axis(k):
@@ -159,7 +186,8 @@ def image_method_rir(room, source, mic, *, rt60: float, sr: int, half_taps: int 
 
 
 def random_room_rir(rng: np.random.Generator, *, sr: int, rt60_range=(0.2, 0.6)) -> np.ndarray:
-    """A random room (3–8 × 3–6 × 2.4–3.5 m), source, microphone and RT60 ~ U(rt60_range)."""
+    """A random room (3–8 × 3–6 × 2.4–3.5 m), source, microphone and RT60 ~ U(rt60_range)
+    (seconds), by :func:`image_method_rir` at ``sr`` Hz; shape (round(rt60·sr),)."""
     for _ in range(1000):
         room = rng.uniform([3.0, 3.0, 2.4], [8.0, 6.0, 3.5])
         rt60 = float(rng.uniform(*rt60_range))
@@ -261,12 +289,31 @@ def augment(y: np.ndarray, *, sr: int, settings: AugmentSettings, rng: np.random
     with its probability in ``settings``.
 
     All decisions and one sub-generator per stage are drawn first, in a fixed order, so whether
-    one stage fires never shifts another stage's random numbers. ``others``: audio of other
-    training utterances for babble (no babble without them); ``rirs``: room responses to pick
-    from (default: drawn fresh from the stage's generator).
+    one stage fires never shifts another stage's random numbers.
 
-    Returns ``(out, time_scale, params)``: the audio (float32), ``len(out) / len(y)`` and what
-    was applied (for logs and tests).
+    Parameters
+    ----------
+    y : ndarray, shape (n_samples,)
+        Mono audio.
+    sr : int
+        Sample rate, in Hz.
+    settings : AugmentSettings
+        Each stage's probability and ranges (dB, semitones, seconds of RT60 …).
+    rng : numpy.random.Generator
+        The copy's generator (e.g. ``default_rng([seed, utterance, copy])``).
+    others : list of ndarray, optional
+        Audio of other training utterances for babble (no babble without them).
+    rirs : tuple of ndarray, optional
+        Room responses to pick from (default: drawn fresh from the stage's generator).
+
+    Returns
+    -------
+    out : ndarray, shape (n_out,), float32
+        The augmented audio (``n_out`` differs from ``n_samples`` only after a tempo change).
+    time_scale : float
+        ``n_out / n_samples``, for :func:`retime_targets` and :func:`retime_labels`.
+    params : dict
+        What was applied (for logs and tests).
     """
     y = _audio(y)
     s = settings

@@ -27,6 +27,7 @@ import functools
 import librosa
 import numpy as np
 
+from groundwork.audio import seconds_to_samples
 from groundwork.errors import NotFittedError, ParameterError
 from mapping.normalize import CepstralNormalizer, check_cmvn
 from mapping.state import ArrayGroup, nest
@@ -47,20 +48,34 @@ def window_future(sr: int) -> int:
     """Samples after the frame instant that a centred frame reads: the last non-zero sample of
     its MFCC window (the ``win``-sample window centred in the ``n_fft`` frame) or the end of
     its level window (:func:`window_dbfs`), whichever is later."""
-    win = int(round(MFCC_SETTINGS["window_s"] * sr))
+    win = seconds_to_samples(MFCC_SETTINGS["window_s"], sr)
     n_fft = 1 << (win - 1).bit_length()
     mfcc_last = (n_fft - win) // 2 + win - 1 - n_fft // 2
     return max(mfcc_last, win // 2)
 
 
 def check_align(align: str) -> None:
+    """``align`` is one of :data:`WINDOW_ALIGNS`, else a ParameterError."""
     if align not in WINDOW_ALIGNS:
         raise ParameterError(f"window alignment must be one of {WINDOW_ALIGNS}, got {align!r}")
 
 
 def aligned(y: np.ndarray, sr: int, align: str) -> np.ndarray:
-    """The signal the frames are read from: ``y`` itself (centre), or ``y`` delayed by
-    :func:`window_future` samples of silence (right)."""
+    """The signal the frames are read from.
+
+    Parameters
+    ----------
+    y : ndarray, shape (n_samples,)
+    sr : int
+        Sample rate, in Hz.
+    align : {"centre", "right"}
+
+    Returns
+    -------
+    ndarray, shape (n_samples,) or (n_samples + window_future(sr),)
+        ``y`` itself (centre), or ``y`` delayed by :func:`window_future` samples of silence
+        (right).
+    """
     check_align(align)
     if align == "centre":
         return y
@@ -70,7 +85,23 @@ def aligned(y: np.ndarray, sr: int, align: str) -> np.ndarray:
 def algorithmic_latency_s(forward: int, sr: int, fps: int = 30, align: str = "centre"
                           ) -> float:
     """Seconds of audio after frame k's instant that frame k waits for: ``forward`` frames of
-    context, plus the centred window's :func:`window_future` samples (none when right-aligned)."""
+    context, plus the centred window's :func:`window_future` samples (none when right-aligned).
+
+    Parameters
+    ----------
+    forward : int
+        Frames of look-ahead context.
+    sr : int
+        Sample rate, in Hz.
+    fps : int
+        Frames per second.
+    align : {"centre", "right"}
+
+    Returns
+    -------
+    float
+        Seconds.
+    """
     check_align(align)
     return forward / fps + (window_future(sr) / sr if align == "centre" else 0.0)
 
@@ -121,7 +152,7 @@ def mfcc(y: np.ndarray, *, sr: int, fps: int = 30, n_mfcc: int = 10,
     hop = hop_samples(sr, fps)
     n_out = int(np.ceil(len(y) / hop)) if n_frames is None else int(n_frames)
     y = aligned(y, sr, align)
-    win = int(round(MFCC_SETTINGS["window_s"] * sr))
+    win = seconds_to_samples(MFCC_SETTINGS["window_s"], sr)
     n_fft = 1 << (win - 1).bit_length()
     power = np.abs(librosa.stft(y, n_fft=n_fft, hop_length=hop, win_length=win,
                                 window=MFCC_SETTINGS["window"], center=True,
@@ -209,6 +240,8 @@ class FeatureNormalizer:
     """Per-feature standardisation fitted on training data only (scikit-learn style)."""
 
     def fit(self, X: np.ndarray) -> "FeatureNormalizer":
+        """Mean and standard deviation (1 where it is 0) of training frames ``X``, shape
+        (n_frames >= 2, n_features), finite."""
         X = np.asarray(X, dtype=np.float64)
         if X.ndim != 2 or len(X) < 2 or not np.all(np.isfinite(X)):
             raise ParameterError(f"normaliser needs finite (n_frames >= 2, n_features) data, "
@@ -218,6 +251,7 @@ class FeatureNormalizer:
         return self
 
     def transform(self, X: np.ndarray) -> np.ndarray:
+        """(n_frames, n_features) → standardised, float32."""
         if not hasattr(self, "mean_"):
             raise NotFittedError("FeatureNormalizer is not fitted yet: call fit() first")
         X = np.asarray(X, dtype=np.float64)
@@ -226,6 +260,7 @@ class FeatureNormalizer:
         return ((X - self.mean_) / self.scale_).astype(np.float32)
 
     def inverse_transform(self, Z: np.ndarray) -> np.ndarray:
+        """Standardised (n_frames, n_features) → the original scale, float64."""
         return np.asarray(Z, dtype=np.float64) * self.scale_ + self.mean_
 
     def to_arrays(self) -> tuple[dict, dict]:
@@ -248,9 +283,20 @@ def audio_features(y: np.ndarray, *, sr: int, fps: int = 30, n_mfcc: int = 10,
                    deltas: bool = False, n_frames: int | None = None,
                    vtlp_alpha: float = 1.0, align: str = "centre") -> np.ndarray:
     """MFCC per frame, optionally followed by their first differences (librosa ``delta``,
-    9-frame regression window, edges interpolated). Shape (n_frames, n_mfcc · (1 + deltas)).
-    ``vtlp_alpha``: the training-time speaker warp of :func:`mfcc` (1.0: none); ``align``: the
-    window's alignment (:func:`aligned`)."""
+    9-frame regression window, edges interpolated).
+
+    Parameters
+    ----------
+    y, sr, fps, n_mfcc, n_frames, vtlp_alpha, align
+        As for :func:`mfcc` (audio (n_samples,), Hz, frames per second, coefficients, frames,
+        the training-time speaker warp (1.0: none), the window's alignment).
+    deltas : bool
+        Append the first differences.
+
+    Returns
+    -------
+    ndarray, shape (n_frames, n_mfcc · (1 + deltas)), float32, frame-major.
+    """
     feats = mfcc(y, sr=sr, fps=fps, n_mfcc=n_mfcc, n_frames=n_frames, vtlp_alpha=vtlp_alpha,
                  align=align)
     if not deltas:
@@ -366,18 +412,47 @@ class ContextFeatures:
 
 
 def window_dbfs(y: np.ndarray, centre: int, half: int) -> float:
-    """Level (dBFS) of the analysis window ``y[centre − half : centre + half + 1]``."""
+    """Level (dBFS) of the analysis window ``y[centre − half : centre + half + 1]``.
+
+    Parameters
+    ----------
+    y : ndarray, shape (n_samples,)
+        Audio, full scale 1.
+    centre, half : int
+        The window's centre and half-width, in samples.
+
+    Returns
+    -------
+    float
+        dBFS (10·log10 of the mean square, floored at 1e-20); -200.0 for an empty window.
+    """
     seg = np.asarray(y[max(0, centre - half):centre + half + 1], dtype=np.float64)
     return float(10 * np.log10(np.mean(seg**2) + 1e-20)) if len(seg) else -200.0
 
 
 def frame_rms_dbfs(y: np.ndarray, *, sr: int, fps: int = 30, n_frames: int,
                    align: str = "centre") -> np.ndarray:
-    """Level (dBFS) of each frame's 25 ms analysis window, centred at k / fps or ending there
-    (``align``, :func:`aligned`), shape (n_frames,)."""
+    """Level (dBFS) of each frame's 25 ms analysis window, centred at k / fps or ending there.
+
+    Parameters
+    ----------
+    y : ndarray, shape (n_samples,)
+    sr : int
+        Sample rate, in Hz; ``sr / fps`` must be an integer.
+    fps : int
+        Frames per second.
+    n_frames : int
+    align : {"centre", "right"}
+        :func:`aligned`.
+
+    Returns
+    -------
+    ndarray, shape (n_frames,)
+        dBFS per frame (:func:`window_dbfs`).
+    """
     hop = hop_samples(sr, fps)
     y = aligned(y, sr, align)
-    half = int(round(MFCC_SETTINGS["window_s"] * sr)) // 2
+    half = seconds_to_samples(MFCC_SETTINGS["window_s"], sr) // 2
     return np.array([window_dbfs(y, k * hop, half) for k in range(n_frames)])
 
 

@@ -11,6 +11,7 @@
         sub-<id>_task-emotion_beh.json    sidecar: versions, seeds, allocation, sessions, QC
         psychopy/                         PsychoPy's own files (the primary record of a lab run)
 
+The columns of a data file, the codes they may hold and its text are :mod:`study.columns`.
 Rules (:class:`SessionFile`): a complete session (27 rows) is never opened for writing again; a
 partial one is continued only with ``resume=True``, after its rows are checked against the
 planned trial order; a row cut short by a crash (no final newline) is the trial that was in
@@ -24,13 +25,14 @@ import csv
 import io
 import json
 import os
-import tempfile
 import time
 from pathlib import Path
 
 from filelock import FileLock
 
+from groundwork.atomic import atomic_file
 from groundwork.errors import ParameterError
+from study.columns import COLUMNS, csv_text, read_data_file
 from study.design import (
     N_TRIALS,
     RESPONSES,
@@ -42,49 +44,56 @@ from study.design import (
 )
 
 TASK = "emotion"
-COLUMNS = ("participant_id", "group", "sequence", "block", "period", "trial_index", "face",
-           "expression", "audio", "response", "response_key", "rt_s", "stimulus_id",
-           "simulated", "responder_model", "session", "n_frames", "frames_late",
-           "frame_interval_ms_mean", "frame_interval_ms_max", "audio_onset_s", "timestamp")
 ALLOCATION_COLUMNS = ("slot", "sequence", "participant_id", "status", "updated")
 ALLOCATION_STATUSES = ("free", "assigned", "complete")
 LOG_COLUMNS = ("time", "event", "slot", "sequence", "participant_id", "note")
 
 
 def now_iso() -> str:
+    """The local wall-clock time, ``2024-05-01T14:03:59+0200``."""
     return time.strftime("%Y-%m-%dT%H:%M:%S%z")
 
 
 def write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file, fsync'ed, then renamed."""
+    """Write ``text`` to ``path`` through a temporary file of its own, fsync'ed, then renamed
+    (:func:`groundwork.atomic.atomic_file`); the folder is created when missing."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        with os.fdopen(fd, "w", newline="") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_file(path, fsync=True, unique=True) as tmp, open(tmp, "w", newline="") as f:
+        f.write(text)
 
 
 def subject_dir(study_dir, pid: str) -> Path:
+    """``study_dir/sub-<pid>`` (the id checked: :func:`study.design.check_participant_id`)."""
     return Path(study_dir) / f"sub-{check_participant_id(pid)}"
 
 
 def data_path(study_dir, pid: str) -> Path:
+    """The participant's data file, ``sub-<pid>/sub-<pid>_task-emotion_beh.csv``."""
     return subject_dir(study_dir, pid) / f"sub-{pid}_task-{TASK}_beh.csv"
 
 
 def sidecar_path(study_dir, pid: str) -> Path:
+    """The participant's JSON sidecar, ``sub-<pid>/sub-<pid>_task-emotion_beh.json``."""
     return subject_dir(study_dir, pid) / f"sub-{pid}_task-{TASK}_beh.json"
 
 
 def write_dataset_description(study_dir, *, name: str, simulated: bool) -> Path:
-    """psych-DS ``dataset_description.json`` (kept if present)."""
+    """Write the psych-DS ``dataset_description.json`` of a study folder (kept if present).
+
+    Parameters
+    ----------
+    study_dir : path
+    name : str
+        The data set's name.
+    simulated : bool
+        Whether the participants are simulated (said in the description).
+
+    Returns
+    -------
+    pathlib.Path
+        The file, new or as it was.
+    """
     path = Path(study_dir) / "dataset_description.json"
     if path.is_file():
         return path
@@ -103,22 +112,38 @@ def write_dataset_description(study_dir, *, name: str, simulated: bool) -> Path:
 
 
 def read_rows(path: Path) -> tuple[list[dict], bool]:
-    """The complete rows of a data file and whether a cut-short last line was found (a file
-    saved by Excel starts with a byte-order mark: it is read as UTF-8 all the same)."""
-    raw = Path(path).read_bytes()
-    torn = bool(raw) and not raw.endswith(b"\n")
-    if torn:
-        raw = raw[:raw.rfind(b"\n") + 1]
-    rows = list(csv.DictReader(io.StringIO(raw.decode("utf-8-sig"), newline="")))
+    """The complete rows of a data file and whether a cut-short last line was found
+    (:func:`study.columns.read_data_file` without the header)."""
+    _, rows, torn = read_data_file(path)
     return rows, torn
 
 
 def check_session_file(study_dir, participant_id: str, trials: list[Trial], *,
                        resume: bool = False) -> tuple[list[dict], bool]:
-    """The refusals of :class:`SessionFile`, without writing anything: the rows already in the
-    participant's data file (none if it does not exist) and whether its last line was cut
-    short. Raises ParameterError for a complete session, an interrupted one without
-    ``resume``, rows that do not follow ``trials``, and ``resume`` without a data file."""
+    """The refusals of :class:`SessionFile`, without writing anything.
+
+    Parameters
+    ----------
+    study_dir : path
+    participant_id : str
+    trials : list of Trial
+        The planned order (27 trials, ``study.design.session_trials``).
+    resume : bool
+        Whether an interrupted session may be continued.
+
+    Returns
+    -------
+    rows : list of dict
+        The rows already in the participant's data file (none if it does not exist).
+    torn : bool
+        Whether its last line was cut short.
+
+    Raises
+    ------
+    ParameterError
+        Not 27 trials, a complete session, an interrupted one without ``resume``, rows that
+        do not follow ``trials``, and ``resume`` without a data file.
+    """
     pid = check_participant_id(participant_id)
     path = data_path(study_dir, pid)
     if len(trials) != N_TRIALS:
@@ -181,14 +206,28 @@ class SessionFile:
 
     @property
     def remaining(self) -> list[Trial]:
+        """The planned trials not yet in the file, in order."""
         return self.trials[len(self.done):]
 
     @property
     def complete(self) -> bool:
+        """Whether all 27 judgments are in the file."""
         return len(self.done) >= N_TRIALS
 
     def append(self, row: dict) -> None:
-        """Append one judgment and fsync it before returning."""
+        """Append one judgment and fsync it before returning.
+
+        Parameters
+        ----------
+        row : dict
+            Every column of the contract (:func:`trial_row`), for the next planned trial.
+
+        Raises
+        ------
+        ParameterError
+            A missing column, an unknown response, another participant's row, or a trial out
+            of the planned order.
+        """
         missing = [c for c in COLUMNS if c not in row]
         if missing:
             raise ParameterError(f"a data row lacks {missing}")
@@ -204,14 +243,10 @@ class SessionFile:
                                  f"{expected.trial_index})")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         new = not self.path.is_file() or self.path.stat().st_size == 0
-        buf = io.StringIO()
-        w = csv.DictWriter(buf, fieldnames=COLUMNS, lineterminator="\n")
-        if new:
-            w.writeheader()
-        w.writerow({c: row[c] for c in COLUMNS})
+        text = csv_text([row], header=new)
         fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
         try:
-            os.write(fd, buf.getvalue().encode("utf-8"))
+            os.write(fd, text.encode("utf-8"))
             os.fsync(fd)
         finally:
             os.close(fd)
@@ -221,8 +256,36 @@ class SessionFile:
 def trial_row(trial: Trial, *, participant_id: str, sequence: str, response: str,
               response_key: str, rt_s: float, simulated: bool, responder_model: str,
               session: int, qc: dict | None = None, timestamp: str | None = None) -> dict:
-    """A data row for one judgment (``qc``: the frame-timing columns; ``timestamp``: the
-    wall-clock time of the answer, now by default; simulated rows pass "")."""
+    """A data row for one judgment, with every column of the contract.
+
+    Parameters
+    ----------
+    trial : Trial
+        The trial judged (block, period, trial index, face, expression, audio, stimulus id).
+    participant_id, sequence : str
+        The participant and their sequence (``SR`` or ``RS``; the group follows from it).
+    response : str
+        One of ``study.design.RESPONSES``.
+    response_key : str
+        The key pressed.
+    rt_s : float
+        Response time in seconds (written with 4 decimals).
+    simulated : bool
+    responder_model : str
+        ``human``, or the model that answered.
+    session : int
+        1 for a first session, 2 … for a resumed one.
+    qc : dict, optional
+        The frame-timing columns (``n_frames``, ``frames_late``, ``frame_interval_ms_mean``,
+        ``frame_interval_ms_max`` in ms, ``audio_onset_s`` in s); blank when absent.
+    timestamp : str, optional
+        The wall-clock time of the answer, now by default; simulated rows pass "".
+
+    Returns
+    -------
+    dict
+        Column → value (numbers formatted as the file holds them).
+    """
     qc = qc or {}
     return {"participant_id": participant_id, "group": group_of(sequence), "sequence": sequence,
             **{k: v for k, v in trial.as_dict().items()},
@@ -254,7 +317,25 @@ class Allocation:
         return FileLock(str(self.dir / ".allocation.lock"), timeout=30)
 
     def create(self, n: int, seed: int) -> list[dict]:
-        """Write the list of ``n`` slots (refused if a different list exists)."""
+        """Write the list of ``n`` slots, or return the list already there if it is the same.
+
+        Parameters
+        ----------
+        n : int
+            Number of slots (participants).
+        seed : int
+            Seeds the permuted blocks of sequences (:func:`study.design.allocation_sequences`).
+
+        Returns
+        -------
+        list of dict
+            The rows of ``allocation.csv``.
+
+        Raises
+        ------
+        ParameterError
+            The folder already holds a list made with another ``(n, seed)``.
+        """
         seqs = allocation_sequences(n, seed)
         with self._lock():
             if self.path.is_file():
@@ -275,6 +356,7 @@ class Allocation:
             return rows
 
     def rows(self) -> list[dict]:
+        """The rows of ``allocation.csv``, checked (a damaged list is refused)."""
         if not self.path.is_file():
             raise ParameterError(f"no allocation list in {self.dir} ({self.path.name} missing): "
                                  "create one with `talkingface study allocate`")
@@ -340,6 +422,7 @@ class Allocation:
             return slot
 
     def set_status(self, pid: str, status: str) -> None:
+        """Mark the participant's slot ``assigned`` or ``complete`` (logged)."""
         if status not in ("assigned", "complete"):
             raise ParameterError(f"allocation status {status!r}; allowed: assigned, complete")
         with self._lock():

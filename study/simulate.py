@@ -234,10 +234,12 @@ class FLMPObserver:
         self._rng = np.random.default_rng(np.random.SeedSequence(self.seed))
 
     def visual_support(self, probs, name: str = "the stimulus") -> np.ndarray:
+        """``v_k = p_k ** gamma`` of the classifier's (neutral, smile, sad) probabilities."""
         p = np.maximum(_support(probs, name), _PROB_FLOOR)
         return p ** self.params.visual_sensitivity
 
     def audio_support(self, audio: str) -> np.ndarray:
+        """``a_k`` of a sentence (``normal``, ``good``, ``bad``) over :data:`EMOTIONS`."""
         if audio not in CONTENT_EMOTION:
             raise ParameterError(f"audio {audio!r}; allowed: {', '.join(CONTENT_EMOTION)}")
         rho = self.params.content_reliance
@@ -246,7 +248,8 @@ class FLMPObserver:
         return a
 
     def posterior(self, trial: Trial, visual: dict) -> np.ndarray:
-        """P(emotion | stimulus) over ``EMOTIONS`` for one trial (before not-sure and lapses)."""
+        """P(emotion | stimulus) over ``EMOTIONS`` for one trial (before not-sure and lapses);
+        ``visual``: stimulus id → the classifier's (neutral, smile, sad) probabilities."""
         if trial.block not in BLOCKS:
             raise ParameterError(f"trial block {trial.block!r}; allowed: {', '.join(BLOCKS)}")
         s = np.ones(3)
@@ -260,7 +263,8 @@ class FLMPObserver:
         return s / s.sum()
 
     def respond(self, trial: Trial, visual: dict) -> tuple[str, float]:
-        """The answer (one of ``RESPONSES``) and the response time in seconds."""
+        """The answer (one of ``RESPONSES``) and the response time in seconds (``visual`` as
+        for :meth:`posterior`); draws from the observer's own random stream."""
         post = self.posterior(trial, visual)
         u = self._rng.random(4)  # lapse?, lapse answer, not sure?, emotion
         z = self._rng.standard_normal()
@@ -377,24 +381,15 @@ def simulate_study(study_dir, stimuli: dict, classifier: ExpressionClassifier, *
     ``responder_model``, ``kept`` (participants complete before this call) and ``resumed``
     (participants cut short by an interruption and completed by this call).
     """
-    if len(keys) != len(RESPONSES) or len(set(keys)) != len(keys):
-        raise ParameterError(f"keys must be {len(RESPONSES)} distinct keys for "
-                             f"{', '.join(RESPONSES)}, got {keys!r}")
-    check_n(n)
-    make_observer(0, seed, population)  # checks the population before anything is written
-    if not isinstance(classifier, ExpressionClassifier):
-        raise ParameterError(f"classifier must be an ExpressionClassifier, got "
-                             f"{type(classifier).__name__}")
+    _check_study_arguments(n=n, seed=seed, population=population, classifier=classifier,
+                           keys=keys)
     visual = visual_evidence(classifier, stimuli)
     pids = participant_ids(n)
     study_dir = Path(study_dir)
     key_of = dict(zip(RESPONSES, keys))
-    common = {"simulated": True, "responder_model": RESPONDER_MODEL, "simulation_seed": int(seed),
-              "study_seed": int(study_seed), "population": asdict(population),
-              "classifier": classifier.describe(), "stimuli_digest": manifest_digest(stimuli),
-              "visual_evidence": {sid: [round(float(x), 6) for x in p]
-                                  for sid, p in visual.items()},
-              "sentences": SENTENCES, "keys": key_of, "versions": _versions()}
+    common = _shared_sidecar(seed=seed, study_seed=study_seed, population=population,
+                             classifier=classifier, stimuli=stimuli, visual=visual,
+                             key_of=key_of)
 
     def make(i, slot):
         observer = make_observer(i, seed, population)
@@ -403,8 +398,50 @@ def simulate_study(study_dir, stimuli: dict, classifier: ExpressionClassifier, *
             key_of=key_of, sidecar={"participant_index": i, "observer_seed": observer.seed,
                                     "observer": asdict(observer.params)}, common=common)
 
-    # every check before anything is written
     alloc = Allocation(study_dir)
+    found, kept, resumed = _earlier_participants(study_dir, alloc, pids, make, n=n,
+                                                 study_seed=study_seed)
+    alloc.create(int(n), int(study_seed))
+    description = write_dataset_description(study_dir, name="talkingface emotion perception "
+                                            "study (simulated participants)", simulated=True)
+    counts, data_files, sidecars = _write_participants(
+        study_dir, alloc, pids, found, make, progress=progress, kept=kept, resumed=resumed)
+    return {"n": int(n), "participants": pids, "sequences": counts, "study_dir": study_dir,
+            "data": data_files, "sidecars": sidecars, "dataset_description": description,
+            "allocation": alloc.path, "responder_model": RESPONDER_MODEL, "kept": kept,
+            "resumed": resumed}
+
+
+def _check_study_arguments(*, n, seed, population, classifier, keys) -> None:
+    """The refusals of :func:`simulate_study` that need no file (made before anything is
+    computed or written)."""
+    if len(keys) != len(RESPONSES) or len(set(keys)) != len(keys):
+        raise ParameterError(f"keys must be {len(RESPONSES)} distinct keys for "
+                             f"{', '.join(RESPONSES)}, got {keys!r}")
+    check_n(n)
+    make_observer(0, seed, population)  # checks the population before anything is written
+    if not isinstance(classifier, ExpressionClassifier):
+        raise ParameterError(f"classifier must be an ExpressionClassifier, got "
+                             f"{type(classifier).__name__}")
+
+
+def _shared_sidecar(*, seed, study_seed, population, classifier, stimuli, visual,
+                    key_of) -> dict:
+    """The sidecar fields every simulated participant shares: what the simulation ran with."""
+    return {"simulated": True, "responder_model": RESPONDER_MODEL, "simulation_seed": int(seed),
+            "study_seed": int(study_seed), "population": asdict(population),
+            "classifier": classifier.describe(), "stimuli_digest": manifest_digest(stimuli),
+            "visual_evidence": {sid: [round(float(x), 6) for x in p]
+                                for sid, p in visual.items()},
+            "sentences": SENTENCES, "keys": key_of, "versions": _versions()}
+
+
+def _earlier_participants(study_dir: Path, alloc: Allocation, pids: list[str], make, *, n,
+                          study_seed) -> tuple[dict, list[str], list[str]]:
+    """What an earlier, interrupted call left in ``study_dir``, checked before anything is
+    written: the participants found (pid → :class:`SimulatedParticipant`), those complete
+    (kept) and those cut short (resumed). Refuses a folder that is not this simulation's, or
+    whose simulation is complete."""
     rows = check_allocation(alloc, pids, n=int(n), study_seed=int(study_seed))
     held = {r["participant_id"]: r for r in rows}
     found, kept, resumed = {}, [], []
@@ -423,10 +460,15 @@ def simulate_study(study_dir, stimuli: dict, classifier: ExpressionClassifier, *
         raise ParameterError(f"the simulation in {study_dir} is complete ({n} participants); "
                              "simulations are never overwritten or extended: use a new study "
                              "folder")
+    return found, kept, resumed
 
-    alloc.create(int(n), int(study_seed))
-    description = write_dataset_description(study_dir, name="talkingface emotion perception "
-                                            "study (simulated participants)", simulated=True)
+
+def _write_participants(study_dir: Path, alloc: Allocation, pids: list[str], found: dict,
+                        make, *, progress: bool, kept: list, resumed: list
+                        ) -> tuple[dict, list[Path], list[Path]]:
+    """Complete every participant's files and slot, in order (those ``found`` as they are,
+    the others assigned a slot now); returns the count per sequence and the data and sidecar
+    paths."""
     counts = {s: 0 for s in ("SR", "RS")}
     data_files, sidecars = [], []
     bar = tqdm(pids, desc="simulated participants", unit="participant", disable=not progress)
@@ -438,10 +480,7 @@ def simulate_study(study_dir, stimuli: dict, classifier: ExpressionClassifier, *
         sidecars.append(sidecar_path(study_dir, pid))
         if kept or resumed:
             bar.set_postfix(kept=len(kept), resumed=len(resumed))
-    return {"n": int(n), "participants": pids, "sequences": counts, "study_dir": study_dir,
-            "data": data_files, "sidecars": sidecars, "dataset_description": description,
-            "allocation": alloc.path, "responder_model": RESPONDER_MODEL, "kept": kept,
-            "resumed": resumed}
+    return counts, data_files, sidecars
 
 
 __all__ = ["RESPONDER_MODEL", "EMOTIONS", "EXPRESSION_EMOTION", "CONTENT_EMOTION",

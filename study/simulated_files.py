@@ -4,14 +4,12 @@ already in the study folder must be what the simulation writes (a data file may 
 else it is refused before anything is written."""
 from __future__ import annotations
 
-import csv
-import io
 import json
 from pathlib import Path
 
 from groundwork.errors import ParameterError
+from study.columns import csv_text
 from study.data import (
-    COLUMNS,
     Allocation,
     SessionFile,
     data_path,
@@ -23,15 +21,6 @@ from study.data import (
 from study.design import N_TRIALS, group_of, participant_seed, session_trials
 
 RESPONDER_MODEL = "flmp-v1"
-
-
-def csv_bytes(rows: list[dict]) -> bytes:
-    """A data file holding ``rows``, as :class:`study.data.SessionFile` writes it."""
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=COLUMNS, lineterminator="\n")
-    w.writeheader()
-    w.writerows({c: r[c] for c in COLUMNS} for r in rows)
-    return buf.getvalue().encode("utf-8")
 
 
 class SimulatedParticipant:
@@ -78,7 +67,7 @@ class SimulatedParticipant:
         """Whether the participant's files are complete; refuses files that are not (the
         start of) what this simulation writes. Writes nothing."""
         data, side = data_path(study_dir, self.pid), sidecar_path(study_dir, self.pid)
-        if data.is_file() and not csv_bytes(self.rows).startswith(data.read_bytes()):
+        if data.is_file() and not csv_text(self.rows).encode("utf-8").startswith(data.read_bytes()):
             raise _not_ours(data)
         if side.is_file() and side.read_text() != self.sidecar:
             raise _not_ours(side)

@@ -39,7 +39,7 @@ from tqdm.auto import tqdm
 
 from data_synth.generate import synthesize_corpus
 from face_model.alignment import align_markers, speaker_neutrals
-from face_model.corpus import load_corpus
+from face_model.corpus import load_corpus, read_manifest
 from face_model.render import FaceRenderer, face_grid
 from groundwork.audio import write_wav
 from groundwork.errors import ParameterError
@@ -191,15 +191,8 @@ def load_manifest(stim_dir, *, verify: bool = True) -> dict[str, Stimulus]:
     the row."""
     root = Path(stim_dir)
     path = root / MANIFEST
-    if not path.is_file():
-        raise ParameterError(f"{path} not found: make the stimuli with `talkingface study "
-                             "stimuli`")
-    with open(path, newline="", encoding="utf-8-sig") as f:  # as saved by Excel, too
-        reader = csv.DictReader(f)
-        missing = [c for c in COLUMNS if c not in (reader.fieldnames or [])]
-        if missing:
-            raise ParameterError(f"{path}: missing columns {missing}")
-        rows = list(reader)
+    rows = read_manifest(path, COLUMNS, error=ParameterError,
+                         not_found="make the stimuli with `talkingface study stimuli`")
     out: dict[str, Stimulus] = {}
     for line, r in enumerate(rows, start=2):
         where = f"{path}, line {line}"

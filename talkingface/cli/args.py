@@ -1,4 +1,5 @@
-"""Arguments every sub-command shares, and the config they resolve to."""
+"""Arguments every sub-command shares, the options of the commands that train a grid, and the
+config they resolve to."""
 from __future__ import annotations
 
 import argparse
@@ -36,3 +37,51 @@ def resolve_config(args, *extra: str):
     if getattr(args, "visual_source", None) is not None:
         overrides.append(f"mapping.visual_source={args.visual_source}")
     return load_config(getattr(args, "config", None), overrides + list(extra))
+
+
+def grid_args(p: argparse.ArgumentParser, *, required: bool, workers_help: str) -> None:
+    """The options of a command that trains the ablation grid (``replicate``, ``ablate``).
+
+    Parameters
+    ----------
+    p : argparse.ArgumentParser
+        The sub-command's parser.
+    required : bool
+        The command needs ``--grid`` (``ablate``); otherwise it defaults to the project's grid.
+    workers_help : str
+        The help of ``--workers``.
+
+    Notes
+    -----
+    ``--grid`` and ``--ablations`` are two spellings of one option (``ablations.grid``);
+    :func:`grid_overrides` turns the options into config overrides.
+    """
+    default = ("" if required else "; 'none' to skip; default: the project's "
+               "configs/ablations.yaml")
+    p.add_argument("--grid", "--ablations", dest="grid", metavar="GRID", required=required,
+                   help=f"ablation grid file, e.g. configs/ablations.yaml, trained as MLflow "
+                   f"child runs and tabulated{default} (same as --set ablations.grid=GRID; "
+                   "--ablations GRID is another name for this option)")
+    p.add_argument("--workers", type=int, help=workers_help)
+    p.add_argument("--seeds", type=int, help="training seeds per ablation setting (default 5; "
+                   "same as --set ablations.seeds=N)")
+    p.add_argument("--scheduler", metavar="WHERE", help="where grid tasks run: local (a Dask "
+                   "LocalCluster, the default), processes (a process pool), or a running Dask "
+                   "scheduler tcp://HOST:8786 (same as --set cluster.scheduler=...)")
+
+
+def grid_overrides(args) -> list[str]:
+    """The config overrides (``section.key=value``) of the grid options of :func:`grid_args`
+    and ``replicate``'s ``--voices``, for :func:`resolve_config`."""
+    out = []
+    if getattr(args, "grid", None) is not None:
+        out.append(f"ablations.grid={args.grid}")
+    if getattr(args, "workers", None) is not None:
+        out.append(f"ablations.workers={args.workers}")
+    if getattr(args, "voices", None) is not None:
+        out.append(f"voices.grid={args.voices}")
+    if getattr(args, "seeds", None) is not None:
+        out.append(f"ablations.seeds={args.seeds}")
+    if getattr(args, "scheduler", None) is not None:
+        out.append(f"cluster.scheduler={args.scheduler}")
+    return out

@@ -26,6 +26,7 @@ import numpy as np
 import soxr
 
 from face_model.render import FaceRenderer
+from groundwork.audio import seconds_to_samples
 from groundwork.errors import ParameterError
 
 
@@ -44,8 +45,27 @@ class StreamStats:
 
 
 def wav_chunks(y: np.ndarray, sr: int, *, chunk_s: float = 0.01, paced: bool = True):
-    """``(chunk, capture_end_wall)`` pairs of a signal, slept to real time when ``paced``."""
-    step = max(1, int(round(chunk_s * sr)))
+    """``(chunk, capture_end_wall)`` pairs of a signal, slept to real time when ``paced``.
+
+    Parameters
+    ----------
+    y : ndarray, shape (n_samples,)
+        Mono audio.
+    sr : int
+        Sample rate, in Hz.
+    chunk_s : float
+        Seconds per chunk (at least one sample; the last chunk may be shorter).
+    paced : bool
+        Deliver each chunk when its last sample would have been captured in real time.
+
+    Yields
+    ------
+    chunk : ndarray, shape (n,)
+    capture_end_wall : float
+        ``time.perf_counter()`` time at which the chunk's last sample was (or would have been)
+        captured.
+    """
+    step = max(1, seconds_to_samples(chunk_s, sr))
     t0 = time.perf_counter()
     for i in range(0, len(y), step):
         chunk = y[i:i + step]
@@ -88,8 +108,31 @@ def microphone_chunks(sr: int, *, seconds: float | None, device=None, chunk_s: f
                       stats: MicrophoneStats | None = None):
     """``(chunk, capture_end_wall)`` pairs from an input device, at ``sr`` Hz, mono.
 
-    ``seconds``: stop after this much captured audio (None: until KeyboardInterrupt).
-    ``device``: a PortAudio device index or name (default: the system's default input).
+    Parameters
+    ----------
+    sr : int
+        Sample rate of the chunks, in Hz (the device is read at its own rate and resampled
+        when it refuses this one).
+    seconds : float or None
+        Stop after this much captured audio (None: until KeyboardInterrupt).
+    device : int, str or None
+        A PortAudio device index or name (default: the system's default input).
+    chunk_s : float
+        Seconds per blocking read.
+    stats : MicrophoneStats, optional
+        Filled in with the device's name, its rate and the overflows it reported.
+
+    Yields
+    ------
+    chunk : ndarray, shape (n,), float32
+        In [-1, 1).
+    capture_end_wall : float
+        ``time.perf_counter()`` time at which the read returned.
+
+    Raises
+    ------
+    ParameterError
+        No input device, an unknown device, PortAudio missing, or ``seconds`` not > 0.
     """
     sd = _sounddevice()
     devices = input_devices()
@@ -112,8 +155,8 @@ def microphone_chunks(sr: int, *, seconds: float | None, device=None, chunk_s: f
         rate = int(info["default_samplerate"])
         resampler = soxr.ResampleStream(rate, sr, 1, dtype="float32")
     stats.rate = rate
-    block = max(1, int(round(chunk_s * rate)))
-    wanted = None if seconds is None else int(round(seconds * rate))
+    block = max(1, seconds_to_samples(chunk_s, rate))
+    wanted = None if seconds is None else seconds_to_samples(seconds, rate)
     got = 0
     with sd.InputStream(device=device, channels=1, samplerate=rate, dtype="int16",
                         blocksize=block) as stream:
@@ -130,8 +173,26 @@ def microphone_chunks(sr: int, *, seconds: float | None, device=None, chunk_s: f
 
 
 def run_stream(stream, chunks, *, show: bool = False, on_frame=None) -> StreamStats:
-    """Push ``(chunk, capture_end_wall)`` pairs through ``stream`` (a StreamingAnimator), then
-    flush it; see the module text for the figures."""
+    """Push ``(chunk, capture_end_wall)`` pairs through ``stream``, then flush it; see the
+    module text for the figures.
+
+    Parameters
+    ----------
+    stream : mapping.animator.StreamingAnimator
+    chunks : iterable of (ndarray, float)
+        :func:`wav_chunks` or :func:`microphone_chunks`: mono audio at ``stream.sr`` Hz and the
+        wall-clock time its last sample was captured. Ctrl-C ends it (what was captured is
+        still flushed).
+    show : bool
+        Show the face in a window as frames are emitted.
+    on_frame : callable, optional
+        Called with each emitted :class:`~mapping.animator.StreamFrame`.
+
+    Returns
+    -------
+    StreamStats
+        Frames, audio and wall-clock seconds, compute per frame and latency percentiles (s).
+    """
     renderer = None
     if show:
         renderer = FaceRenderer()

@@ -26,7 +26,8 @@ from groundwork.memory import keep_freed_memory
 from groundwork.owner import acquire, release_all
 from talkingface.cli import cache as cache_cli, lab_server as server_cli, runs, study as study_cli
 from talkingface.cli.animate import animate_file, stream_file, stream_microphone
-from talkingface.cli.args import config_args, resolve_config, run_args, visual_source_arg
+from talkingface.cli.args import (config_args, grid_args, grid_overrides, resolve_config,
+                                  run_args, visual_source_arg)
 from talkingface.cli.live import input_devices
 from talkingface.config import apply_overrides, dump_config, load_config
 from talkingface.experiments.log import (artifact_root, check_tracking, log_speech_eval_model,
@@ -79,35 +80,8 @@ def cmd_units(args) -> int:
     return 0
 
 
-def _ablation_overrides(args) -> list[str]:
-    out = []
-    if getattr(args, "ablations", None) is not None:
-        out.append(f"ablations.grid={args.ablations}")
-    if getattr(args, "grid", None) is not None:
-        out.append(f"ablations.grid={args.grid}")
-    if getattr(args, "workers", None) is not None:
-        out.append(f"ablations.workers={args.workers}")
-    if getattr(args, "voices", None) is not None:
-        out.append(f"voices.grid={args.voices}")
-    if getattr(args, "seeds", None) is not None:
-        out.append(f"ablations.seeds={args.seeds}")
-    if getattr(args, "scheduler", None) is not None:
-        out.append(f"cluster.scheduler={args.scheduler}")
-    return out
-
-
-def _grid_args(s, workers_help: str) -> None:
-    """The options of the commands that train a grid: workers, seeds, the scheduler."""
-    s.add_argument("--workers", type=int, help=workers_help)
-    s.add_argument("--seeds", type=int, help="training seeds per ablation setting (default 5; "
-                   "same as --set ablations.seeds=N)")
-    s.add_argument("--scheduler", metavar="WHERE", help="where grid tasks run: local (a Dask "
-                   "LocalCluster, the default), processes (a process pool), or a running Dask "
-                   "scheduler tcp://HOST:8786 (same as --set cluster.scheduler=...)")
-
-
 def cmd_replicate(args) -> int:
-    cfg = resolve_config(args, *_ablation_overrides(args))
+    cfg = resolve_config(args, *grid_overrides(args))
     print(f"report: {runs.replicate(args.name, cfg, overwrite=args.overwrite)}")
     return 0
 
@@ -136,7 +110,7 @@ def cmd_track(args) -> int:
 
 
 def cmd_ablate(args) -> int:
-    done = runs.ablate(args.name, resolve_config(args, *_ablation_overrides(args)),
+    done = runs.ablate(args.name, resolve_config(args, *grid_overrides(args)),
                        overwrite=args.overwrite)
     for r in done["rows"]:
         figures = "  ".join(f"{k}={float(v):.4f}" for k, v in r.items()
@@ -332,15 +306,11 @@ def _run_commands(sub) -> None:
     s = sub.add_parser("replicate", help="run every stage into runs/<name> and write the report")
     run_args(s, "run name (runs/<name>, reports/<name>.pdf)")
     visual_source_arg(s)
-    s.add_argument("--ablations", metavar="GRID",
-                   help="ablation grid trained as child runs and tabulated ('none' to skip; "
-                        "default: the project's configs/ablations.yaml; same as --set "
-                        "ablations.grid=GRID)")
+    grid_args(s, required=False, workers_help="worker processes for ablations (0: all cores)")
     s.add_argument("--voices", metavar="GRID",
                    help="voice-robust models trained and scored on real speech ('none' to "
                         "skip; default: the project's configs/voices.yaml; same as --set "
                         "voices.grid=GRID)")
-    _grid_args(s, "worker processes for ablations (0: all cores)")
     s.set_defaults(func=cmd_replicate)
 
     s = sub.add_parser("train", help="train and evaluate the mapping and the baselines "
@@ -356,9 +326,7 @@ def _run_commands(sub) -> None:
     s.set_defaults(func=cmd_track)
 
     s = sub.add_parser("ablate", help="one MLflow child run per setting of an ablation grid")
-    s.add_argument("--grid", required=True, type=Path, help="grid file, e.g. "
-                   "configs/ablations.yaml")
-    _grid_args(s, "worker processes (0: all cores)")
+    grid_args(s, required=True, workers_help="worker processes (0: all cores)")
     run_args(s, "run whose corpus and MUs are used")
     visual_source_arg(s)
     s.set_defaults(func=cmd_ablate)

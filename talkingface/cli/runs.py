@@ -11,16 +11,12 @@ import time
 
 from groundwork.errors import ParameterError
 from talkingface.executor import check_reachable, scheduler_address
-from talkingface.experiments.log import (check_tracking, grid_runs, log_ablations,
-                                        log_replication, log_train, log_voices, mlflow_run,
-                                        tracking_uri)
+from talkingface.experiments.log import (check_tracking, grid_runs, log_grid, log_replication,
+                                        log_train, log_voices, mlflow_run, tracking_uri)
 from talkingface.paths import RunPaths
-from talkingface.stages import REPLICATION, preflight, prepare_run, run
-from talkingface.stages.ablations import grid_path
+from talkingface.stages import (ABLATIONS, CEILING, GRID_STAGES, REPLICATION, VOICES, preflight,
+                                prepare_run, run)
 from talkingface.stages.base import time_summary
-from talkingface.stages.ceiling import grid_path as ceiling_grid_path, load_ceiling_grid
-from talkingface.stages.grid import load_grid
-from talkingface.stages.voices import grid_path as voices_grid_path, load_voices_grid
 
 
 def open_run(name: str, cfg, stages, *, overwrite: bool = False, runs_dir="runs",
@@ -59,25 +55,16 @@ def replicate(name: str, cfg, *, overwrite: bool = False, runs_dir="runs",
     paths = open_run(name, cfg, REPLICATION, overwrite=overwrite, runs_dir=runs_dir,
                      reports_dir=reports_dir)
     since = time.time()
-    grids = {"ablations": ("ablate", "ablations", grid_path(cfg)),
-             "ceiling": ("ceiling", "ceiling", ceiling_grid_path(cfg)),
-             "voices": ("voices", "voices", voices_grid_path(cfg))}
     with mlflow_run(cfg, run_name=name, tags={"stage": "replicate"}) as mlf:
-        with grid_runs(mlf, cfg, grids) as logs:
+        with grid_runs(mlf, cfg, GRID_STAGES.values()) as logs:
             done = run(REPLICATION, paths, cfg)
         if mlf is not None:
             log_train(mlf, done["mapping"], paths.mapping, cfg)
-            if "ablations" in done:
-                log_ablations(mlf, logs["ablations"], paths.ablations,
-                              load_grid(grid_path(cfg), cfg), seeds=cfg.ablations.seeds)
-            if "ceiling" in done:
-                steps = load_ceiling_grid(ceiling_grid_path(cfg), cfg)
-                log_ablations(mlf, logs["ceiling"], paths.stage("ceiling"), steps,
-                              seeds=cfg.ceiling.seeds, stage="ceiling", folder="ceiling",
-                              reference=next(iter(steps)))
-            if "voices" in done:
-                log_voices(mlf, logs["voices"], paths,
-                           load_voices_grid(voices_grid_path(cfg), cfg)[0])
+            for grid in (ABLATIONS, CEILING):
+                if grid.name in done:
+                    log_grid(mlf, logs[grid.name], paths.stage(grid.name), grid, cfg)
+            if VOICES.name in done:
+                log_voices(mlf, logs[VOICES.name], paths, VOICES.children(cfg))
             log_replication(mlf, paths, done)
     print("time per stage:", *time_summary(done, paths, since), sep="\n", flush=True)
     return paths.pdf
@@ -103,18 +90,16 @@ def track(name: str, cfg, *, overwrite: bool = False) -> dict:
 def ablate(name: str, cfg, *, overwrite: bool = False) -> dict:
     """The ablation grid ``ablations.grid`` on ``runs/<name>``, one MLflow child run per
     setting under a parent run."""
-    grid = grid_path(cfg)
+    grid = ABLATIONS.grid_path(cfg)
     if grid is None:
         raise ParameterError("talkingface ablate needs a grid file (--grid FILE), not 'none'")
-    paths = open_run(name, cfg, ["ablations"], overwrite=overwrite)
+    paths = open_run(name, cfg, [ABLATIONS.name], overwrite=overwrite)
     with mlflow_run(cfg, run_name=f"ablate:{grid.stem}",
-                    tags={"stage": "ablate", "grid": str(grid)}) as mlf:
-        with grid_runs(mlf, cfg, {"ablations": ("ablate", "ablations", grid)},
-                       nested=False) as logs:
-            done = run(["ablations"], paths, cfg)["ablations"]
+                    tags={"stage": ABLATIONS.tag, "grid": str(grid)}) as mlf:
+        with grid_runs(mlf, cfg, [ABLATIONS], nested=False) as logs:
+            done = run([ABLATIONS.name], paths, cfg)[ABLATIONS.name]
         if mlf is not None:
-            log_ablations(mlf, logs["ablations"], paths.ablations, load_grid(grid, cfg),
-                          seeds=cfg.ablations.seeds, nested=False)
+            log_grid(mlf, logs[ABLATIONS.name], paths.ablations, ABLATIONS, cfg, nested=False)
     return done
 
 

@@ -28,7 +28,7 @@ from talkingface.config import flatten
 from talkingface.paths import RunPaths
 from talkingface.provenance import git_commit
 from talkingface.stages.child_runs import ChildLog, logging_to
-from talkingface.stages.grid import GRID_KINDS, log_child, replicate_folder, replicate_seed
+from talkingface.stages.grid import VOICES, GridStage, log_child, replicate_folder, replicate_seed
 from talkingface.stages.voices import read_results
 
 
@@ -187,20 +187,17 @@ def log_train(mlf, summary: dict, out_dir: Path, cfg) -> None:
         log_mapping_model(mlf, out_dir / models[split], name="mapping")
 
 
-GRID_TITLES = {"ablate": "Ablations", "ceiling": "Where Table II stands: the ceiling steps",
-               "voices": "Voice-robust models"}
-
-
-def _grid_parent(mlf, cfg, stage: str, folder: str, grid: Path, nested: bool) -> ChildLog:
-    """The parent run of a grid stage: a new child of the active run (``nested``) or the active
-    run itself, as a :class:`ChildLog` the stage's tasks log their child runs under. Its tags:
-    ``stage``, ``grid`` (the kind: ablations, ceiling, voices) and ``grid_file``."""
+def _grid_parent(mlf, cfg, grid: GridStage, path: Path, nested: bool) -> ChildLog:
+    """The parent run of a grid stage (its grid file ``path``): a new child of the active run
+    named after the stage (``nested``) or the active run itself, as a :class:`ChildLog` the
+    stage's tasks log their child runs under. Its tags: ``stage`` (:attr:`GridStage.tag`),
+    ``grid`` (the kind: ablations, ceiling, voices) and ``grid_file``."""
     active = mlf.active_run()
     exp = active.info.experiment_id
-    tags = {"stage": stage, "grid": GRID_KINDS.get(stage, stage), "grid_file": str(grid)}
+    tags = {"stage": grid.tag, "grid": grid.name, "grid_file": str(path)}
     if nested:
         client = mlf.tracking.MlflowClient()
-        pid = client.create_run(exp, run_name=folder, tags={
+        pid = client.create_run(exp, run_name=grid.name, tags={
             "mlflow.parentRunId": active.info.run_id, **tags}).info.run_id
     else:
         mlf.set_tags(tags)
@@ -209,16 +206,16 @@ def _grid_parent(mlf, cfg, stage: str, folder: str, grid: Path, nested: bool) ->
 
 
 @contextmanager
-def grid_runs(mlf, cfg, grids: dict, *, nested: bool = True):
-    """Within the block the grid stages of ``grids`` (stage → (stage tag, results folder name,
-    grid file)) log their child runs under a parent run each (:mod:`talkingface.stages.child_runs`);
-    yields ``{stage: ChildLog}`` (empty without MLflow). A nested parent of a stage that
+def grid_runs(mlf, cfg, grids, *, nested: bool = True):
+    """Within the block the grid stages of ``grids`` (:class:`GridStage` s) that ``cfg`` asks
+    for log their child runs under a parent run each (:mod:`talkingface.stages.child_runs`);
+    yields ``{stage name: ChildLog}`` (empty without MLflow). A nested parent of a stage that
     failed is marked FAILED."""
     if mlf is None:
         yield {}
         return
-    logs = {name: _grid_parent(mlf, cfg, tag, folder, grid, nested)
-            for name, (tag, folder, grid) in grids.items() if grid is not None}
+    logs = {grid.name: _grid_parent(mlf, cfg, grid, grid.grid_path(cfg), nested)
+            for grid in grids if grid.has_grid(cfg)}
     try:
         with logging_to(logs):
             yield logs
@@ -230,50 +227,64 @@ def grid_runs(mlf, cfg, grids: dict, *, nested: bool = True):
         raise
 
 
-def log_ablations(mlf, log: ChildLog, out_dir: Path, grid: dict, *, seeds: int = 1,
-                  stage: str = "ablate", folder: str = "ablations", nested: bool = True,
-                  reference: str | None = None) -> None:
-    """A grid stage (the ablations, or the ceiling steps: ``stage`` tag, ``folder`` of its
-    results.csv) under its parent run ``log``: every child and seed (``grid``: name → config)
-    that its task did not log yet (a reused stage, a task without MLflow) logged from its
-    folder, exactly once; the stage's tables and its summary on the parent
-    (:func:`log_grid_summary`, against ``reference``: by default the grid's first child, or
-    ``paper``), which is then finished."""
-    for name, cfg in grid.items():
-        for k in range(seeds):
-            ck = replace(cfg, seed=replicate_seed(cfg.seed, k))
+def log_grid(mlf, log: ChildLog, out_dir: Path, grid: GridStage, cfg, *,
+             nested: bool = True) -> None:
+    """A replicated grid stage (the ablations, the ceiling steps) under its parent run.
+
+    Every child and seed of the grid ``cfg`` names that its task did not log yet (a reused
+    stage, a task without MLflow) is logged from its folder, exactly once; the stage's tables
+    and its summary go on the parent (:func:`log_grid_summary`, against the grid's reference
+    child: :meth:`GridStage.reference_child`), which is then finished.
+
+    Parameters
+    ----------
+    mlf : module
+        ``mlflow``, with the run of the command active.
+    log : ChildLog
+        The stage's parent run (:func:`grid_runs`).
+    out_dir : Path
+        The stage's folder (its children's folders, ``results.csv``, ``replicates.csv``).
+    grid : GridStage
+        The grid stage (:data:`talkingface.stages.grid.ABLATIONS` or ``CEILING``).
+    cfg : Config
+        The run's resolved config (its grid file and seeds).
+    nested : bool
+        The parent is a run of its own, finished here (False: the command's own run).
+    """
+    children = grid.children(cfg)
+    for name, child in children.items():
+        for k in range(grid.seeds(cfg)):
+            ck = replace(child, seed=replicate_seed(child.seed, k))
             where = replicate_folder(out_dir, name, ck.seed, k)
             summary = json.loads((where / "summary.json").read_text())
-            log_child(log, stage, name, k, where, ck, summary)
+            log_child(log, grid.tag, name, k, where, ck, summary)
     log.prune()  # what a worker killed while logging left unfinished
     client = mlf.tracking.MlflowClient()
     for table in ("results.csv", "replicates.csv"):
         if (out_dir / table).is_file():
-            client.log_artifact(log.parent_run_id, str(out_dir / table), folder)
+            client.log_artifact(log.parent_run_id, str(out_dir / table), grid.name)
     for figure in ("lookahead.png", "ceiling.png"):  # the stage's own figure, beside the forest
         if (out_dir / figure).is_file():
             client.log_artifact(log.parent_run_id, str(out_dir / figure))
-    if reference is None:
-        reference = "paper" if "paper" in grid else next(iter(grid))
-    log_grid_summary(client, log.parent_run_id, out_dir, stage=stage, reference=reference,
-                     key="step" if stage == "ceiling" else "setting")
+    log_grid_summary(client, log.parent_run_id, out_dir, title=grid.title,
+                     reference=grid.reference_child(children), key=grid.row_key)
     if nested:
         client.set_terminated(log.parent_run_id, "FINISHED")
 
 
-def log_grid_summary(client, run_id: str, out_dir: Path, *, stage: str, reference: str,
+def log_grid_summary(client, run_id: str, out_dir: Path, *, title: str, reference: str,
                      key: str = "setting") -> list[dict]:
     """The answer of a grid on its parent run, where the run's page shows it: per setting the
     mean test R with its 95 % interval, Δ against ``reference`` with its interval, the Holm-
     corrected p and a verdict (:func:`analysis.grid_summary.grid_summary`, from the stage's
     ``replicates.csv``) as ``summary.csv`` and the forest plot ``forest.png`` at the top of its
     artifacts, in words and as a table in the run's description, and the reference's figures
-    as its metrics (``reference.test.<split>.R`` and ``…R_ci95``). Returns the summary."""
+    as its metrics (``reference.test.<split>.R`` and ``…R_ci95``). ``title``: the grid stage's
+    (:attr:`GridStage.title`); ``key``: the column naming a child. Returns the summary."""
     from mlflow.entities import Metric, Param
 
     reps = read_replicates(out_dir / "replicates.csv")
     summary = grid_summary(reps, reference=reference, key=key)
-    title = GRID_TITLES.get(stage, stage)
     with tempfile.TemporaryDirectory(prefix="talkingface-summary-") as tmp:
         client.log_artifact(run_id, str(write_summary(summary, Path(tmp) / "summary.csv")))
         client.log_artifact(run_id, str(forest_figure(
@@ -307,10 +318,10 @@ def log_voices(mlf, log: ChildLog, paths: RunPaths, children: dict) -> None:
     folder if its task did not), and on the parent the models side by side — in-domain R and
     the real-speech figures of :mod:`analysis.speech_report` — with the default model and the
     development rule that picks it, as ``summary.csv`` and the run's description."""
-    out = paths.stage("voices")
+    out = paths.stage(VOICES.name)
     for name, cfg in children.items():
         summary = json.loads((out / name / "summary.json").read_text())
-        log_child(log, "voices", name, 0, out / name, cfg, summary)
+        log_child(log, VOICES.tag, name, 0, out / name, cfg, summary)
     log.prune()
     client = mlf.tracking.MlflowClient()
     rows = voices_summary(read_results(paths), _csv_rows(paths.stage("speech_eval") /

@@ -2,9 +2,10 @@
 
 Each line of :data:`STAGES` is one stage's whole reuse rule (see :mod:`talkingface.stages.base`):
 the config it depends on, the stages whose results it reads, and when the config switches it
-off. :data:`REPLICATION` is the order ``talkingface replicate`` runs them in; the other
-commands run the stages they need with :func:`run`, which runs missing or stale upstream stages
-first.
+off; a grid stage's rule is made from its :class:`talkingface.stages.grid.GridStage` by
+:func:`_grid_stage`. :data:`REPLICATION` is the order ``talkingface replicate`` runs them in;
+the other commands run the stages they need with :func:`run`, which runs missing or stale
+upstream stages first.
 """
 from __future__ import annotations
 
@@ -17,14 +18,23 @@ from talkingface.stages.report import build_report
 from talkingface.stages.speech_eval import evaluate_speech, set_files
 from talkingface.stages.study import (analyze, keep_real_participants, make_stimuli,
                                       simulate_participants)
-from talkingface.stages.ablations import ablate, grid_file, has_grid
-from talkingface.stages.ceiling import decompose, grid_file as ceiling_grid
-from talkingface.stages.ceiling import has_grid as has_ceiling
+from talkingface.stages.ablations import ablate
+from talkingface.stages.ceiling import decompose
+from talkingface.stages.grid import ABLATIONS, CEILING, GRID_STAGES, VOICES, GridStage
 from talkingface.stages.training import train
-from talkingface.stages.voices import grid_file as voices_grid, has_grid as has_voices
 from talkingface.stages.voices import train_voices
 
 _TRAINING_INPUTS = ("corpus", "units", "tracked")
+
+
+def _grid_stage(grid: GridStage, run, *, config: tuple, speed_only: tuple) -> Stage:
+    """The stage of ``grid``: trained on the run's training inputs; its own settings
+    (:attr:`GridStage.settings`) and its grid file's contents join its key; on when its config
+    names a grid; resumable as the grid stage says."""
+    return Stage(grid.name, run, config=(*config, *grid.settings), speed_only=speed_only,
+                 upstream=_TRAINING_INPUTS, enabled=grid.has_grid, files=grid.grid_file,
+                 resumable=grid.resumable)
+
 
 STAGES = {s.name: s for s in (
     Stage("corpus", make_corpus, config=("seed", "synth"), speed_only=("synth.workers",),
@@ -37,9 +47,8 @@ STAGES = {s.name: s for s in (
           "tracker.corpus_noise_sd"), upstream=("corpus", "units"), enabled=uses_tracked_corpus),
     Stage("mapping", train, config=("seed", "mapping"), speed_only=("mapping.workers",),
           upstream=_TRAINING_INPUTS),
-    Stage("voices", train_voices, config=("seed", "synth", "units", "mapping", "voices.grid"),
-          speed_only=("synth.workers", "mapping.workers"), upstream=_TRAINING_INPUTS,
-          enabled=has_voices, files=voices_grid, resumable=True),
+    _grid_stage(VOICES, train_voices, config=("seed", "synth", "units", "mapping"),
+                speed_only=("synth.workers", "mapping.workers")),
     Stage("speech_eval", evaluate_speech, upstream=("corpus", "units", "mapping", "voices"),
           files=set_files),
     Stage("render", render_held_out, upstream=("corpus", "keyframes", "mapping")),
@@ -48,14 +57,10 @@ STAGES = {s.name: s for s in (
     Stage("study_data", simulate_participants, config=("seed", "study"),
           upstream=("corpus", "stimuli"), guard=keep_real_participants),
     Stage("analysis", analyze, config=("seed",), upstream=("study_data",)),
-    Stage("ablations", ablate, config=("seed", "mapping", "ablations.grid", "ablations.seeds"),
-          speed_only=("mapping.workers",), upstream=_TRAINING_INPUTS, enabled=has_grid,
-          files=grid_file, resumable=True),
-    Stage("ceiling", decompose, config=("seed", "synth", "units", "mapping", "tracker.init",
-                                        "tracker.corpus_noise_sd", "ceiling.grid",
-                                        "ceiling.seeds"),
-          speed_only=("synth.workers", "mapping.workers"), upstream=_TRAINING_INPUTS,
-          enabled=has_ceiling, files=ceiling_grid, resumable=True),
+    _grid_stage(ABLATIONS, ablate, config=("seed", "mapping"), speed_only=("mapping.workers",)),
+    _grid_stage(CEILING, decompose, config=("seed", "synth", "units", "mapping", "tracker.init",
+                                            "tracker.corpus_noise_sd"),
+                speed_only=("synth.workers", "mapping.workers")),
     Stage("report", build_report, always=True),
 )}
 
@@ -87,5 +92,5 @@ def preflight(names, paths: RunPaths, cfg) -> list[str]:
     return todo
 
 
-__all__ = ["REPLICATION", "STAGES", "Stage", "preflight", "prepare_run", "read_done", "run",
-           "stale"]
+__all__ = ["ABLATIONS", "CEILING", "GRID_STAGES", "GridStage", "REPLICATION", "STAGES", "Stage",
+           "VOICES", "preflight", "prepare_run", "read_done", "run", "stale"]

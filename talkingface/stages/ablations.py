@@ -4,7 +4,8 @@ The grid (``ablations.grid``, by default ``configs/ablations.yaml``) has the for
 :mod:`talkingface.stages.grid`. Each child trains only its ``mapping.method`` (the paper's
 mapping unless the child sets a baseline) on the run's corpus and Motion Units, once per seed
 (``ablations.seeds``), as tasks on ``cluster.scheduler``; each task logs its MLflow child run
-(tags ``ablation.setting`` and ``ablation.seed``) under the stage's parent run.
+(tags ``ablation.setting``, ``ablation.seed``, …) under the stage's parent run. The stage is
+described by :data:`talkingface.stages.grid.ABLATIONS`.
 
 Files (``runs/<name>/ablations/``): the children's folders (:mod:`talkingface.stages.grid`),
 ``replicates.csv`` (one row per child and seed) and ``results.csv`` (one row per child: the mean
@@ -19,7 +20,6 @@ setting (``paper``, ``baseline-gru``: 3 frames, centred window) beside them.
 """
 from __future__ import annotations
 
-import csv
 from pathlib import Path
 
 import numpy as np
@@ -27,28 +27,48 @@ from matplotlib.lines import Line2D
 
 from analysis.figures import report_figure
 from analysis.replicates import summarise_replicates
+from face_model.corpus import read_manifest
 from mapping.features import algorithmic_latency_s
 from talkingface.paths import RunPaths
 from talkingface.stages.base import write_csv
 from talkingface.stages.child_runs import log_for
-from talkingface.stages.grid import (checked_grid, child_metrics, load_grid, resolve_grid,
-                                     run_grid)
+from talkingface.stages.grid import ABLATIONS, child_metrics, run_grid
 from talkingface.stages.motion import training_corpus
-
-DEFAULT_GRID = Path(__file__).resolve().parents[2] / "configs" / "ablations.yaml"
 
 
 def run_ablations(grid: dict, corpus_dir: Path, units_path: Path, out_dir: Path, *,
                   seeds: int = 1, scheduler: str = "local", workers: int = 0,
                   progress: bool = True, log=None, cache=None) -> list[dict]:
-    """Train every child of ``grid`` (from :func:`load_grid`) with ``seeds`` replicates on
-    ``scheduler`` (``workers`` processes, 0: all cores); write ``replicates.csv`` (one row per
-    child and seed), ``results.csv`` (one row per child: means over seeds, 95 % intervals and
-    the paired test against the reference setting) and the look-ahead figure when the grid has
-    a curve; return the rows of ``results.csv``."""
+    """Train every child of an ablation grid and tabulate them.
+
+    Parameters
+    ----------
+    grid : dict
+        ``{child: Config}`` (:func:`talkingface.stages.grid.load_grid`).
+    corpus_dir, units_path : Path
+        The corpus and the ``motion_units.npz`` every child trains on.
+    out_dir : Path
+        The stage's folder: the children's folders, ``replicates.csv`` (one row per child and
+        seed), ``results.csv`` (one row per child: means over seeds, 95 % intervals and the
+        paired test against the reference setting) and, when the grid has a look-ahead curve,
+        ``lookahead.png``.
+    seeds : int
+        Training seeds (replicates) per child.
+    scheduler, workers : str, int
+        Where the tasks run (``cluster.scheduler``) and how many processes (0: all cores).
+    log : talkingface.stages.child_runs.ChildLog or None
+        Where each task logs its MLflow child run (None: nowhere).
+    cache : Path or None
+        The content-keyed cache the tasks share.
+
+    Returns
+    -------
+    list of dict
+        The rows of ``results.csv``.
+    """
     results = run_grid({name: (corpus_dir, units_path, c) for name, c in grid.items()}, out_dir,
                        seeds=seeds, scheduler=scheduler, workers=workers, desc="ablations",
-                       progress=progress, log=log, stage="ablate", cache=cache)
+                       progress=progress, log=log, stage=ABLATIONS.tag, cache=cache)
     sr = corpus_sample_rate(corpus_dir)
     reps = [{**_result_row(name, grid[name], res, sr), "replicate": k, "seed": res["seed"]}
             for (name, k), res in results.items()]
@@ -63,14 +83,14 @@ def run_ablations(grid: dict, corpus_dir: Path, units_path: Path, out_dir: Path,
 
 def reference_setting(grid) -> str:
     """The setting the others are tested against: ``paper`` if the grid has it, else its first
-    child."""
-    return "paper" if "paper" in grid else next(iter(grid))
+    child (:meth:`talkingface.stages.grid.GridStage.reference_child`)."""
+    return ABLATIONS.reference_child(grid)
 
 
 def corpus_sample_rate(corpus_dir) -> int:
     """The sample rate of a corpus's first utterance (its manifest), Hz."""
-    with open(Path(corpus_dir) / "manifest.csv", newline="", encoding="utf-8-sig") as f:
-        return int(next(csv.DictReader(f))["sample_rate"])
+    rows = read_manifest(Path(corpus_dir) / "manifest.csv", ("sample_rate",))
+    return int(rows[0]["sample_rate"])
 
 
 def _result_row(name: str, cfg, res: dict, sample_rate: int) -> dict:
@@ -140,26 +160,12 @@ def lookahead_figure(curve: list[dict], path: Path, split: str = "utterance", *,
     return Path(path)
 
 
-def grid_path(cfg) -> Path | None:
-    """The ablation grid file of ``ablations.grid`` (None: no ablations)."""
-    return resolve_grid(cfg.ablations.grid, DEFAULT_GRID)
-
-
-def has_grid(cfg) -> bool:
-    return grid_path(cfg) is not None
-
-
-def grid_file(paths: RunPaths, cfg) -> list:
-    """The ablation grid file (its contents join the stage's key)."""
-    return checked_grid(grid_path(cfg), cfg, what="ablation grid", setting="ablations.grid")
-
-
 def ablate(paths: RunPaths, cfg) -> dict:
     """Every setting of the ablation grid trained on the run's training corpus, with
     ``ablations.seeds`` seeds each."""
-    grid = load_grid(grid_path(cfg), cfg)
+    grid = ABLATIONS.children(cfg)
     rows = run_ablations(grid, training_corpus(paths, cfg), paths.units_model, paths.ablations,
-                         seeds=cfg.ablations.seeds, scheduler=cfg.cluster.scheduler,
-                         workers=cfg.ablations.workers, progress=True, log=log_for("ablations"),
-                         cache=paths.cache)
-    return {"grid": str(grid_path(cfg)), "children": list(grid), "rows": rows}
+                         seeds=ABLATIONS.seeds(cfg), scheduler=cfg.cluster.scheduler,
+                         workers=cfg.ablations.workers, progress=True,
+                         log=log_for(ABLATIONS.name), cache=paths.cache)
+    return {"grid": str(ABLATIONS.grid_path(cfg)), "children": list(grid), "rows": rows}

@@ -20,6 +20,9 @@ seeds; ``results.csv`` has their means, the 95 % interval of R and the paired te
 first step (:func:`analysis.replicates.summarise_replicates`), ``replicates.csv`` each
 seed's figures.
 
+The stage is described by :data:`talkingface.stages.grid.CEILING` (its children's MLflow tags
+are ``ceiling.setting``, ``ceiling.seed``, …).
+
 Files (``runs/<name>/ceiling/``)::
 
     <child>/          its tables.csv, summary.json, model
@@ -37,45 +40,15 @@ import numpy as np
 from analysis.figures import report_figure
 from analysis.metrics import PAPER_TABLES
 from analysis.replicates import summarise_replicates
-from groundwork.errors import ParameterError
 from talkingface.config import flatten
 from talkingface.paths import RunPaths
 from talkingface.stages.base import write_csv
 from talkingface.stages.child_runs import log_for
 from talkingface.stages.foundation import fit_units_folder
-from talkingface.stages.grid import (checked_grid, child_metrics, grid_corpus, load_grid,
-                                     resolve_grid, run_grid)
+from talkingface.stages.grid import CEILING, child_metrics, grid_corpus, run_grid
 from talkingface.stages.motion import track_folder, training_corpus, uses_tracked_corpus
 
-DEFAULT_GRID = Path(__file__).resolve().parents[2] / "configs" / "ceiling.yaml"
-WHAT = "ceiling grid"
 PAPER_TEST_R = sum(v[0] for v in PAPER_TABLES["test"].values()) / len(PAPER_TABLES["test"])
-
-
-def grid_path(cfg) -> Path | None:
-    """The grid file of ``ceiling.grid`` (None: no decomposition)."""
-    return resolve_grid(cfg.ceiling.grid, DEFAULT_GRID)
-
-
-def has_grid(cfg) -> bool:
-    return grid_path(cfg) is not None
-
-
-def load_ceiling_grid(path, cfg) -> dict:
-    """``{child: Config}``; a child may not change the seed (:func:`load_grid`) or the Motion
-    Units' settings (every step is the run's replication with its own corpus)."""
-    children = load_grid(path, cfg, what=WHAT, shared_corpus=False)
-    for name, child in children.items():
-        if child.units != cfg.units:
-            raise ParameterError(f"{path}: child {name!r} changes the Motion Units' settings; "
-                                 "set these for the whole run")
-    return children
-
-
-def grid_file(paths: RunPaths, cfg) -> list:
-    """The grid file (its contents join the stage's key); refused here when malformed."""
-    return checked_grid(grid_path(cfg), cfg, what=WHAT, setting="ceiling.grid",
-                        load=load_ceiling_grid)
 
 
 def _changes(child, cfg) -> str:
@@ -122,21 +95,21 @@ def _inputs(children: dict, cfg, paths: RunPaths, out: Path) -> dict:
 
 def decompose(paths: RunPaths, cfg) -> dict:
     """Every step of the ceiling grid trained and measured (stage ``ceiling``)."""
-    children = load_ceiling_grid(grid_path(cfg), cfg)
-    out = paths.stage("ceiling")
+    children = CEILING.children(cfg)
+    out = paths.stage(CEILING.name)
     out.mkdir(parents=True, exist_ok=True)
     inputs = _inputs(children, cfg, paths, out / "corpora")
     results = run_grid({n: (*inputs[n], c) for n, c in children.items()}, out,
-                       seeds=cfg.ceiling.seeds, scheduler=cfg.cluster.scheduler,
+                       seeds=CEILING.seeds(cfg), scheduler=cfg.cluster.scheduler,
                        workers=cfg.ceiling.workers, desc="ceiling steps",
-                       log=log_for("ceiling"), stage="ceiling", cache=paths.cache)
+                       log=log_for(CEILING.name), stage=CEILING.tag, cache=paths.cache)
     run_corpus = training_corpus(paths, cfg)
     reps = []
     for (name, k), res in results.items():
         child = children[name]
         m = child.mapping
         metrics = child_metrics(res["summary"], m.method)
-        row = {"step": name, "changes": _changes(child, cfg), "method": m.method,
+        row = {CEILING.row_key: name, "changes": _changes(child, cfg), "method": m.method,
                "gate_front_end": m.gate_front_end,
                "corpus": ("the run's" if inputs[name][0] == run_corpus
                           else str(Path(inputs[name][0]).relative_to(out)))}
@@ -146,10 +119,11 @@ def decompose(paths: RunPaths, cfg) -> dict:
         row["seconds"] = round(res["seconds"], 1)
         reps.append({**row, "replicate": k, "seed": res["seed"]})
     write_csv(out / "replicates.csv", reps)
-    rows = summarise_replicates(reps, reference=next(iter(children)), key="step")
+    rows = summarise_replicates(reps, reference=CEILING.reference_child(children),
+                                key=CEILING.row_key)
     write_csv(out / "results.csv", rows)
     ceiling_figure(rows, out / "ceiling.png")
-    return {"grid": str(grid_path(cfg)), "children": list(children), "rows": rows}
+    return {"grid": str(CEILING.grid_path(cfg)), "children": list(children), "rows": rows}
 
 
 def ceiling_figure(rows: list[dict], path: Path, *, width: float = 1.0) -> Path:

@@ -4,7 +4,8 @@ A grid stage's tasks may run on other machines (:mod:`talkingface.executor`), so
 its own child run to the tracking server, under the stage's parent run. :class:`ChildLog` is all
 a task needs for that (the tracking URI, the experiment, the parent run), and it is picklable.
 
-A child run is keyed by its setting and seed (the tag ``ablation.key``). Logging is idempotent:
+A child run is keyed by its setting and seed (the tag ``grid.key``; children logged before it was
+named so carry ``ablation.key``, which is still read). Logging is idempotent:
 a finished child run with the key is kept and not logged again (a task run twice, or a stage
 reused and logged from its files); attempts that log at once keep one finished run between
 them; an unfinished run — left by a worker killed while it was logging — is deleted by
@@ -23,7 +24,8 @@ from contextvars import ContextVar
 from dataclasses import dataclass
 from pathlib import Path
 
-KEY_TAG = "ablation.key"
+KEY_TAG = "grid.key"
+OLD_KEY_TAG = "ablation.key"  # the key of children logged before the tag was grid.key
 _BATCH = 100  # MLflow takes at most 100 params or tags and 1000 metrics per batch
 _LOGS: ContextVar[dict] = ContextVar("child_logs", default={})
 
@@ -54,10 +56,10 @@ class ChildLog:
             max_results=50000)
 
     def _with_key(self, client, key: str) -> list:
-        """The parent's child runs (not deleted) that carry ``key``."""
-        return client.search_runs(
+        """The parent's child runs (not deleted) that carry ``key``, under either tag name."""
+        return [run for tag in (KEY_TAG, OLD_KEY_TAG) for run in client.search_runs(
             [self.experiment_id], f"tags.mlflow.parentRunId = '{self.parent_run_id}' and "
-            f"tags.`{KEY_TAG}` = '{key}'")
+            f"tags.`{tag}` = '{key}'")]
 
     def log(self, name: str, seed: int, *, tags: dict, params: dict, metrics: dict,
             files=(), config: dict | None = None, run_name: str | None = None) -> str:

@@ -1,5 +1,10 @@
 """A grid stage's machinery: its grid file, its tasks and their seed replicates.
 
+Each grid stage is described once, by a :class:`GridStage` (:data:`ABLATIONS`, :data:`CEILING`,
+:data:`VOICES`; :data:`GRID_STAGES` by kind): the setting that names its grid file, how the file
+is read and checked, its children's MLflow tags, whether it resumes. The stage table
+(:data:`talkingface.stages.STAGES`), the stages, the command line and the MLflow logging read it.
+
 A grid file (``configs/ablations.yaml``, ``configs/ceiling.yaml``, ``configs/voices.yaml``)::
 
     base:                  # settings applied to every child (optional)
@@ -41,7 +46,8 @@ import json
 import shutil
 import time
 import uuid
-from dataclasses import replace
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from analysis.evaluation import row_metrics
@@ -111,6 +117,157 @@ def load_grid(path, cfg, *, what: str = "ablation grid", extra_keys: tuple = (),
     return out
 
 
+def load_ceiling_grid(path, cfg) -> dict:
+    """``{child: Config}`` of a ceiling grid; a child may not change the seed (:func:`load_grid`)
+    or the Motion Units' settings (every step is the run's replication with its own corpus)."""
+    children = load_grid(path, cfg, what=CEILING.what, shared_corpus=False)
+    for name, child in children.items():
+        if child.units != cfg.units:
+            raise ParameterError(f"{path}: child {name!r} changes the Motion Units' settings; "
+                                 "set these for the whole run")
+    return children
+
+
+def load_voices_grid(path, cfg) -> tuple[dict, str]:
+    """``({child: Config}, default model child)`` of a voices grid; the children may not change
+    what the run's Motion Units or faces are made from (seed, units, tracker, visual source)."""
+    what = VOICES.what
+    children = load_grid(path, cfg, what=what, extra_keys=("model",))
+    model = (read_yaml(path, what) or {}).get("model")
+    if model not in children:
+        raise ParameterError(f"{path}: 'model' is {model!r}; allowed: the name of a child "
+                             f"({', '.join(children)})")
+    for name, child in children.items():
+        if child.seed != cfg.seed or child.units != cfg.units:
+            raise ParameterError(f"{path}: child {name!r} changes the seed or the Motion Units; "
+                                 "the children share the run's, so set these for the whole run")
+        same_faces = replace(child.synth, voices=cfg.synth.voices,
+                             voice_weights=cfg.synth.voice_weights, workers=cfg.synth.workers)
+        if same_faces != cfg.synth:
+            raise ParameterError(f"{path}: child {name!r} changes synth settings other than "
+                                 "synth.voices and synth.voice_weights; its corpus must show "
+                                 "the run's faces saying the run's sentences")
+    return children, model
+
+
+def _voices_children(path, cfg) -> dict:
+    """The children of a voices grid (:func:`load_voices_grid` without its default model)."""
+    return load_voices_grid(path, cfg)[0]
+
+
+@dataclass(frozen=True)
+class GridStage:
+    """One grid stage, described once: its stage, its grid file, its children's MLflow tags.
+
+    Parameters
+    ----------
+    name : str
+        The stage (in :data:`talkingface.stages.STAGES`; its folder under the run), its config
+        section (``<name>.grid``, ``<name>.workers``, ``<name>.seeds``) and the kind of grid
+        its runs' ``grid`` tag names: ``ablations``, ``ceiling`` or ``voices``.
+    tag : str
+        Its MLflow ``stage`` tag: the parent run's, and its children's ``<prefix>.stage``.
+    prefix : str
+        The prefix of its children's tags (:meth:`child_tags`).
+    what : str
+        The grid in messages (``ablation grid``).
+    default : Path
+        The project's grid file, which ``<name>.grid: default`` names.
+    load : callable
+        ``(path, cfg) -> {child: Config}``: reads a grid file and refuses the children the
+        stage cannot train.
+    title : str
+        The stage as its MLflow parent run's summary names it.
+    reference : str or None
+        The child the others are tested against, when the grid has it (else its first child).
+    row_key : str
+        The column of its ``results.csv`` that names a child.
+    replicated : bool
+        Its children train with ``<name>.seeds`` seeds each (False: one seed, the run's).
+    resumable : bool
+        A build cut off goes on from its finished tasks (:class:`talkingface.stages.base.Stage`).
+    """
+
+    name: str
+    tag: str
+    prefix: str
+    what: str
+    default: Path
+    load: Callable
+    title: str
+    reference: str | None = None
+    row_key: str = "setting"
+    replicated: bool = True
+    resumable: bool = True
+
+    @property
+    def settings(self) -> tuple:
+        """Its own config keys, which join the stage's key: ``<name>.grid`` (and
+        ``<name>.seeds`` when :attr:`replicated`)."""
+        return (f"{self.name}.grid", *((f"{self.name}.seeds",) if self.replicated else ()))
+
+    def grid_path(self, cfg) -> Path | None:
+        """The grid file ``<name>.grid`` names: ``default`` → :attr:`default`, a file as given,
+        ``none`` or empty → None (the stage is off)."""
+        grid = getattr(cfg, self.name).grid
+        if not grid or grid.lower() == "none":
+            return None
+        return self.default if grid == "default" else Path(grid)
+
+    def has_grid(self, cfg) -> bool:
+        """Whether ``cfg`` asks for the stage (a grid file, not ``none``)."""
+        return self.grid_path(cfg) is not None
+
+    def grid_file(self, paths, cfg) -> list:
+        """``[grid file]`` (its contents join the stage's key), ``[]`` for no grid; a missing or
+        malformed grid (:attr:`load` refuses it) is refused here, before the run is touched.
+        ``paths`` (the run's :class:`talkingface.paths.RunPaths`) is not read: this is the
+        stage's ``files``."""
+        path = self.grid_path(cfg)
+        if path is None:
+            return []
+        if not path.is_file():
+            raise ParameterError(f"{self.what} {path} not found ({self.name}.grid: default, "
+                                 "none or a grid file)")
+        self.load(path, cfg)
+        return [path]
+
+    def children(self, cfg) -> dict:
+        """``{child: Config}`` of the grid file ``cfg`` names, in file order."""
+        return self.load(self.grid_path(cfg), cfg)
+
+    def seeds(self, cfg) -> int:
+        """The training seeds per child: ``<name>.seeds``, or 1."""
+        return getattr(cfg, self.name).seeds if self.replicated else 1
+
+    def reference_child(self, children) -> str:
+        """The child of ``children`` the others are tested against: :attr:`reference` if the
+        grid has it, else its first child."""
+        return self.reference if self.reference in children else next(iter(children))
+
+    def child_tags(self, name: str, seed: int, k: int) -> dict:
+        """The MLflow tags of replicate ``k`` (trained with ``seed``) of child ``name``:
+        ``grid`` (:attr:`name`) and ``<prefix>.setting``, ``.seed``, ``.replicate``,
+        ``.stage`` (:attr:`tag`)."""
+        p = self.prefix
+        return {"grid": self.name, f"{p}.setting": name, f"{p}.seed": seed,
+                f"{p}.replicate": k, f"{p}.stage": self.tag}
+
+
+_CONFIGS = Path(__file__).resolve().parents[2] / "configs"  # the project's grid files
+ABLATIONS = GridStage("ablations", tag="ablate", prefix="ablation", what="ablation grid",
+                      default=_CONFIGS / "ablations.yaml", load=load_grid, title="Ablations",
+                      reference="paper")
+CEILING = GridStage("ceiling", tag="ceiling", prefix="ceiling", what="ceiling grid",
+                    default=_CONFIGS / "ceiling.yaml", load=load_ceiling_grid,
+                    title="Where Table II stands: the ceiling steps", row_key="step")
+VOICES = GridStage("voices", tag="voices", prefix="voices", what="voices grid",
+                   default=_CONFIGS / "voices.yaml", load=_voices_children,
+                   title="Voice-robust models", replicated=False)
+GRID_STAGES = {g.name: g for g in (ABLATIONS, CEILING, VOICES)}  # kind (the grid tag) → stage
+_BY_TAG = {g.tag: g for g in GRID_STAGES.values()}
+
+
 def child_metrics(summary: dict, method: str) -> dict:
     """MLflow metrics of one child: ``<split>.<expression>.<part>.<metric>`` and means."""
     out = {}
@@ -150,10 +307,6 @@ def replicate_folder(out_dir: Path, name: str, seed: int, k: int) -> Path:
     return out_dir / name if k == 0 else out_dir / "replicates" / f"seed-{seed}" / name
 
 
-# The ``grid`` tag of a grid stage's child runs (its ``stage`` tag → the kind of grid).
-GRID_KINDS = {"ablate": "ablations", "ceiling": "ceiling", "voices": "voices"}
-
-
 def mlflow_child_metrics(metrics: dict) -> dict:
     """:func:`child_metrics` under the names a child run logs them, test figures first in
     MLflow's alphabetical lists (and so its default chart axes): ``test.<split>.<figure>`` for
@@ -177,15 +330,36 @@ def mlflow_child_metrics(metrics: dict) -> dict:
 
 
 def log_child(log, stage: str, name: str, k: int, folder: Path, cfg, summary: dict) -> str:
-    """Log one replicate of a child as an MLflow child run (``log``: a
-    :class:`talkingface.stages.child_runs.ChildLog`); idempotent. The run is named ``<setting>/<seed>``;
-    the setting is a param (``setting``, so it can be a chart axis) and a tag, and the tag
-    ``grid`` says which grid it belongs to (:data:`GRID_KINDS`)."""
+    """Log one replicate of a child as an MLflow child run; idempotent.
+
+    Parameters
+    ----------
+    log : talkingface.stages.child_runs.ChildLog
+        Where the grid's child runs go.
+    stage : str
+        The grid stage's ``stage`` tag (:attr:`GridStage.tag`: ``ablate``, ``ceiling``,
+        ``voices``).
+    name, k : str, int
+        The child (its setting) and its replicate.
+    folder : Path
+        The replicate's folder (its files become the run's artifacts).
+    cfg : Config
+        The child's settings, with the replicate's seed.
+    summary : dict
+        The task's ``summary.json``.
+
+    Returns
+    -------
+    str
+        The id of the child run that stays. It is named ``<setting>/<seed>``; the setting is a
+        param (``setting``, so it can be a chart axis); its tags are the grid stage's
+        (:meth:`GridStage.child_tags`: ``grid`` and ``<prefix>.setting`` …) and
+        ``mapping.method``.
+    """
     m = cfg.mapping
     return log.log(name, cfg.seed, run_name=f"{name}/{cfg.seed}",
-                   tags={"grid": GRID_KINDS.get(stage, stage), "ablation.setting": name,
-                         "ablation.seed": cfg.seed, "ablation.replicate": k,
-                         "ablation.stage": stage, "mapping.method": m.method},
+                   tags={**_BY_TAG[stage].child_tags(name, cfg.seed, k),
+                         "mapping.method": m.method},
                    params={"setting": name, **flatten(cfg)},
                    metrics={**mlflow_child_metrics(child_metrics(summary, m.method)),
                             "time.seconds": summary["seconds"]},
@@ -299,25 +473,3 @@ def grid_corpus(folder: Path, synth, seed: int) -> Path:
     if not (Path(folder) / "manifest.csv").is_file():
         synthesize_corpus(folder, synth, seed)
     return Path(folder)
-
-
-def resolve_grid(grid: str, default: Path) -> Path | None:
-    """A grid setting as a file: ``default`` → the project's grid, ``none`` or empty → None."""
-    if not grid or grid.lower() == "none":
-        return None
-    return default if grid == "default" else Path(grid)
-
-
-def checked_grid(path: Path | None, cfg, *, what: str, setting: str, load=load_grid) -> list:
-    """``[path]`` of a grid stage's grid file (its contents join the stage's key), ``[]`` for no
-    grid; a missing or malformed grid (``load`` refuses it) is refused here, before the run is
-    touched."""
-    if path is None:
-        return []
-    if not path.is_file():
-        raise ParameterError(f"{what} {path} not found ({setting}: default, none or a grid "
-                             "file)")
-    load(path, cfg)
-    return [path]
-
-

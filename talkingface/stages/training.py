@@ -1,4 +1,4 @@
-"""The mapping and its ablations (paper §VI, §VII-A): two stages.
+"""The ``mapping`` stage (paper §VI, §VII-A) and the training function the grid stages share.
 
 ``mapping/`` — every method (the paper's gated MLP and the baselines) trained on both splits by
 :mod:`mapping.experiment` and measured by :mod:`analysis.evaluation`:
@@ -10,7 +10,8 @@
     <method>_<split>.tfmap the primary method trained on each split (AudioMapping file)
     trajectories.png  predicted vs true MUPs of test sentences
 
-The ``ablations/`` stage (:mod:`talkingface.stages.ablations`) trains with the same function.
+Each task of a grid stage (``ablations``, ``ceiling``, ``voices``: :mod:`talkingface.stages.grid`)
+trains with the same function, :func:`train_and_evaluate`, on its own child's settings.
 """
 from __future__ import annotations
 

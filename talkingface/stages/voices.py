@@ -20,11 +20,14 @@ Files (``runs/<name>/voices/``)::
 The in-domain R puts every child on the paper's Table II footing: its predictions for the test
 sentences of the run's own corpus (the same sentences every child held out, since the split is
 drawn by sentence with the run's seed), measured as :mod:`analysis.evaluation` measures Table II.
+
+The stage is described by :data:`talkingface.stages.grid.VOICES` (its grid is read by
+:func:`talkingface.stages.grid.load_voices_grid`; its children's MLflow tags are
+``voices.setting``, ``voices.seed``, …).
 """
 from __future__ import annotations
 
 import csv
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -37,54 +40,11 @@ from groundwork.errors import ParameterError
 from mapping.checkpoint import AudioMapping
 from mapping.dataset import build_dataset, split_masks
 from mapping.experiment import SPLIT_SEED_OFFSET, predict_utterance, recognise_context
-from talkingface.config import read_yaml
 from talkingface.paths import RunPaths
 from talkingface.stages.base import read_done, write_csv
 from talkingface.stages.child_runs import log_for
-from talkingface.stages.grid import grid_corpus, load_grid, resolve_grid, run_children
+from talkingface.stages.grid import VOICES, grid_corpus, load_voices_grid, run_children
 from talkingface.stages.motion import training_corpus
-
-DEFAULT_GRID = Path(__file__).resolve().parents[2] / "configs" / "voices.yaml"
-WHAT = "voices grid"
-
-
-def grid_path(cfg) -> Path | None:
-    """The grid file of ``voices.grid`` (None: no voice-robust models)."""
-    return resolve_grid(cfg.voices.grid, DEFAULT_GRID)
-
-
-def has_grid(cfg) -> bool:
-    return grid_path(cfg) is not None
-
-
-def load_voices_grid(path, cfg) -> tuple[dict, str]:
-    """``({child: Config}, default model child)`` of a voices grid; the children may not change
-    what the run's Motion Units or faces are made from (seed, units, tracker, visual source)."""
-    children = load_grid(path, cfg, what=WHAT, extra_keys=("model",))
-    model = (read_yaml(path, WHAT) or {}).get("model")
-    if model not in children:
-        raise ParameterError(f"{path}: 'model' is {model!r}; allowed: the name of a child "
-                             f"({', '.join(children)})")
-    for name, child in children.items():
-        if child.seed != cfg.seed or child.units != cfg.units:
-            raise ParameterError(f"{path}: child {name!r} changes the seed or the Motion Units; "
-                                 "the children share the run's, so set these for the whole run")
-        same_faces = replace(child.synth, voices=cfg.synth.voices,
-                             voice_weights=cfg.synth.voice_weights, workers=cfg.synth.workers)
-        if same_faces != cfg.synth:
-            raise ParameterError(f"{path}: child {name!r} changes synth settings other than "
-                                 "synth.voices and synth.voice_weights; its corpus must show "
-                                 "the run's faces saying the run's sentences")
-    return children, model
-
-
-def grid_file(paths: RunPaths, cfg) -> list:
-    """The grid file (its contents join the stage's key); a malformed grid is refused here,
-    before the run is touched."""
-    if not has_grid(cfg):
-        return []
-    load_voices_grid(grid_path(cfg), cfg)
-    return [grid_path(cfg)]
 
 
 def _corpora(children: dict, cfg, paths: RunPaths, out: Path) -> dict:
@@ -118,15 +78,15 @@ def in_domain_R(tfmap: Path, data: list, masks: list, scale, units) -> dict:
 def train_voices(paths: RunPaths, cfg) -> dict:
     """Every child of the voices grid, trained (``voices.workers`` processes, 0: all cores)
     and measured (stage ``voices``)."""
-    children, model = load_voices_grid(grid_path(cfg), cfg)
-    out = paths.stage("voices")
+    children, model = load_voices_grid(VOICES.grid_path(cfg), cfg)
+    out = paths.stage(VOICES.name)
     out.mkdir(parents=True, exist_ok=True)
     corpora = _corpora(children, cfg, paths, out / "corpora")
     summaries = run_children({name: (corpora[name], paths.units_model, child)
                               for name, child in children.items()}, out,
                              scheduler=cfg.cluster.scheduler, workers=cfg.voices.workers,
                              desc="voice-robust models", cache=paths.cache,
-                             log=log_for("voices"), stage="voices")
+                             log=log_for(VOICES.name), stage=VOICES.tag)
     units = MotionUnits.load(paths.units_model)
     own_corpus = load_corpus(training_corpus(paths, cfg))
     own: dict = {}  # (n_mfcc, deltas) -> (data, masks, scale) of the run's corpus
@@ -135,8 +95,8 @@ def train_voices(paths: RunPaths, cfg) -> dict:
         m = child.mapping
         tfmap = out / name / f"{m.method}_utterance.tfmap"
         if not tfmap.is_file():
-            raise ParameterError(f"{WHAT} child {name!r} trained no utterance-split model; keep "
-                                 "'utterance' in its mapping.splits")
+            raise ParameterError(f"{VOICES.what} child {name!r} trained no utterance-split "
+                                 "model; keep 'utterance' in its mapping.splits")
         key = (m.n_mfcc, m.deltas, recognise_context(m), m.window_align)
         if key not in own:
             data = build_dataset(own_corpus, units, n_mfcc=m.n_mfcc, deltas=m.deltas,
@@ -158,7 +118,7 @@ def train_voices(paths: RunPaths, cfg) -> dict:
                      **in_domain_R(tfmap, *own[key], units),
                      "seconds": round(summaries[name]["seconds"], 1)})
     write_csv(out / "results.csv", rows)
-    return {"grid": str(grid_path(cfg)), "model": model, "models": models, "rows": rows}
+    return {"grid": str(VOICES.grid_path(cfg)), "model": model, "models": models, "rows": rows}
 
 
 def voices_models(paths: RunPaths) -> dict:

@@ -20,12 +20,12 @@ from analysis.perception_models import (
 )
 from analysis.planning import (
     fit_study,
-    mcnemar_exact,
     model_recovery,
     paper_fits,
     power_visual_drop,
     simulate_counts,
 )
+from analysis.stats import mcnemar_exact
 from analysis.study_data import PAPER_TALLIES, trials_from_tallies
 from groundwork.errors import ParameterError
 
@@ -189,12 +189,16 @@ def test_power_grows_with_n_and_with_the_drop():
     assert max(null) <= 0.05 + 0.02  # the exact test keeps its level
 
 
-def test_exact_mcnemar_equals_the_binomial_test():
-    for d in range(1, 26):
-        for b in range(d + 1):
-            assert mcnemar_exact(b, d - b) == pytest.approx(
-                stats.binomtest(b, d, 0.5).pvalue, rel=1e-9, abs=1e-15)
-    assert mcnemar_exact(0, 0) == 1.0
+def test_exact_mcnemar_on_arrays_equals_the_binomial_test():
+    """The power simulation tests arrays of counts at once (analysis.stats.mcnemar_exact)."""
+    d = np.repeat(np.arange(1, 26), np.arange(2, 27))
+    b = np.concatenate([np.arange(k + 1) for k in range(1, 26)])
+    p = mcnemar_exact(b, d - b)["p_exact"]
+    assert p.shape == b.shape
+    for pi, bi, di in zip(p, b, d):
+        assert pi == pytest.approx(stats.binomtest(int(bi), int(di), 0.5).pvalue, rel=1e-9,
+                                   abs=1e-15)
+    assert mcnemar_exact(np.zeros(3, int), np.zeros(3, int))["p_exact"].tolist() == [1.0] * 3
 
 
 def test_fit_study_for_the_report(paper_df):

@@ -190,6 +190,10 @@ def test_seen_speakers_are_the_real_sources_of_the_training_voices(tmp_path):
     assert training_speakers(corpus) == frozenset()
     (corpus / "corpus.json").write_text(json.dumps({"settings": {"backend": "flite"}}))
     assert training_speakers(corpus) == {"arctic_slt"}
+    (corpus / "manifest.csv").unlink()
+    with pytest.raises(CorpusError, match=r"manifest\.csv: manifest not found \(the training "
+                       r"corpus's manifest is needed to tell seen from unseen speakers\)"):
+        training_speakers(corpus)
 
 
 def test_the_set_is_split_by_speaker_into_development_and_test_parts(speech_set):

@@ -94,6 +94,25 @@ def test_mcnemar_against_statsmodels_and_binomial_sums(b, c):
 def test_mcnemar_rejects_negative_counts():
     with pytest.raises(ParameterError, match="b=-1"):
         stats.mcnemar_exact(-1, 3)
+    with pytest.raises(ParameterError, match="non-negative integers"):
+        stats.mcnemar_exact(np.array([1, -1]), np.array([2, 2]))
+    with pytest.raises(ParameterError, match="non-negative integers"):
+        stats.mcnemar_exact(np.array([1.5]), np.array([2]))
+
+
+def test_mcnemar_on_arrays_is_the_scalar_test_elementwise():
+    """One test for both uses: a cell's counts (numbers) and thousands of simulated studies
+    (arrays, analysis.planning); the arrays' exact p is the binomial sum it was computed with
+    in planning, bit for bit."""
+    b, c = np.meshgrid(np.arange(0, 30), np.arange(0, 30))
+    r = stats.mcnemar_exact(b, c)
+    assert r["p_exact"].shape == r["p_midp"].shape == b.shape
+    np.testing.assert_array_equal(r["n_discordant"], b + c)
+    for i, j in [(0, 0), (3, 3), (1, 7), (7, 1), (0, 29), (12, 17)]:
+        one = stats.mcnemar_exact(int(b[i, j]), int(c[i, j]))
+        assert (r["p_exact"][i, j], r["p_midp"][i, j]) == (one["p_exact"], one["p_midp"])
+    binomial = np.minimum(1.0, 2 * sps.binom.cdf(np.minimum(b, c), b + c, 0.5))
+    np.testing.assert_array_equal(r["p_exact"], binomial)
 
 
 # --- Stuart–Maxwell ------------------------------------------------------------------------

@@ -15,6 +15,9 @@ from analysis.study_data import (
     write_study_data,
 )
 from groundwork.errors import ParameterError
+from study.columns import ALLOWED_CODES, COLUMNS, csv_text
+from study.data import SessionFile, trial_row
+from study.design import RESPONSES, session_trials
 
 
 @pytest.fixture
@@ -187,3 +190,53 @@ def test_a_participant_id_with_a_newline_is_refused(paper_dir):
     _edit(paper_dir, "T04", lambda rows: [dict(r, participant_id="T04\n") for r in rows])
     with pytest.raises(ParameterError, match=r"row 2: participant id 'T04\\n' is not allowed"):
         load_study_data(paper_dir)
+
+
+# --- one contract: what the study writes is what the analysis reads ------------------------
+def test_a_session_written_by_the_study_is_read_with_every_contract_column(tmp_path):
+    """study.columns is the one definition of the data file: rows appended by the study's
+    SessionFile come back from the analysis with every column and value as written."""
+    written = {}
+    for pid, seq in (("P01", "SR"), ("P02", "RS")):
+        trials = session_trials(pid, seq, 5)
+        session = SessionFile(tmp_path, pid, trials)
+        for t, response in zip(trials, RESPONSES * 7):
+            row = trial_row(t, participant_id=pid, sequence=seq, response=response,
+                            response_key=response[0], rt_s=0.8, simulated=False,
+                            responder_model="human", session=1,
+                            qc={"n_frames": 90, "frames_late": 0, "frame_interval_ms_mean": 16.7,
+                                "frame_interval_ms_max": 17.2, "audio_onset_s": 0.004},
+                            timestamp="2024-05-01T10:00:00+0200")
+            session.append(row)
+            written[(pid, t.trial_index)] = row
+    df = load_study_data(tmp_path)
+    assert list(df.columns) == [*COLUMNS, "file", "row"]
+    assert len(df) == len(written) == 54
+    for _, r in df.iterrows():
+        expected = written[(r["participant_id"], r["trial_index"])]
+        for c in COLUMNS:
+            got = str(r[c]).lower() if c == "simulated" else str(r[c])
+            assert got == str(expected[c]), c
+
+
+def test_analysis_refuses_what_the_contract_does_not_allow(paper_dir):
+    """The codes the analysis accepts are study.columns.ALLOWED_CODES, no other list."""
+    path = paper_dir / "sub-T01" / "sub-T01_task-emotion_beh.csv"
+    for col, allowed in ALLOWED_CODES.items():
+        text = path.read_text()
+        _edit(paper_dir, "T01", lambda rows, col=col: [dict(rows[0], **{col: "bogus"}),
+                                                        *rows[1:]])
+        with pytest.raises(ParameterError, match=f"row 2: {col} 'bogus' is not a known code; "
+                                                 f"allowed: {', '.join(allowed)}"):
+            load_study_data(paper_dir)
+        path.write_text(text)
+
+
+def test_write_study_data_writes_the_studys_format(paper_dir):
+    """The tallies' data files are the text study.columns.csv_text makes of their rows."""
+    df = load_study_data(paper_dir)
+    for pid, rows in df.groupby("participant_id"):
+        path = paper_dir / f"sub-{pid}" / f"sub-{pid}_task-emotion_beh.csv"
+        records = [{c: str(r[c]).lower() if c == "simulated" else str(r[c]) for c in COLUMNS}
+                   for _, r in rows.sort_values("trial_index").iterrows()]
+        assert path.read_bytes() == csv_text(records).encode("utf-8")

@@ -123,6 +123,11 @@ def test_corpus_hash_is_stable_and_sees_damage(small_corpus_dir, corpus_copy):
     m[0, 0, 0] += 0.5
     np.save(path, m)
     assert corpus_hash(corpus_copy) != corpus_hash(small_corpus_dir)
+    # the manifest is read by the one reader: a missing file column is named
+    _write_rows(corpus_copy, [{k: v for k, v in r.items() if k != "markers"}
+                              for r in _rows(corpus_copy)])
+    with pytest.raises(CorpusError, match=r"manifest\.csv: missing columns \['markers'\]"):
+        corpus_hash(corpus_copy)
 
 
 # -- the five damaged files of the acceptance list -------------------------------------------

@@ -76,3 +76,14 @@ def test_an_existing_folder_is_not_overwritten(subset, units, tracked):
     assert {p.name: p.stat().st_mtime_ns for p in out.iterdir()} == before
     with pytest.raises(ParameterError, match=r"init 'eyes'; allowed: markers, corners, image"):
         track_corpus(subset, units, out.parent / "x", init="eyes", progress=False)
+
+
+def test_overwrite_swaps_the_new_folder_in_whole(subset, units, tmp_path):
+    one = Corpus(root=subset.root, info=subset.info, utterances=subset.utterances[:1])
+    out = tmp_path / "tracked"
+    out.mkdir()
+    (out / "stale.txt").write_text("from before")
+    track_corpus(one, units, out, seed=3, workers=1, progress=False, overwrite=True)
+    assert not (out / "stale.txt").exists()
+    assert [u.utt_id for u in load_corpus(out).utterances] == [one.utterances[0].utt_id]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tracked"]  # no partial, no replaced

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import soundfile as sf
 
-from groundwork.audio import AudioFileError, read_wav, write_wav
+from groundwork.audio import AudioFileError, read_wav, seconds_to_samples, write_wav
 from groundwork.errors import CorpusError, ParameterError
 
 SR = 22050
@@ -171,3 +171,18 @@ def test_an_unreadable_file_is_refused_with_its_name(tmp_path, tone, name, make,
     assert isinstance(err, CorpusError) and isinstance(err, ParameterError)
     assert str(err).startswith(str(path)) and "\n" not in str(err)
     assert re.match(message, str(err)[len(str(path)):]), str(err)
+
+
+@pytest.mark.parametrize("seconds, sr, samples", [
+    (0.025, 22050, 551),  # the 25 ms MFCC window: 551.25
+    (0.025, 44100, 1102),  # 1102.5: Python rounds halves to even
+    (0.025, 48000, 1200),
+    (0.01, 16000, 160),
+    (0.0, 22050, 0),
+    (1.5, 8000, 12000),
+    (0.00001, 22050, 0),  # shorter than half a sample: callers wrap it in max(1, ...)
+])
+def test_seconds_to_samples_rounds_to_the_nearest_sample(seconds, sr, samples):
+    n = seconds_to_samples(seconds, sr)
+    assert n == samples and type(n) is int
+    assert n == int(round(seconds * sr))  # the inline conversion it replaced, bit for bit

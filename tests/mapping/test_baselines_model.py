@@ -12,7 +12,7 @@ from face_model.motion_units import fit_corpus_units
 from groundwork.audio import resample
 from groundwork.errors import NotFittedError, ParameterError
 from mapping import BASELINES, METHODS, Baseline, GatedMLP, build_dataset, make_mapper, mfcc
-from mapping.checkpoint import FORMAT, AudioMapping, rest_mups
+from mapping.checkpoint import KIND, VERSION, AudioMapping, rest_mups
 from mapping.config import MappingConfig, TrainSettings
 from mapping.dataset import split_masks
 from mapping.features import audio_features, frame_rms_dbfs
@@ -187,12 +187,13 @@ def test_audio_mapping_matches_the_method(small_corpus, corpus_model):
 def test_save_load_round_trip(small_corpus, corpus_model, tmp_path):
     path = corpus_model.save(tmp_path / "models" / "m.tfmap")
     assert path.is_file()
-    with np.load(path, allow_pickle=False) as z:  # numbers and a JSON header, nothing pickled
-        header = json.loads(str(z["header"]))
-    assert FORMAT == "talkingface.mapping/3"
-    assert header["format"] == FORMAT and header["method"] == "gated_mlp"
-    assert header["rest_mups"] == corpus_model.rest_mups.tolist()
-    assert header["silence_dbfs"] == corpus_model.silence_dbfs
+    with np.load(path, allow_pickle=False) as z:  # numbers and a JSON record, nothing pickled
+        record = json.loads(str(z["metadata"]))
+    assert (KIND, VERSION) == ("audio_mapping", 4)
+    assert (record["kind"], record["version"]) == (KIND, VERSION)
+    assert record["method"] == "gated_mlp"
+    assert record["rest_mups"] == corpus_model.rest_mups.tolist()
+    assert record["silence_dbfs"] == corpus_model.silence_dbfs
     loaded = AudioMapping.load(path)
     assert (loaded.sample_rate, loaded.fps, loaded.n_mfcc, loaded.deltas, loaded.n_utterance) == (
         corpus_model.sample_rate, corpus_model.fps, 10, False, 7)

@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 
+from groundwork import modelfile
 from mapping.animator import FaceAnimator, StreamingAnimator
 from mapping.checkpoint import AudioMapping
 from tests.mapping.small_mapping import stream_frames, train_small
@@ -64,22 +65,25 @@ def test_the_model_file_keeps_cmvn_and_an_old_file_loads_without_it(trained, sma
                                   mapping.mapper.context_.cmvn_.prior_var_)
     np.testing.assert_array_equal(loaded.predict_audio(u.audio, u.sample_rate),
                                   mapping.predict_audio(u.audio, u.sample_rate))
-    header = json.loads(str(np.load(path)["header"]))
+    header = json.loads(str(np.load(path)["metadata"]))
     assert header["method_params"]["context"]["cmvn"] == "meanvar"
     assert header["method_params"]["cmvn_warmup_frames"] == 20
     assert "mapper/context/cmvn/mean" in header["arrays"]
 
 
 def test_a_model_saved_before_cmvn_loads_as_none(small_corpus, tmp_path):
-    """Strip the CMVN keys from a model without CMVN, as an older version wrote it."""
+    """Strip the CMVN keys from a model without CMVN, as an older version (format /3: the
+    record under ``header``, the arrays' SHA-256) wrote it."""
     m = train_small(small_corpus, method="linear", epochs=600).mapping
     path = m.save(tmp_path / "old.tfmap")
 
     with np.load(path, allow_pickle=False) as z:
         members = {name: z[name] for name in z.files}
-    header = json.loads(str(members.pop("header")))
+    header = json.loads(str(members.pop("metadata")))
     for d in (header["method_params"], header["method_params"]["context"]):
         del d["cmvn"], d["cmvn_warmup_frames"]
+    del header["kind"], header["version"]
+    header.update(format="talkingface.mapping/3", sha256=modelfile.checksum(members))
     with open(path, "wb") as f:
         np.savez(f, header=np.array(json.dumps(header)), **members)
     old = AudioMapping.load(path)

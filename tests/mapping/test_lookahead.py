@@ -6,6 +6,7 @@ import json
 import numpy as np
 import pytest
 
+from groundwork import modelfile
 from groundwork.errors import ParameterError
 from mapping.animator import FaceAnimator, StreamingAnimator
 from mapping.checkpoint import AudioMapping
@@ -105,8 +106,9 @@ def test_a_model_saved_before_the_alignment_existed_loads_centred(causal, tmp_pa
     assert AudioMapping.load(path).window_align == "right"
     with np.load(path, allow_pickle=False) as z:
         members = {name: z[name] for name in z.files}
-    header = json.loads(str(members.pop("header")))
-    del header["window_align"]
+    header = json.loads(str(members.pop("metadata")))  # as format /3 wrote it
+    del header["window_align"], header["kind"], header["version"]
+    header.update(format="talkingface.mapping/3", sha256=modelfile.checksum(members))
     with open(path, "wb") as f:
         np.savez(f, allow_pickle=False, header=np.array(json.dumps(header)), **members)
     assert AudioMapping.load(path).window_align == "centre"

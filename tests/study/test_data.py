@@ -2,10 +2,18 @@
 resume, complete sessions never reopened, and an allocation list that logs every change."""
 import csv
 import json
+from collections import Counter
 
 import pytest
 
 from groundwork.errors import ParameterError
+from study.columns import (
+    ALLOWED_CODES,
+    BLOCK_SIZES,
+    REQUIRED_COLUMNS,
+    csv_text,
+    read_data_file,
+)
 from study.data import (
     COLUMNS,
     Allocation,
@@ -13,9 +21,10 @@ from study.data import (
     data_path,
     read_rows,
     trial_row,
+    write_atomic,
     write_dataset_description,
 )
-from study.design import session_trials
+from study.design import N_TRIALS, RESPONSES, session_trials
 
 
 def _row(trial, response="neutral"):
@@ -126,3 +135,36 @@ def test_checking_a_data_file_writes_nothing(tmp_path):
     assert not (tmp_path / "sub-P02").exists()
     with pytest.raises(ParameterError, match=r"participant id 'P01\\n' is not allowed"):
         Allocation(tmp_path).release("P01\n")
+
+
+def test_the_planned_trials_hold_the_contracts_codes_and_block_sizes():
+    """study.columns describes the rows the study writes: every code of every planned trial is
+    allowed, and the blocks have the sizes the analysis checks."""
+    for pid, seq in (("P01", "SR"), ("P02", "RS")):
+        rows = [_row(t, response=r) for t, r in zip(session_trials(pid, seq, 7),
+                                                     RESPONSES * 7)]
+        for r in rows:
+            for col, allowed in ALLOWED_CODES.items():
+                assert r[col] in allowed, (col, r[col])
+            assert set(REQUIRED_COLUMNS) <= set(COLUMNS) and set(COLUMNS) <= set(r)
+        blocks = Counter((r["block"], r["period"]) for r in rows)
+        assert dict(blocks) == BLOCK_SIZES and sum(BLOCK_SIZES.values()) == N_TRIALS
+        assert list(blocks) == list(BLOCK_SIZES)  # the session order
+
+
+def test_a_session_file_is_the_text_of_its_rows(tmp_path):
+    """Appended one by one or written at once (csv_text), a data file is the same bytes."""
+    trials, s = _write(tmp_path, 27)
+    fields, rows, torn = read_data_file(s.path)
+    assert (fields, torn) == (list(COLUMNS), False) and read_rows(s.path) == (rows, torn)
+    assert s.path.read_bytes() == csv_text(rows).encode("utf-8")
+    assert csv_text(rows[:1]).splitlines()[0] == ",".join(COLUMNS)
+    assert csv_text(rows[1:], header=False) == "".join(
+        csv_text([r]).split("\n", 1)[1] for r in rows[1:])
+
+
+def test_write_atomic_writes_through_a_private_temporary_file(tmp_path):
+    path = tmp_path / "new" / "sidecar.json"
+    write_atomic(path, '{"a": 1}\n')
+    assert path.read_bytes() == b'{"a": 1}\n'
+    assert sorted(p.name for p in path.parent.iterdir()) == ["sidecar.json"]

@@ -362,7 +362,7 @@ def test_refusals_change_nothing(sessions, stimuli_dir, env, tmp_path):
     res = run_cli(command(study, stimuli_dir, "P99", "--resume"), env, tmp_path, xvfb=False)
     assert res.returncode == 2 and "no session to resume" in res.stderr, res.stderr
     res = run_cli(command(study, tmp_path / "nowhere", "P99"), env, tmp_path, xvfb=False)
-    assert res.returncode == 2 and "manifest.csv not found" in res.stderr, res.stderr
+    assert res.returncode == 2 and "manifest.csv: manifest not found" in res.stderr, res.stderr
     res = run_cli(command(study, stimuli_dir, "P99", "--seed", str(SEED + 1)), env, tmp_path,
                   xvfb=False)
     assert res.returncode == 2 and f"was made with seed {SEED}" in res.stderr, res.stderr

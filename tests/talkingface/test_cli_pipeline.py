@@ -104,7 +104,7 @@ def test_replicate_writes_runs_report_and_mlflow(workdir, capsys):
     # the ceiling steps: a parent run with one child per step; a step that changes synth has
     # its own corpus; the report's section has every step and the paper's value
     parent = next(c for c in runs if c.data.tags.get("stage") == "ceiling")
-    steps = {c.data.tags.get("ablation.setting") for c in runs
+    steps = {c.data.tags.get("ceiling.setting") for c in runs
              if c.data.tags.get("mlflow.parentRunId") == parent.info.run_id}
     assert steps == {"ours", "no-brow-motion", "tracked", "oracle"}
     assert parent.data.tags["grid"] == "ceiling" and parent.data.params["reference"] == "ours"

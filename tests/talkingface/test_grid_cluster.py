@@ -15,7 +15,7 @@ from talkingface.cli.main import main
 from talkingface.cli.runs import check_workers_log
 from talkingface.config import apply_overrides, load_config
 from talkingface.executor import check_reachable, map_tasks
-from talkingface.stages.child_runs import KEY_TAG, ChildLog
+from talkingface.stages.child_runs import KEY_TAG, OLD_KEY_TAG, ChildLog
 from talkingface.stages.foundation import fit_units_folder
 from talkingface.stages.grid import child_metrics, replicate_folder, run_grid
 
@@ -149,6 +149,21 @@ def test_a_child_logged_twice_half_logged_or_by_racing_attempts_is_one_child_run
     assert racer == first
     assert sorted(r.info.run_id for r in log.children()) == sorted([first, other])
     assert log.prune() == 0
+
+
+def test_a_child_logged_under_the_old_key_tag_is_found_not_logged_again(tmp_path):
+    log = _store(tmp_path, "old-key")
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(log.uri)
+    old = client.create_run(log.experiment_id, run_name="paper/seed-2002", tags={
+        "mlflow.parentRunId": log.parent_run_id, OLD_KEY_TAG: "paper/seed-2002"}).info.run_id
+    client.set_terminated(old, "FINISHED")
+    assert KEY_TAG == "grid.key" != OLD_KEY_TAG
+    kept = log.log("paper", 2002, tags={}, params={"seed": 2002}, metrics={"test.R": 0.5})
+    assert kept == old and [r.info.run_id for r in log.children()] == [old]
+    new = log.log("paper", 3002, tags={}, params={"seed": 3002}, metrics={"test.R": 0.5})
+    assert client.get_run(new).data.tags[KEY_TAG] == "paper/seed-3002"
 
 
 def test_a_finished_task_is_found_not_trained_again_and_racing_attempts_keep_one_folder(

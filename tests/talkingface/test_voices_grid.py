@@ -5,7 +5,7 @@ import pytest
 
 from groundwork.errors import ParameterError
 from talkingface.config import Config, load_config
-from talkingface.stages.voices import DEFAULT_GRID, load_voices_grid
+from talkingface.stages.grid import VOICES, load_voices_grid
 
 GRID = """model: {model}
 base:
@@ -19,7 +19,7 @@ children:
 
 
 def test_the_project_grid_holds_the_issue_configurations():
-    children, model = load_voices_grid(DEFAULT_GRID, Config())
+    children, model = load_voices_grid(VOICES.default, Config())
     assert list(children) == ["one-voice", "many-voices", "many-cmvn", "many-cmvn-warp",
                               "many-cmvn-warp-augment", "many-cmvn-warp-augment-recogniser",
                               "one-voice-recogniser", "one-voice-phones", "many-phones",
