@@ -44,12 +44,19 @@ import numpy as np
 from face_model.alignment import corpus_deformations
 from face_model.motion_units import N_DIM, MotionUnits
 from face_model.phones import BILABIALS, PHONE_INDEX, PHONES, dominance_matrix, viseme
-from groundwork import numerics
+from groundwork import modelfile, numerics
 from groundwork.errors import NotFittedError, ParameterError
 
 KEYFRAMES = ("smile", "sad", "i", "a", "o", "f", "u", "m")
 EXPRESSION_KEYFRAMES, VISEME_KEYFRAMES = KEYFRAMES[:2], KEYFRAMES[2:]
-MODEL_FORMAT = "talkingface.keyframes/2"
+# The keyframe model file, a groundwork.modelfile of this kind. Versions:
+# 1: the Motion Units in a layout of their own, not their to_arrays record (no longer read);
+# 2: np.savez of ``shapes``, the Motion Units' arrays (``mu_``) and a JSON ``metadata`` with
+#    ``format`` = LEGACY_FORMAT; no checksum (still read);
+# 3: written by groundwork.modelfile: the same arrays and record (without ``format``), plus
+#    kind, version, array manifest and SHA-256 in the metadata, written atomically.
+KIND, VERSION = "keyframes", 3
+LEGACY_FORMAT = "talkingface.keyframes/2"
 TRACKS_FORMAT, TRACKS_VERSION = "talkingface.keyframe_tracks", 1
 _MU_PREFIX = "mu_"  # the Motion Units' arrays inside a keyframe model file
 
@@ -291,39 +298,48 @@ class KeyframeModel:
 
     # -- persistence -----------------------------------------------------------------------
     def save(self, path) -> Path:
-        """One ``.npz``: K (``shapes``), the Motion Units it converts to (their
-        :meth:`MotionUnits.to_arrays` arrays, names prefixed ``mu_``) and a JSON metadata
-        record (the Motion Units' own record under ``units``)."""
+        """Write one model file (:mod:`groundwork.modelfile`, kind ``keyframes``, version
+        :data:`VERSION`), atomically: K (``shapes``, (8, 158)), the Motion Units it converts to
+        (their :meth:`MotionUnits.to_arrays` arrays, names prefixed ``mu_``) and a JSON
+        metadata record (the Motion Units' own record under ``units``)."""
         self._check_fitted()
         unit_arrays, unit_meta = self.units_.to_arrays()
-        meta = {"format": MODEL_FORMAT, "keyframes": list(KEYFRAMES),
+        meta = {"keyframes": list(KEYFRAMES),
                 "min_samples": int(self.min_samples), "hold_fraction": float(self.hold_fraction),
                 "selection": {k: [[a, int(f)] for a, f in v] for k, v in self.selection_.items()},
                 "units": unit_meta}
         arrays = {_MU_PREFIX + name: x for name, x in unit_arrays.items()}
-        path = Path(path)
-        with open(path, "wb") as f:
-            np.savez(f, metadata=np.array(json.dumps(meta, sort_keys=True)), shapes=self.shapes_,
-                     **arrays)
-        return path
+        return modelfile.write_model(path, {"shapes": self.shapes_, **arrays}, meta, kind=KIND,
+                                     version=VERSION)
 
     @classmethod
     def load(cls, path) -> "KeyframeModel":
-        """Rebuild a model, with its Motion Units, saved by :meth:`save`."""
+        """Rebuild a model, with its Motion Units, saved by :meth:`save` (or by the version-2
+        code, without a checksum).
+
+        Raises
+        ------
+        ParameterError
+            Naming the file: missing, not a model file, damaged (checksum), another kind or
+            version, Python objects inside, or Motion Units arrays missing.
+        """
         path = Path(path)
         if not path.is_file():
             raise ParameterError(f"keyframe model file {path} not found")
-        with np.load(path, allow_pickle=False) as z:
-            meta = json.loads(str(z["metadata"]))
-            if meta.get("format") != MODEL_FORMAT or meta.get("keyframes") != list(KEYFRAMES):
-                raise ParameterError(f"{path}: not a keyframe model of this version (format "
-                                     f"{meta.get('format')!r}, expected {MODEL_FORMAT!r})")
-            unit_arrays = {name[len(_MU_PREFIX):]: z[name] for name in z.files
-                           if name.startswith(_MU_PREFIX)}
-            units = MotionUnits.from_arrays(unit_arrays, meta["units"],
-                                            source=f"{path} (its Motion Units)")
-            model = cls(meta["min_samples"], meta["hold_fraction"])
-            model.shapes_, model.units_ = z["shapes"], units
+        found = modelfile.read_model(path, kind=KIND, versions=(VERSION,),
+                                     what="keyframe model file", legacy=(modelfile.METADATA,))
+        meta = found.metadata
+        if (found.legacy and meta.get("format") != LEGACY_FORMAT) or (
+                meta.get("keyframes") != list(KEYFRAMES)):
+            raise ParameterError(f"{path}: not a keyframe model of this version (format "
+                                 f"{meta.get('format')!r}, expected {LEGACY_FORMAT!r} or kind "
+                                 f"{KIND!r} version {VERSION})")
+        unit_arrays = {name[len(_MU_PREFIX):]: a for name, a in found.arrays.items()
+                       if name.startswith(_MU_PREFIX)}
+        units = MotionUnits.from_arrays(unit_arrays, meta["units"],
+                                        source=f"{path} (its Motion Units)")
+        model = cls(meta["min_samples"], meta["hold_fraction"])
+        model.shapes_, model.units_ = found.arrays["shapes"], units
         model.selection_ = {k: [(a, f) for a, f in v] for k, v in meta["selection"].items()}
         model._set_matrix()
         return model

@@ -12,18 +12,25 @@ zeros for a neutral frame); Eq. 2 reconstructs ``d`` from them.
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from face_model.alignment import corpus_deformations
 from face_model.layout import LAYOUT_VERSION, N_MARKERS
+from groundwork import modelfile
 from groundwork.errors import NotFittedError, ParameterError
 from groundwork.numerics import single_threaded, svd
 
 N_DIM = 2 * N_MARKERS
+# The record of to_arrays (also embedded in keyframe model files); it has not changed.
 FORMAT = "talkingface.motion_units/1"
+# The file (motion_units.npz), a groundwork.modelfile of this kind. Versions:
+# 1: np.savez of the record's arrays and its JSON under ``metadata``; no kind, no checksum
+#    (still read);
+# 2: written by groundwork.modelfile: the same arrays and record, plus kind, version, array
+#    manifest and SHA-256 in the metadata, written atomically.
+KIND, VERSION = "motion_units", 2
 
 
 def _pca(X: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -223,22 +230,28 @@ class MotionUnits:
         return mu
 
     def save(self, path) -> Path:
-        """One ``.npz`` holding every array of :meth:`to_arrays` and, as ``metadata``, its
-        JSON metadata record."""
+        """Write one model file (:mod:`groundwork.modelfile`, kind ``motion_units``, version
+        :data:`VERSION`) holding every array of :meth:`to_arrays` and, as its metadata, the
+        JSON record; atomically (never half-written under ``path``)."""
         arrays, meta = self.to_arrays()
-        path = Path(path)
-        with open(path, "wb") as f:
-            np.savez(f, metadata=np.array(json.dumps(meta, sort_keys=True)), **arrays)
-        return path
+        return modelfile.write_model(path, arrays, meta, kind=KIND, version=VERSION)
 
     @classmethod
     def load(cls, path) -> "MotionUnits":
-        """Rebuild a model saved by :meth:`save`."""
+        """Rebuild a model saved by :meth:`save`, or by the version-1 code (no checksum).
+
+        Raises
+        ------
+        ParameterError
+            Naming the file: missing, not a model file, damaged (checksum), another kind, a
+            newer version, Python objects inside, or not a Motion Units record.
+        """
         path = Path(path)
         if not path.is_file():
             raise ParameterError(f"Motion Units file {path} not found")
-        with np.load(path, allow_pickle=False) as z:
-            return cls.from_arrays(z, json.loads(str(z["metadata"])), source=str(path))
+        found = modelfile.read_model(path, kind=KIND, versions=(VERSION,),
+                                     what="Motion Units file", legacy=(modelfile.METADATA,))
+        return cls.from_arrays(found.arrays, found.metadata, source=str(path))
 
 def fit_corpus_units(corpus, *, n_utterance: int = 7, n_expression: int = 2,
                      alignment: str = "similarity", metadata: dict | None = None):

@@ -12,38 +12,41 @@ than ``silence_dbfs`` get the utterance MUPs of the neutral face (``rest_mups``:
 neutral mouth) whatever the network says, so digital silence, far outside the training data,
 gives a defined face. The expression MUPs are kept.
 
-The file (``.tfmap``, format :data:`FORMAT`) is data, never code: one ``.npz`` holding a JSON
-``header`` and the method's arrays (``mapper/...``, from the method's ``to_arrays``, see
-:mod:`mapping.state`), with their SHA-256 in the header. Loading reads numbers and JSON only;
-it refuses a truncated or damaged file, a member holding Python objects, a checksum mismatch
-and the pickled models of formats /1 and /2 (never unpickled), naming the file.
+The file (``.tfmap``, kind ``audio_mapping``, version :data:`VERSION`) is data, never code: a
+:mod:`groundwork.modelfile` holding the method's arrays (``mapper/...``, from the method's
+``to_arrays``, see :mod:`mapping.state`) and a JSON metadata record, with a SHA-256 of both.
+Loading reads numbers and JSON only; it refuses a truncated or damaged file, a member holding
+Python objects, a checksum mismatch and the pickled models of formats /1 and /2 (never
+unpickled), naming the file. Files of format /3 (the record under ``header``) still load.
 """
 from __future__ import annotations
 
-import hashlib
-import io
 import json
-import os
-import zipfile
-import zlib
 from pathlib import Path
 
 import numpy as np
 
+from groundwork import modelfile
 from groundwork.audio import read_wav, resample
 from groundwork.errors import ParameterError
 from mapping.baselines import BASELINES, Baseline
 from mapping.features import audio_features, check_align, frame_rms_dbfs
 from mapping.gated_mlp import GatedMLP
 from mapping.recogniser import fit_length, recognise_windows
-from mapping.state import NUMERIC_KINDS, ArrayGroup
+from mapping.state import ArrayGroup
 
-# /1: JSON header line + pickle; /2: the silence rule (rest_mups, silence_dbfs) in the header;
-# /3: one .npz of numbers and a JSON header, nothing pickled (a model file is data, never code).
-FORMAT_NAME, FORMAT_VERSION = "talkingface.mapping", 3
-FORMAT = f"{FORMAT_NAME}/{FORMAT_VERSION}"
+# Versions of the file (formats /1–/3 named themselves "talkingface.mapping/<n>"):
+# /1: a JSON header line + a pickle; /2: the silence rule (rest_mups, silence_dbfs) in the header
+#     (both refused unread: a model file is data, never code);
+# /3: one .npz of numbers and a JSON ``header`` (``format``, the record, the array manifest and
+#     the arrays' SHA-256), nothing pickled (still read);
+# 4: a groundwork.modelfile: the record under ``metadata`` with kind, version, array manifest and
+#    a SHA-256 of the arrays and the record (no ``format``).
+KIND, VERSION = "audio_mapping", 4
+FORMAT_NAME = "talkingface.mapping"
+FORMAT_3, HEADER_3 = f"{FORMAT_NAME}/3", "header"  # the last format before the model file
+WHAT = "talkingface mapping model"
 MAPPER = "mapper"  # the method's arrays are stored as "mapper/<its own name>"
-ZIP_MAGIC = b"PK\x03\x04"
 MIN_SR, MAX_SR = 8000, 192000
 
 
@@ -186,14 +189,16 @@ class AudioMapping:
 
     # -- persistence -----------------------------------------------------------------------
     def save(self, path) -> Path:
-        """Write the model as one ``.npz`` of numbers and a JSON header, never Python objects.
+        """Write the model as one model file (:mod:`groundwork.modelfile`) of numbers and JSON,
+        never Python objects.
 
-        Members: ``header`` (a JSON string: :data:`FORMAT`, the feature and silence settings,
-        ``method``, ``expressions``, ``metadata``, the method's ``method_params`` from its
-        ``to_arrays``, the ``arrays`` manifest of every array's dtype and shape, and their
-        ``sha256``) and the method's arrays, each under ``mapper/`` + the method's own name.
-        The file is written beside ``path`` and then moved over it, so a crash leaves the old
-        file or the new one, never a part.
+        Members: ``metadata`` (a JSON string: kind ``audio_mapping``, :data:`VERSION`, the
+        feature and silence settings, ``method``, ``expressions``, ``metadata``, the method's
+        ``method_params`` from its ``to_arrays``, the ``arrays`` manifest of every array's
+        dtype and shape, and the ``sha256`` of the arrays and the record) and the method's
+        arrays, each under ``mapper/`` + the method's own name. The file is written beside
+        ``path`` and then moved over it, so a crash leaves the old file or the new one, never
+        a part.
         """
         to_arrays = getattr(self.mapper, "to_arrays", None)
         if to_arrays is None:
@@ -203,47 +208,33 @@ class AudioMapping:
         # as they are: a Fortran-ordered array (Ridge's coef_) is stored and read back in that
         # order, so BLAS takes the same path and predictions stay identical to the last bit
         arrays = {f"{MAPPER}/{name}": np.asarray(a) for name, a in own.items()}
-        bad = [n for n, a in arrays.items() if a.dtype.kind not in NUMERIC_KINDS]
-        if bad:
-            raise ParameterError(f"arrays {bad} of the method are not numeric; a model file "
-                                 "holds numbers only")
-        header = {"format": FORMAT, "sample_rate": self.sample_rate, "fps": self.fps,
+        record = {"sample_rate": self.sample_rate, "fps": self.fps,
                   "n_mfcc": self.n_mfcc, "deltas": self.deltas, "n_utterance": self.n_utterance,
                   "window_align": self.window_align,
                   "rest_mups": self.rest_mups.tolist(), "silence_dbfs": self.silence_dbfs,
                   "method": getattr(self.mapper, "name", type(self.mapper).__name__),
                   "expressions": list(self.expressions), "metadata": self.metadata,
-                  "method_params": params,
-                  "arrays": {n: {"dtype": a.dtype.str, "shape": list(a.shape)}
-                             for n, a in sorted(arrays.items())},
-                  "sha256": checksum(arrays)}
-        text = json.dumps(header, sort_keys=True, default=_json_default)
+                  "method_params": params}
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        try:
-            with open(tmp, "wb") as f:
-                np.savez(f, allow_pickle=False, header=np.array(text), **arrays)
-            os.replace(tmp, path)
-        finally:
-            tmp.unlink(missing_ok=True)
-        return path
+        return modelfile.write_model(path, arrays, record, kind=KIND, version=VERSION,
+                                     default=_json_default)
 
     @classmethod
     def load(cls, path) -> "AudioMapping":
         """Read a model written by :meth:`save`.
 
         Nothing in the file is executed: the members are parsed as ``.npy`` arrays of numbers
-        (a member holding Python objects is refused before it is read), the header is JSON,
-        and the method is rebuilt by its ``from_arrays``. The format, the arrays' names, dtypes
-        and shapes, and their SHA-256 are checked; every problem is a ParameterError naming
-        the file.
+        (a member holding Python objects is refused before it is read), the record is JSON,
+        and the method is rebuilt by its ``from_arrays``. The kind and version (or format /3),
+        the arrays' names, dtypes and shapes, and their SHA-256 are checked; every problem is a
+        ParameterError naming the file.
         """
         path = Path(path)
         if not path.is_file():
             raise ParameterError(f"mapping model {path} not found")
-        header, arrays = _read(path)
-        method = header.get("method")
+        record, arrays = _read(path)
+        method = record.get("method")
         if method == GatedMLP.name:
             estimator = GatedMLP
         elif method in BASELINES:
@@ -253,39 +244,28 @@ class AudioMapping:
                                  f"{GatedMLP.name}, {', '.join(BASELINES)}")
         group = ArrayGroup({n[len(MAPPER) + 1:]: a for n, a in arrays.items()})
         try:
-            mapper = estimator.from_arrays(group, header["method_params"])
+            mapper = estimator.from_arrays(group, record["method_params"])
             if mapper.name != method:
-                raise ParameterError(f"the header names method {method!r} but its parameters "
+                raise ParameterError(f"the metadata names method {method!r} but its parameters "
                                      f"describe {mapper.name!r}")
             unused = group.unused()
             if unused:
                 raise ParameterError(f"arrays {unused} belong to no part of the {method} model")
-            model = cls(mapper, sample_rate=header["sample_rate"], fps=header["fps"],
-                        n_mfcc=header["n_mfcc"], deltas=header["deltas"],
-                        n_utterance=header["n_utterance"], rest_mups=header["rest_mups"],
-                        silence_dbfs=header["silence_dbfs"], metadata=header["metadata"],
-                        window_align=header.get("window_align", "centre"))
-            if list(model.expressions) != header["expressions"]:
-                raise ParameterError(f"the header lists expressions {header['expressions']} "
+            model = cls(mapper, sample_rate=record["sample_rate"], fps=record["fps"],
+                        n_mfcc=record["n_mfcc"], deltas=record["deltas"],
+                        n_utterance=record["n_utterance"], rest_mups=record["rest_mups"],
+                        silence_dbfs=record["silence_dbfs"], metadata=record["metadata"],
+                        window_align=record.get("window_align", "centre"))
+            if list(model.expressions) != record["expressions"]:
+                raise ParameterError(f"the metadata lists expressions {record['expressions']} "
                                      f"but the method was trained on {list(model.expressions)}")
         except ParameterError as e:
             raise ParameterError(f"{path}: {e}") from e
         except (KeyError, TypeError, ValueError, IndexError, AttributeError, RuntimeError) as e:
-            # a header that passes the format check but does not describe a model of it
-            raise ParameterError(f"{path}: malformed {FORMAT} header ({type(e).__name__}: "
+            # a record that passes the format check but does not describe a model of it
+            raise ParameterError(f"{path}: malformed {WHAT} record ({type(e).__name__}: "
                                  f"{e})") from e
         return model
-
-
-def checksum(arrays: dict) -> str:
-    """SHA-256 (hex) of named arrays: each name, dtype, shape and values (in C order, whatever
-    the memory layout), by name."""
-    h = hashlib.sha256()
-    for name in sorted(arrays):
-        a = np.asarray(arrays[name])
-        h.update(json.dumps([name, a.dtype.str, list(a.shape)]).encode() + b"\n")
-        h.update(a.tobytes(order="C"))
-    return h.hexdigest()
 
 
 def _json_default(obj):
@@ -298,114 +278,45 @@ def _json_default(obj):
 
 
 def _read(path: Path) -> tuple[dict, dict]:
-    """``(header, arrays)`` of a model file, checked (see :meth:`AudioMapping.load`)."""
+    """``(record, arrays)`` of a model file of version 4 or format /3, checked (see
+    :meth:`AudioMapping.load`)."""
+    _refuse_pickled(path)
+    found = modelfile.read_model(path, kind=KIND, versions=(VERSION,), what=WHAT,
+                                 legacy=(HEADER_3,))
+    record = dict(found.metadata)
+    if found.legacy:  # format /3: its format, manifest and the arrays' SHA-256 in the header
+        fmt = record.pop("format", None)
+        if fmt != FORMAT_3:
+            _refuse_format(path, fmt)
+        modelfile.check_arrays(path, found.arrays, record.pop("arrays", None),
+                               record.pop("sha256", None), member=HEADER_3)
+    for name, a in found.arrays.items():
+        if not name.startswith(MAPPER + "/"):
+            raise ParameterError(f"{path}: array {name!r} is {a.dtype.str} {a.shape}, not one "
+                                 f"of the method's (their names start with {MAPPER + '/'!r})")
+    return record, found.arrays
+
+
+def _refuse_pickled(path: Path):
+    """Formats /1 and /2: a JSON header line, then a pickle (refused, never unpickled)."""
     with open(path, "rb") as f:
-        start = f.read(len(ZIP_MAGIC))
-    if start != ZIP_MAGIC:
-        if ZIP_MAGIC.startswith(start):
-            raise ParameterError(f"{path}: not a talkingface mapping model: the file is empty or "
-                                 f"truncated ({len(start)} bytes)")
-        _refuse_old_or_foreign(path)
-    members = {}
-    try:
-        with zipfile.ZipFile(path) as z:
-            for info in z.infolist():
-                name = info.filename[:-4] if info.filename.endswith(".npy") else None
-                if name is None or name in members:
-                    raise ParameterError(f"{path}: member {info.filename!r} is not one of the "
-                                         "model's arrays")
-                if info.compress_type != zipfile.ZIP_STORED:  # what save writes; no zip bomb
-                    raise ParameterError(f"{path}: member {info.filename!r} is compressed; "
-                                         "AudioMapping.save writes the arrays uncompressed")
-                members[name] = _parse_npy(path, name, z.read(info))
-    except (zipfile.BadZipFile, zipfile.LargeZipFile, NotImplementedError, EOFError, OSError,
-            zlib.error) as e:
-        raise ParameterError(f"{path}: the model file is truncated or damaged ({e}); save or "
-                             "copy it again") from e
-    header = _header(path, members.pop("header", None))
-    manifest = header.get("arrays")
-    if not isinstance(manifest, dict):
-        raise ParameterError(f"{path}: the header has no array manifest")
-    missing, extra = sorted(set(manifest) - set(members)), sorted(set(members) - set(manifest))
-    if missing or extra:
-        raise ParameterError(f"{path}: the arrays do not match the header (missing: "
-                             f"{missing or 'none'}; not in the header: {extra or 'none'})")
-    for name, a in members.items():
-        entry = manifest[name]
-        if not name.startswith(MAPPER + "/") or not isinstance(entry, dict) or (
-                entry.get("dtype"), entry.get("shape")) != (a.dtype.str, list(a.shape)):
-            raise ParameterError(f"{path}: array {name!r} is {a.dtype.str} {a.shape}, the header "
-                                 f"says {entry!r}")
-    if checksum(members) != header.get("sha256"):
-        raise ParameterError(f"{path}: checksum mismatch: the arrays are not the ones saved "
-                             f"(SHA-256 {checksum(members)}, header {header.get('sha256')!r}); "
-                             "the file is damaged")
-    return header, members
-
-
-def _parse_npy(path: Path, name: str, data: bytes) -> np.ndarray:
-    """One ``.npy`` member as an array of numbers (or the header's string): its dtype is read
-    from the ``.npy`` header first, and anything holding Python objects is refused unread."""
-    buf = io.BytesIO(data)
-    try:
-        version = np.lib.format.read_magic(buf)
-        if version == (1, 0):
-            shape, _, dtype = np.lib.format.read_array_header_1_0(buf)
-        elif version == (2, 0):
-            shape, _, dtype = np.lib.format.read_array_header_2_0(buf)
-        else:
-            raise ValueError(f"unsupported .npy version {version}")
-    except ValueError as e:
-        raise ParameterError(f"{path}: member {name!r} is not a numpy array ({e})") from e
-    if dtype.hasobject:
-        raise ParameterError(f"{path}: array {name!r} holds pickled Python objects; a model "
-                             "file may hold numbers only, so it is not loaded (loading it could "
-                             "run code)")
-    allowed = "U" if name == "header" else NUMERIC_KINDS
-    if dtype.kind not in allowed or (name == "header" and shape != ()):
-        raise ParameterError(f"{path}: array {name!r} has dtype {dtype} {shape}; allowed: "
-                             + ("one string" if name == "header" else "numbers"))
-    size = int(np.prod(shape, dtype=object)) * dtype.itemsize  # Python ints: no overflow
-    if size != len(data) - buf.tell():  # checked before read_array allocates the array
-        raise ParameterError(f"{path}: array {name!r} should hold {size} bytes, the file has "
-                             f"{len(data) - buf.tell()}; the file is damaged")
-    buf.seek(0)
-    try:
-        return np.lib.format.read_array(buf, allow_pickle=False)
-    except ValueError as e:
-        raise ParameterError(f"{path}: array {name!r} is truncated or damaged ({e})") from e
-
-
-def _header(path: Path, member) -> dict:
-    """The JSON header of a model file, its format checked."""
-    if member is None:
-        raise ParameterError(f"{path}: not a talkingface mapping model (no header; expected "
-                             f"format {FORMAT!r})")
-    try:
-        header = json.loads(str(member[()]))
-    except (json.JSONDecodeError, RecursionError) as e:
-        raise ParameterError(f"{path}: not a talkingface mapping model (its header is not "
-                             f"JSON: {e})") from e
-    fmt = header.get("format") if isinstance(header, dict) else None
-    if fmt != FORMAT:
-        _refuse_format(path, fmt)
-    return header
-
-
-def _refuse_old_or_foreign(path: Path):
-    """A file that is not a zip: an old header + pickle model (never unpickled), or another."""
-    with open(path, "rb") as f:
+        if f.read(1) != b"{":  # a zip starts with "PK"
+            return
+        f.seek(0)
         first = f.readline(1 << 20)
     try:
         header = json.loads(first)
     except (json.JSONDecodeError, UnicodeDecodeError):
         header = None
-    _refuse_format(path, header.get("format") if isinstance(header, dict) else None)
-    raise ParameterError(f"{path}: not a talkingface mapping model (not an .npz archive)")
+    if isinstance(header, dict):
+        _refuse_format(path, header.get("format"), where="a JSON header line, not an .npz "
+                                                         "archive")
 
 
-def _refuse_format(path: Path, fmt):
-    """The ParameterError for a file of format ``fmt`` (not :data:`FORMAT`)."""
+def _refuse_format(path: Path, fmt, *, where: str = f"expected format {FORMAT_3!r} in its "
+                                                    f"{HEADER_3}"):
+    """The ParameterError for a file of format ``fmt`` (not :data:`FORMAT_3`); the pickled
+    formats /1 and /2 get their own."""
     version = fmt[len(FORMAT_NAME) + 1:] if isinstance(fmt, str) and fmt.startswith(
         FORMAT_NAME + "/") else None
     if version in ("1", "2"):
@@ -414,12 +325,7 @@ def _refuse_format(path: Path, fmt):
         raise ParameterError(f"{path} was saved by an older version that stored Python objects "
                              f"(format {fmt!r}); re-train it with `talkingface train --name "
                              f"{name}` (it is not loaded: loading it could run code)")
-    if version is not None and version.isdigit() and int(version) > FORMAT_VERSION:
-        raise ParameterError(f"{path} was saved by a newer version of talkingface (format "
-                             f"{fmt!r}; this version reads {FORMAT!r}); update talkingface")
-    if fmt != FORMAT:
-        raise ParameterError(f"{path}: not a talkingface mapping model (expected format "
-                             f"{FORMAT!r}, got {fmt!r})")
+    raise ParameterError(f"{path}: not a {WHAT} ({where}, got format {fmt!r})")
 
 
 def rest_mups(units) -> np.ndarray:

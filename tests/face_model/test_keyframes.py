@@ -285,7 +285,8 @@ def test_the_model_file_stores_its_motion_units_as_the_units_file_does(fitted, t
     arrays, meta = units.to_arrays()
     with np.load(path, allow_pickle=False) as z:
         stored = json.loads(str(z["metadata"]))
-        assert stored["format"] == "talkingface.keyframes/2" and stored["units"] == meta
+        assert (stored["kind"], stored["version"]) == ("keyframes", 3) and "format" not in stored
+        assert stored["units"] == meta
         assert set(z.files) == {"metadata", "shapes", *(f"mu_{n}" for n in arrays)}
         for name, value in arrays.items():
             assert np.array_equal(z[f"mu_{name}"], value)
@@ -294,19 +295,76 @@ def test_the_model_file_stores_its_motion_units_as_the_units_file_does(fitted, t
     assert again_meta == meta and all(np.array_equal(again[n], arrays[n]) for n in arrays)
     assert loaded.metadata_ == {**units.metadata_, "layout_version": meta["layout_version"]}
     # an older version, and a file whose Motion Units lost an array, are refused by name
+    record = {k: v for k, v in stored.items() if k not in ("kind", "version", "arrays", "sha256")}
     old = tmp_path / "old.npz"
-    np.savez(old, metadata=np.array(json.dumps({**stored, "format": "talkingface.keyframes/1"})),
+    np.savez(old, metadata=np.array(json.dumps({**record, "format": "talkingface.keyframes/1"})),
              shapes=model.shapes_)
     with pytest.raises(ParameterError, match=r"old\.npz: not a keyframe model of this version "
                                              r"\(format 'talkingface\.keyframes/1', expected "
-                                             r"'talkingface\.keyframes/2'\)"):
+                                             r"'talkingface\.keyframes/2' or kind 'keyframes' "
+                                             r"version 3\)$"):
         KeyframeModel.load(old)
     broken = tmp_path / "broken.npz"
-    np.savez(broken, metadata=np.array(json.dumps(stored)), shapes=model.shapes_,
-             **{f"mu_{n}": v for n, v in arrays.items() if n != "smile__mean"})
+    np.savez(broken, metadata=np.array(json.dumps({**record,
+                                                   "format": "talkingface.keyframes/2"})),
+             shapes=model.shapes_, **{f"mu_{n}": v for n, v in arrays.items() if n != "smile__mean"})
     with pytest.raises(ParameterError, match=r"broken\.npz \(its Motion Units\): Motion Units "
                                              r"arrays smile__mean are missing"):
         KeyframeModel.load(broken)
+
+
+def _save_version_2(model: KeyframeModel, path):
+    """``model`` as the version-2 code saved it: np.savez, ``format`` in the metadata, no kind
+    and no checksum."""
+    unit_arrays, unit_meta = model.units_.to_arrays()
+    meta = {"format": "talkingface.keyframes/2", "keyframes": list(KEYFRAMES),
+            "min_samples": int(model.min_samples), "hold_fraction": float(model.hold_fraction),
+            "selection": {k: [[a, int(f)] for a, f in v] for k, v in model.selection_.items()},
+            "units": unit_meta}
+    with open(path, "wb") as f:
+        np.savez(f, metadata=np.array(json.dumps(meta, sort_keys=True)), shapes=model.shapes_,
+                 **{f"mu_{n}": x for n, x in unit_arrays.items()})
+    return path
+
+
+def test_a_version_2_file_loads_as_the_same_model(fitted, small_corpus, tmp_path):
+    model, units, defs = fitted
+    old = KeyframeModel.load(_save_version_2(model, tmp_path / "old.npz"))
+    assert old.selection_ == model.selection_
+    assert (old.min_samples, old.hold_fraction) == (model.min_samples, model.hold_fraction)
+    assert old.shapes_.tobytes() == model.shapes_.tobytes()
+    assert old.pinv_.tobytes() == model.pinv_.tobytes()
+    assert old.units_.metadata_ == {**units.metadata_, "layout_version": "hwh79-1"}
+    for e in ("neutral", "smile", "sad"):
+        mups = _mups_of(small_corpus, units, defs, e)
+        b = model.mups_to_keyframes(mups, e)
+        assert old.mups_to_keyframes(mups, e).tobytes() == b.tobytes()
+        assert old.keyframes_to_mups(b, e).tobytes() == model.keyframes_to_mups(b, e).tobytes()
+    # saved again, it is a version-3 file of the same arrays
+    with np.load(old.save(tmp_path / "new.npz")) as z, np.load(tmp_path / "old.npz") as y:
+        assert json.loads(str(z["metadata"]))["version"] == 3
+        assert set(z.files) == set(y.files)
+        assert all(z[n].tobytes() == y[n].tobytes() for n in z.files if n != "metadata")
+
+
+def test_a_damaged_keyframe_model_is_one_line_naming_it(fitted, tmp_path):
+    model, _, _ = fitted
+    path = model.save(tmp_path / "keyframes.npz")
+    members = dict(np.load(path, allow_pickle=False))
+    members["shapes"] = members["shapes"][::-1].copy()  # consistent zip, other numbers
+    bad = tmp_path / "bad.npz"
+    with open(bad, "wb") as f:
+        np.savez(f, **members)
+    with pytest.raises(ParameterError, match=r"bad\.npz: checksum mismatch: the file is not the "
+                                             r"one saved"):
+        KeyframeModel.load(bad)
+    evil = tmp_path / "evil.npz"
+    payload = np.empty(1, dtype=object)
+    with open(evil, "wb") as f:
+        np.savez(f, allow_pickle=True, **{**members, "shapes": payload})
+    with pytest.raises(ParameterError, match=r"evil\.npz: array 'shapes' holds pickled Python "
+                                             r"objects"):
+        KeyframeModel.load(evil)
 
 
 def test_invalid_inputs_raise_helpful_errors(fitted):

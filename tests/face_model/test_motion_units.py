@@ -13,6 +13,7 @@ from scipy.linalg import subspace_angles
 
 from data_synth.face import expression_fields, make_speaker
 from face_model.motion_units import MotionUnits, fit_corpus_units
+from groundwork import modelfile
 from groundwork.errors import NotFittedError, ParameterError
 from talkingface.config import Config
 
@@ -229,7 +230,13 @@ def test_the_file_holds_the_to_arrays_record(fitted, model_data, tmp_path):
     assert arrays["components"].shape == (7, D) and arrays["sad__components"].shape == (2, D)
     with np.load(fitted.save(tmp_path / "units.npz"), allow_pickle=False) as z:
         assert set(z.files) == {"metadata", *arrays}
-        assert json.loads(str(z["metadata"])) == meta
+        stored = json.loads(str(z["metadata"]))
+        assert (stored.pop("kind"), stored.pop("version")) == ("motion_units", 2)
+        assert stored.pop("arrays") == modelfile.manifest(arrays)
+        assert stored.pop("sha256") == modelfile.checksum(
+            arrays, {**meta, "kind": "motion_units", "version": 2,
+                     "arrays": modelfile.manifest(arrays)})
+        assert stored == meta
         for name, value in arrays.items():
             assert z[name].dtype == value.dtype and np.array_equal(z[name], value)
     back = MotionUnits.from_arrays(arrays, json.loads(json.dumps(meta)))
@@ -239,6 +246,57 @@ def test_the_file_holds_the_to_arrays_record(fitted, model_data, tmp_path):
                               fitted.transform(model_data[k][:30], k))
     again, again_meta = back.to_arrays()
     assert again_meta == meta and all(np.array_equal(again[n], arrays[n]) for n in arrays)
+
+
+def _save_version_1(units: MotionUnits, path):
+    """``units`` as the version-1 code saved them: np.savez of the arrays and the record, no
+    kind, no checksum."""
+    arrays, meta = units.to_arrays()
+    with open(path, "wb") as f:
+        np.savez(f, metadata=np.array(json.dumps(meta, sort_keys=True)), **arrays)
+    return path
+
+
+def test_a_version_1_file_loads_as_the_same_model(fitted, model_data, tmp_path):
+    old = MotionUnits.load(_save_version_1(fitted, tmp_path / "old.npz"))
+    new = MotionUnits.load(fitted.save(tmp_path / "new.npz"))
+    for loaded in (old, new):
+        assert loaded.metadata_ == {"source": "test", "layout_version": "hwh79-1"}
+        assert loaded.expressions_ == fitted.expressions_
+        for name in ("mean_", "components_", "variance_"):
+            assert getattr(loaded, name).tobytes() == getattr(fitted, name).tobytes()
+        for k in ("neutral", "smile", "sad"):
+            d = model_data[k][:30]
+            assert loaded.transform(d, k).tobytes() == fitted.transform(d, k).tobytes()
+    # re-saved, the old model is the new file, member for member (the zip's dates aside)
+    with np.load(old.save(tmp_path / "again.npz")) as a, np.load(tmp_path / "new.npz") as b:
+        assert a.files == b.files and all(a[n].tobytes() == b[n].tobytes() for n in a.files)
+
+
+def test_a_damaged_or_foreign_model_file_is_one_line_naming_it(fitted, tmp_path):
+    path = fitted.save(tmp_path / "units.npz")
+    members = dict(np.load(path, allow_pickle=False))
+    members["mean"] = members["mean"] + 1e-12  # a consistent archive, other numbers
+    bad = tmp_path / "bad.npz"
+    with open(bad, "wb") as f:
+        np.savez(f, **members)
+    with pytest.raises(ParameterError, match=r"bad\.npz: checksum mismatch"):
+        MotionUnits.load(bad)
+    cut = tmp_path / "cut.npz"
+    cut.write_bytes(path.read_bytes()[:1000])
+    with pytest.raises(ParameterError, match=r"cut\.npz: the model file is truncated or damaged"):
+        MotionUnits.load(cut)
+    other = modelfile.write_model(tmp_path / "other.npz", {"x": np.zeros(2)}, {},
+                                  kind="keyframes", version=3)
+    with pytest.raises(ParameterError, match=r"other\.npz: not a Motion Units file \(its kind "
+                                             r"is 'keyframes', expected 'motion_units'\)$"):
+        MotionUnits.load(other)
+    newer = modelfile.write_model(tmp_path / "newer.npz", *fitted.to_arrays(),
+                                  kind="motion_units", version=3)
+    with pytest.raises(ParameterError, match=r"newer\.npz was saved by a newer version of "
+                                             r"talkingface \(motion_units version 3; this "
+                                             r"version reads 2\); update talkingface$"):
+        MotionUnits.load(newer)
 
 
 def test_from_arrays_refuses_a_foreign_record_or_missing_arrays(fitted):

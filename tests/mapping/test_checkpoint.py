@@ -1,6 +1,7 @@
 """The saved mapping (``.tfmap``) is data, never code: every method comes back bit for bit, and
 a file that is damaged, truncated, of another version or carries a pickle is refused with a
-ParameterError naming it, without running anything in it."""
+ParameterError naming it, without running anything in it. Files of format /3 (the record under
+``header``, before :mod:`groundwork.modelfile`) still load, to the same bits."""
 from __future__ import annotations
 
 import io
@@ -13,9 +14,10 @@ import zipfile
 import numpy as np
 import pytest
 
+from groundwork import modelfile
 from groundwork.errors import ParameterError
 from mapping import BASELINES, Baseline, GatedMLP
-from mapping.checkpoint import FORMAT, AudioMapping, checksum
+from mapping.checkpoint import KIND, VERSION, AudioMapping
 from mapping.config import TrainSettings
 from mapping.dataset import split_masks
 from mapping.nets import NetRegressor
@@ -65,19 +67,37 @@ def read_members(path) -> dict:
         return {name: z[name] for name in z.files}
 
 
-def write_members(path, members: dict, *, header_changes: dict | None = None,
+def write_members(path, members: dict, *, changes: dict | None = None,
                   refresh: bool = True, allow_pickle: bool = False) -> pathlib.Path:
-    """An npz of ``members`` (``header`` a JSON string); with ``refresh``, the header's array
-    manifest and checksum describe the arrays written (a file consistent in itself)."""
-    header = json.loads(str(members["header"]))
-    header.update(header_changes or {})
-    arrays = {n: a for n, a in members.items() if n != "header"}
+    """An npz of ``members`` (``metadata`` a JSON string) with ``changes`` to the record; with
+    ``refresh``, the record's array manifest and checksum describe the arrays and the record
+    written (a file consistent in itself)."""
+    record = json.loads(str(members["metadata"]))
+    record.update(changes or {})
+    arrays = {n: a for n, a in members.items() if n != "metadata"}
     if refresh:
-        header["arrays"] = {n: {"dtype": a.dtype.str, "shape": list(a.shape)}
-                            for n, a in arrays.items() if a.dtype != object}
-        header["sha256"] = checksum({n: a for n, a in arrays.items() if a.dtype != object})
+        numeric = {n: a for n, a in arrays.items() if a.dtype != object}
+        record["arrays"] = modelfile.manifest(numeric)
+        record.pop("sha256", None)
+        record["sha256"] = modelfile.checksum(numeric, record)
     with open(path, "wb") as f:
-        np.savez(f, allow_pickle=allow_pickle, header=np.array(json.dumps(header)), **arrays)
+        np.savez(f, allow_pickle=allow_pickle, metadata=np.array(json.dumps(record)), **arrays)
+    return pathlib.Path(path)
+
+
+def write_format_3(path, members: dict, *, changes: dict | None = None) -> pathlib.Path:
+    """The model of ``members`` (a version-4 file's) as format /3 wrote it, with ``changes`` to
+    its header: the record under ``header`` with ``format``, the array manifest and the SHA-256
+    of the arrays alone (no kind, no version)."""
+    record = json.loads(str(members["metadata"]))
+    arrays = {n: a for n, a in members.items() if n != "metadata"}
+    for key in ("kind", "version", "sha256"):
+        del record[key]
+    header = {**record, "format": "talkingface.mapping/3", "arrays": modelfile.manifest(arrays),
+              "sha256": modelfile.checksum(arrays), **(changes or {})}
+    with open(path, "wb") as f:
+        np.savez(f, allow_pickle=False, header=np.array(json.dumps(header, sort_keys=True)),
+                 **arrays)
     return pathlib.Path(path)
 
 
@@ -140,12 +160,12 @@ def test_gated_mlp_round_trip(data, masks, tmp_path, expression_model, n_classes
     # the file holds numbers and one JSON string, nothing else
     with zipfile.ZipFile(path) as z, np.load(path, allow_pickle=False) as npz:
         assert all(i.filename.endswith(".npy") for i in z.infolist())
-        kinds = {npz[n].dtype.kind for n in npz.files if n != "header"}
-        assert kinds <= set("biuf") and npz["header"].dtype.kind == "U"
+        kinds = {npz[n].dtype.kind for n in npz.files if n != "metadata"}
+        assert kinds <= set("biuf") and npz["metadata"].dtype.kind == "U"
     # saving the loaded model writes the same model again
     again = read_members(wrap(g).save(tmp_path / "again.tfmap"))
     first = read_members(path)
-    assert str(again["header"]) == str(first["header"])
+    assert str(again["metadata"]) == str(first["metadata"])
     # the estimators' own pair, on plain dicts
     arrays, params = m.to_arrays()
     assert_same_predictions(m, GatedMLP.from_arrays(arrays, json.loads(json.dumps(params))),
@@ -163,8 +183,9 @@ def test_baseline_round_trip(data, masks, tmp_path, kind):
     assert loaded.mapper.context_.n_inputs == b.context_.n_inputs
     assert loaded.mapper.train == b.train and loaded.mapper.random_state == 2
     assert_same_predictions(b, loaded.mapper, data, b.models_)
-    header = json.loads(str(read_members(path)["header"]))
-    assert header["format"] == FORMAT == "talkingface.mapping/3" and header["method"] == kind
+    record = json.loads(str(read_members(path)["metadata"]))
+    assert (record["kind"], record["version"]) == (KIND, VERSION) == ("audio_mapping", 4)
+    assert record["method"] == kind and "format" not in record
 
 
 # -- nothing in a file is executed ---------------------------------------------------------------
@@ -199,10 +220,10 @@ def test_old_pickled_models_are_refused_unread(tmp_path, fmt):
     assert not marker.exists()
 
 
-@pytest.mark.parametrize("where", ["extra", "array", "header"])
+@pytest.mark.parametrize("where", ["extra", "array", "metadata"])
 def test_pickles_smuggled_into_the_npz_are_refused(saved, tmp_path, where):
     """An object array (a pickle) inside the archive: added, in place of an array, or as the
-    header. The manifest and checksum are made to agree, so only the pickle is wrong."""
+    record. The manifest and checksum are made to agree, so only the pickle is wrong."""
     marker = tmp_path / "ran"
     members = read_members(saved)
     payload = np.empty(1, dtype=object)
@@ -212,9 +233,9 @@ def test_pickles_smuggled_into_the_npz_are_refused(saved, tmp_path, where):
     elif where == "array":
         members["mapper/context/normalizer/mean"] = payload
     else:
-        members["header"] = payload
+        members["metadata"] = payload
     bad = tmp_path / "bad.tfmap"
-    if where == "header":
+    if where == "metadata":
         with open(bad, "wb") as f:
             np.savez(f, allow_pickle=True, **members)
     else:
@@ -249,7 +270,7 @@ def test_a_flipped_byte_is_found(saved, gated, tmp_path):
     with pytest.raises(ParameterError, match=re.escape(str(raw)) + ": the model file is "
                                              "truncated or damaged"):
         AudioMapping.load(raw)
-    # in an array of a consistent archive: the header's SHA-256 catches it
+    # in an array of a consistent archive: the record's SHA-256 catches it
     flipped = members[name].copy()
     flipped.view(np.uint8)[5] ^= 0x10
     bad = write_members(tmp_path / "bad.tfmap", {**members, name: flipped}, refresh=False)
@@ -261,12 +282,12 @@ def test_a_flipped_byte_is_found(saved, gated, tmp_path):
     assert same.mapper.predict(d.features).tobytes() == gated.predict(d.features).tobytes()
 
 
-def test_arrays_that_disagree_with_the_header_are_refused(saved, tmp_path):
+def test_arrays_that_disagree_with_the_record_are_refused(saved, tmp_path):
     members = read_members(saved)
     name = "mapper/context/normalizer/scale"
     missing = {n: a for n, a in members.items() if n != name}
     bad = write_members(tmp_path / "missing.tfmap", missing, refresh=False)
-    with pytest.raises(ParameterError, match=r"the arrays do not match the header \(missing: "
+    with pytest.raises(ParameterError, match=r"the arrays do not match the metadata \(missing: "
                                              r"\['mapper/context/normalizer/scale'\]"):
         AudioMapping.load(bad)
     # consistent manifest and checksum, but not the shape the model needs
@@ -279,26 +300,96 @@ def test_arrays_that_disagree_with_the_header_are_refused(saved, tmp_path):
     with pytest.raises(ParameterError, match=r"arrays \['spare'\] belong to no part"):
         AudioMapping.load(extra)
     renamed = {("other/x" if n == name else n): a for n, a in members.items()}
-    with pytest.raises(ParameterError, match=r"array 'other/x' is"):
+    with pytest.raises(ParameterError, match=r"array 'other/x' is <f8 \(4,\), not one of the "
+                                             r"method's \(their names start with 'mapper/'\)"):
         AudioMapping.load(write_members(tmp_path / "renamed.tfmap", renamed))
+    # a manifest entry that is not the array's: named with what the record says
+    shape = tmp_path / "shape.tfmap"
+    record = json.loads(str(members["metadata"]))
+    record["arrays"][name]["shape"] = [7, 7, 7]
+    del record["sha256"]
+    record["sha256"] = modelfile.checksum({n: a for n, a in members.items() if n != "metadata"},
+                                          record)
+    with open(shape, "wb") as f:
+        np.savez(f, **{**members, "metadata": np.array(json.dumps(record))})
+    with pytest.raises(ParameterError, match=re.escape(f"{shape}: array '{name}' is <f8 (4,), the "
+                                                       "metadata says {'dtype': '<f8', 'shape': "
+                                                       "[7, 7, 7]}")):
+        AudioMapping.load(shape)
 
 
 @pytest.mark.parametrize("changes, message", [
-    ({"format": "talkingface.mapping/4"},
-     r"was saved by a newer version of talkingface \(format 'talkingface\.mapping/4'"),
-    ({"format": "talkingface.mapping/2"}, r"was saved by an older version that stored Python"),
-    ({"format": "someone.else/3"}, r"not a talkingface mapping model \(expected format "
-                                   r"'talkingface\.mapping/3', got 'someone\.else/3'\)"),
-    ({"format": None}, r"not a talkingface mapping model"),
-    ({"method": "knn"}, r"unknown mapping method 'knn'; allowed: gated_mlp, vq"),
-    ({"expressions": ["neutral"]}, r"the header lists expressions \['neutral'\]"),
-    ({"method_params": {"n_utterance": 3}}, r"malformed talkingface\.mapping/3 header "
+    ({"version": 5}, r" was saved by a newer version of talkingface \(audio_mapping version 5; "
+                     r"this version reads 4\); update talkingface$"),
+    ({"version": 3}, r": audio_mapping version 3 is not read by this version of talkingface "
+                     r"\(it reads 4\)$"),
+    ({"version": "4"}, r": not a talkingface mapping model \(its version is '4', not a positive "
+                       r"integer\)$"),
+    ({"kind": "motion_units"}, r": not a talkingface mapping model \(its kind is "
+                               r"'motion_units', expected 'audio_mapping'\)$"),
+    ({"kind": None}, r": not a talkingface mapping model \(its kind is None"),
+    ({"method": "knn"}, r": unknown mapping method 'knn'; allowed: gated_mlp, vq"),
+    ({"expressions": ["neutral"]}, r": the metadata lists expressions \['neutral'\]"),
+    ({"method_params": {"n_utterance": 3}}, r": malformed talkingface mapping model record "
                                             r"\(KeyError"),
-    ({"rest_mups": [0.0]}, r"rest_mups must have shape \(3,\)"),
-], ids=["newer", "older", "foreign", "no-format", "method", "expressions", "params", "rest"])
-def test_bad_headers_are_refused(saved, tmp_path, changes, message):
-    bad = write_members(tmp_path / "bad.tfmap", read_members(saved), header_changes=changes)
-    with pytest.raises(ParameterError, match=re.escape(str(bad)) + r".*" + message):
+    ({"rest_mups": [0.0]}, r": rest_mups must have shape \(3,\)"),
+], ids=["newer", "older", "version-text", "kind", "no-kind", "method", "expressions", "params",
+        "rest"])
+def test_bad_records_are_refused(saved, tmp_path, changes, message):
+    bad = write_members(tmp_path / "bad.tfmap", read_members(saved), changes=changes)
+    with pytest.raises(ParameterError, match=re.escape(str(bad)) + message):
+        AudioMapping.load(bad)
+
+
+def test_an_edited_record_is_a_checksum_mismatch(saved, tmp_path):
+    """The checksum covers the record too: a hand-edited setting is refused, not used."""
+    bad = write_members(tmp_path / "bad.tfmap", read_members(saved),
+                        changes={"silence_dbfs": -10.0}, refresh=False)
+    with pytest.raises(ParameterError, match=re.escape(str(bad)) + r": checksum mismatch: the "
+                                             r"file is not the one saved \(SHA-256 [0-9a-f]{64}, "
+                                             r"recorded '[0-9a-f]{64}'\); the file is damaged$"):
+        AudioMapping.load(bad)
+
+
+# -- format /3 ------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("method", ["gated", "linear"])
+def test_a_format_3_file_loads_bit_identically(gated, data, masks, tmp_path, method):
+    """A model saved by format /3 (the record under ``header``, the arrays' SHA-256 only) loads
+    to the same model as the new file, and saving it again writes version 4."""
+    mapper = gated if method == "gated" else Baseline("linear", random_state=0).fit(data, masks)
+    new = wrap(mapper).save(tmp_path / "new.tfmap")
+    old = write_format_3(tmp_path / "old.tfmap", read_members(new))
+    with np.load(old, allow_pickle=False) as z:
+        assert "metadata" not in z.files and json.loads(str(z["header"]))["format"] == (
+            "talkingface.mapping/3")
+    a, b = AudioMapping.load(new), AudioMapping.load(old)
+    assert b.metadata == a.metadata == {"note": "checkpoint test"}
+    assert (b.sample_rate, b.fps, b.n_mfcc, b.deltas, b.window_align, b.silence_dbfs) == (
+        a.sample_rate, a.fps, a.n_mfcc, a.deltas, a.window_align, a.silence_dbfs)
+    assert b.rest_mups.tobytes() == a.rest_mups.tobytes() and b.expressions == a.expressions
+    assert_same_predictions(a.mapper, b.mapper, data, a.expressions)
+    assert_same_predictions(mapper, b.mapper, data, a.expressions)
+    again = read_members(b.save(tmp_path / "again.tfmap"))
+    assert str(again["metadata"]) == str(read_members(new)["metadata"])
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"format": "talkingface.mapping/2"}, r" was saved by an older version that stored Python "
+                                          r"objects \(format 'talkingface\.mapping/2'\)"),
+    ({"format": "someone.else/3"}, r": not a talkingface mapping model \(expected format "
+                                   r"'talkingface\.mapping/3' in its header, got format "
+                                   r"'someone\.else/3'\)$"),
+    ({"format": None}, r": not a talkingface mapping model \(expected format "
+                       r"'talkingface\.mapping/3' in its header, got format None\)$"),
+    ({"sha256": "0" * 64}, r": checksum mismatch: the file is not the one saved"),
+    ({"arrays": {}}, r": the arrays do not match the header \(missing: none; not in the "
+                     r"header: \['mapper/"),
+    ({"method": "knn"}, r": unknown mapping method 'knn'"),
+], ids=["older", "foreign", "no-format", "checksum", "manifest", "method"])
+def test_bad_format_3_headers_are_refused(saved, tmp_path, changes, message):
+    bad = write_format_3(tmp_path / "bad.tfmap", read_members(saved), changes=changes)
+    with pytest.raises(ParameterError, match=re.escape(str(bad)) + message):
         AudioMapping.load(bad)
 
 
@@ -306,13 +397,14 @@ def test_other_archives_are_refused(saved, tmp_path):
     no_header = tmp_path / "no_header.tfmap"
     with open(no_header, "wb") as f:
         np.savez(f, x=np.zeros(3))
-    with pytest.raises(ParameterError, match=r"not a talkingface mapping model \(no header"):
+    with pytest.raises(ParameterError, match=r"not a talkingface mapping model \(no metadata"):
         AudioMapping.load(no_header)
-    text_header = tmp_path / "text.tfmap"
-    with open(text_header, "wb") as f:
-        np.savez(f, header=np.array("hello"))
-    with pytest.raises(ParameterError, match=r"its header is not JSON"):
-        AudioMapping.load(text_header)
+    for member in ("metadata", "header"):  # the record of version 4, of format /3
+        text_header = tmp_path / f"text_{member}.tfmap"
+        with open(text_header, "wb") as f:
+            np.savez(f, **{member: np.array("hello")})
+        with pytest.raises(ParameterError, match=f"its {member} is not JSON"):
+            AudioMapping.load(text_header)
     other = tmp_path / "other.tfmap"  # a zip that is not an npz
     with zipfile.ZipFile(other, "w") as z:
         z.writestr("script.py", "print('hello')\n")
@@ -340,13 +432,13 @@ def test_other_archives_are_refused(saved, tmp_path):
         AudioMapping.load(huge)
 
 
-def test_a_header_cannot_make_huge_networks(saved, tmp_path):
-    """Network sizes come from the header, but the stored arrays must fit them before
+def test_a_record_cannot_make_huge_networks(saved, tmp_path):
+    """Network sizes come from the record, but the stored arrays must fit them before
     anything is allocated."""
     members = read_members(saved)
-    header = json.loads(str(members["header"]))
-    header["method_params"]["bank"]["nets"][0]["arguments"]["n_hidden"] = 10**7
-    bad = write_members(tmp_path / "bad.tfmap", members, header_changes=header)
+    record = json.loads(str(members["metadata"]))
+    record["method_params"]["bank"]["nets"][0]["arguments"]["n_hidden"] = 10**7
+    bad = write_members(tmp_path / "bad.tfmap", members, changes=record)
     with pytest.raises(ParameterError, match=r"array 'bank/nets/0/state/net\.0\.weight' must have "
                                              r"shape \(10000000, 28\), got \(\d+, 28\)"):
         AudioMapping.load(bad)

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from groundwork import modelfile
 from groundwork.owner import lock_path
 
 TINY = ["--set", "synth.n_sentences=3", "--set", "synth.workers=2", "--set", "mlflow.enabled=false"]
@@ -137,20 +138,26 @@ def _npy_bytes(a) -> bytes:
 
 
 def _edit_header(path: Path, edit) -> dict:
+    """The members of the model file ``path`` with its JSON record edited by ``edit`` and its
+    checksum made to fit again, so that the check after the checksum is the one reached."""
     members = _tfmap_members(path)
-    header = json.loads(str(np.load(io.BytesIO(members["header.npy"]))[()]))
-    edit(header)
-    members["header.npy"] = _npy_bytes(np.array(json.dumps(header, sort_keys=True)))
+    record = json.loads(str(np.load(io.BytesIO(members["metadata.npy"]))[()]))
+    edit(record)
+    with np.load(path, allow_pickle=False) as z:
+        arrays = {n: z[n] for n in z.files if n != "metadata"}
+    record.pop("sha256", None)
+    record["sha256"] = modelfile.checksum(arrays, record)
+    members["metadata.npy"] = _npy_bytes(np.array(json.dumps(record, sort_keys=True)))
     return members
 
 
 def _damaged_models(models: Path, good: Path, root: Path) -> None:
-    """Copies of the model ``good`` damaged inside its .npz: the header's format, shapes,
-    method or parameters changed, one array's bytes changed, a pickled member added."""
+    """Copies of the model ``good`` damaged inside its .npz: the record's kind, version,
+    shapes, method or parameters changed, one array's bytes changed, a pickled member added."""
     _tfmap_write(models / "format.tfmap",
-                 _edit_header(good, lambda h: h.__setitem__("format", "other.thing/1")))
+                 _edit_header(good, lambda h: h.__setitem__("kind", "other.thing/1")))
     _tfmap_write(models / "newer.tfmap",
-                 _edit_header(good, lambda h: h.__setitem__("format", "talkingface.mapping/9")))
+                 _edit_header(good, lambda h: h.__setitem__("version", 9)))
 
     def wrong_shape(h):
         name = sorted(h["arrays"])[0]
@@ -162,7 +169,7 @@ def _damaged_models(models: Path, good: Path, root: Path) -> None:
     _tfmap_write(models / "params.tfmap",
                  _edit_header(good, lambda h: h.__setitem__("method_params", {})))
     members = _tfmap_members(good)  # one byte of one array changed, the zip itself valid
-    name = next(n for n in members if n != "header.npy" and len(members[n]) > 200)
+    name = next(n for n in members if n != "metadata.npy" and len(members[n]) > 200)
     payload = bytearray(members[name])
     payload[-1] ^= 0x01
     members[name] = bytes(payload)

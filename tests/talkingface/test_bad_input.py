@@ -522,3 +522,38 @@ def test_a_second_session_of_a_participant_whose_session_runs_is_refused(world, 
             assert "interrupted" not in line and "wait for it to end" in line
     finally:
         lock.release()
+
+
+# -- model files of another kind, or edited by hand (groundwork.modelfile) ------------------------
+
+def _hand_edited_model(world: Path) -> str:
+    """The run's model with one setting of its JSON record changed by hand, the zip itself
+    consistent: its checksum (of the arrays and the record) no longer fits."""
+    good = world / "runs" / "R" / "mapping" / "gated_mlp_utterance.tfmap"
+    with np.load(good, allow_pickle=False) as z:
+        members = {name: z[name] for name in z.files}
+    record = json.loads(str(members["metadata"]))
+    record["silence_dbfs"] = -10.0
+    edited = good.parent / "edited.tfmap"
+    with open(edited, "wb") as f:
+        np.savez(f, **{**members, "metadata": np.array(json.dumps(record))})
+    return str(edited.relative_to(world))
+
+
+def _units_as_a_mapping(world: Path) -> str:
+    """The run's Motion Units file (a model file of kind motion_units) named as a mapping."""
+    units = world / "runs" / "R" / "mapping" / "units_renamed.tfmap"
+    shutil.copy(world / "runs" / "R" / "units" / "motion_units.npz", units)
+    return str(units.relative_to(world))
+
+
+@pytest.mark.parametrize("make, names", [
+    (_hand_edited_model, ["edited.tfmap", "checksum mismatch"]),
+    (_units_as_a_mapping, ["units_renamed.tfmap", "its kind is 'motion_units', expected "
+                                                  "'audio_mapping'"]),
+], ids=["edited record", "another kind"])
+def test_a_model_file_edited_or_of_another_kind_is_one_line(world, monkeypatch, capsys, make,
+                                                            names):
+    model = make(world)
+    refused(world, monkeypatch, capsys,
+            ["animate", "speech.wav", "-o", "o.mp4", "--model", model], *names)
