@@ -34,7 +34,7 @@ from talkingface.experiments.log import (artifact_root, check_tracking, log_spee
                                         mlflow_run, tracking_uri)
 from talkingface.experiments.mlflow_app import (APP_NAME, check_installed, find_experiment,
                                     grid_link_text, link_text)
-from talkingface.experiments.server import check_free
+from talkingface.experiments.processes import check_free
 from talkingface.paths import RunPaths
 from talkingface.stages import run
 from talkingface.stages.foundation import fit_units_folder

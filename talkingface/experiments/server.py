@@ -23,7 +23,6 @@ Library code: no MLflow import (the server is a separate process); the CLI is
 from __future__ import annotations
 
 import contextlib
-import errno
 import glob
 import importlib.util
 import json
@@ -32,8 +31,6 @@ import pwd
 import re
 import secrets
 import shutil
-import signal
-import socket
 import subprocess
 import sys
 import time
@@ -44,6 +41,8 @@ from pathlib import Path
 
 from groundwork.errors import ParameterError, TalkingFaceError
 from talkingface.experiments.mlflow_app import APP_NAME, check_installed
+from talkingface.experiments.processes import (check_free, check_port, lan_address, last_lines,
+                                               stop_process_group, url_host)
 
 DEFAULT_FOLDER = Path("mlflow-server")
 DEFAULT_HOST = "127.0.0.1"
@@ -95,81 +94,6 @@ def _major(initdb: Path) -> str:
                          timeout=PG_PROGRAM_TIMEOUT_S).stdout
     m = re.search(r"(\d+)", out)
     return m.group(1) if m else ""
-
-
-def check_port(port: int, option: str = "--port") -> None:
-    """Refuse a TCP port outside 1..65535, naming the option and the value."""
-    if isinstance(port, bool) or not isinstance(port, int) or not 1 <= port <= 65535:
-        raise ParameterError(f"{option} {port}: allowed: a TCP port from 1 to 65535")
-
-
-def check_free(host: str, port: int, option: str = "--port") -> None:
-    """Refuse a port something already listens on (checked by binding it, as a server would,
-    with ``SO_REUSEADDR``), or a host that is no address of this machine."""
-    check_port(port, option)
-    try:
-        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
-    except socket.gaierror as exc:
-        raise ParameterError(f"--host {host}: unknown ({exc.strerror}); allowed: 127.0.0.1 (this "
-                             "machine only), an address of this machine, or 0.0.0.0 (all)")
-    family, _, _, _, addr = infos[0]
-    with socket.socket(family, socket.SOCK_STREAM) as s:
-        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            s.bind(addr)
-        except OSError as exc:
-            if exc.errno == errno.EADDRINUSE:
-                raise TalkingFaceError(
-                    f"{option} {port}: port {port} on {host} is already in use (another server, "
-                    f"perhaps a `talkingface server` or `ui` already running): stop it, or "
-                    f"choose a free port with {option}") from None
-            if exc.errno in (errno.EACCES, errno.EPERM):
-                raise TalkingFaceError(f"{option} {port}: not allowed to listen on port {port} "
-                                       f"(ports below 1024 need root): choose one above "
-                                       f"1023 with {option}") from None
-            raise ParameterError(f"--host {host}: cannot listen there ({exc.strerror}); allowed: "
-                                 "127.0.0.1 (this machine only), an address of this machine, "
-                                 "or 0.0.0.0 (all)") from None
-
-
-def _last_lines(path: Path, n: int = 5) -> str:
-    """The last ``n`` non-empty lines of a log, joined into one line."""
-    try:
-        lines = [x.strip() for x in path.read_text(errors="replace").splitlines() if x.strip()]
-    except OSError:
-        return "(no log)"
-    return " | ".join(lines[-n:]) or "(empty)"
-
-
-def _group_members(pgid: int) -> list[int]:
-    """Processes of process group ``pgid`` that still run (zombies are finished: not counted)."""
-    out = []
-    for stat in glob.glob("/proc/[0-9]*/stat"):
-        try:
-            text = Path(stat).read_text()
-        except OSError:
-            continue
-        fields = text[text.rindex(")") + 2:].split()  # after "pid (comm) "
-        if int(fields[2]) == pgid and fields[0] != "Z":
-            out.append(int(Path(stat).parent.name))
-    return out
-
-
-def stop_process_group(proc: subprocess.Popen, timeout: float = 60.0) -> None:
-    """SIGTERM to the whole process group led by ``proc`` (started with
-    ``start_new_session=True``), wait for all of it, and SIGKILL what is left after
-    ``timeout`` seconds."""
-    with contextlib.suppress(ProcessLookupError):
-        os.killpg(proc.pid, signal.SIGTERM)
-    deadline = time.monotonic() + timeout
-    with contextlib.suppress(subprocess.TimeoutExpired):
-        proc.wait(timeout=timeout)
-    while _group_members(proc.pid) and time.monotonic() < deadline:
-        time.sleep(0.2)
-    if _group_members(proc.pid) or proc.poll() is None:
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait()
 
 
 class LabServer:
@@ -231,12 +155,12 @@ class LabServer:
     @property
     def uri(self) -> str:
         local = {"0.0.0.0": "127.0.0.1", "::": "::1"}.get(self.host, self.host)
-        return f"http://{_url_host(local)}:{self.port}"
+        return f"http://{url_host(local)}:{self.port}"
 
     @property
     def share_uri(self) -> str:
         if self.host in ("0.0.0.0", "::"):
-            return f"http://{_url_host(_lan_address())}:{self.port}"
+            return f"http://{url_host(lan_address())}:{self.port}"
         return self.uri
 
     @property
@@ -386,7 +310,7 @@ class LabServer:
         if started.returncode != 0:
             raise TalkingFaceError(f"PostgreSQL did not start on 127.0.0.1:{self.db_port} (data "
                                    f"{self.pgdata}); the last lines of its log {log}: "
-                                   f"{_last_lines(log)}")
+                                   f"{last_lines(log)}")
         have = self._pg("psql", "-X", "-q", "-h", "127.0.0.1", "-p", str(self.db_port),
                         "-U", DB_ROLE, "-d", "postgres", "-tAc",
                         f"SELECT 1 FROM pg_database WHERE datname = '{DB_NAME}'")
@@ -435,7 +359,7 @@ class LabServer:
             if code is not None:
                 raise TalkingFaceError(f"the MLflow server exited (status {code}) before it "
                                        f"answered; the last lines of its log {log}: "
-                                       f"{_last_lines(log)}")
+                                       f"{last_lines(log)}")
             try:
                 with urllib.request.urlopen(url, timeout=5) as r:
                     if r.status == 200 and "experiments" in json.loads(r.read() or b"{}"):
@@ -445,7 +369,7 @@ class LabServer:
             if time.monotonic() > deadline:
                 raise TalkingFaceError(f"the MLflow server did not answer on {self.uri} within "
                                        f"{self.start_timeout:g} s; the last lines of its log "
-                                       f"{log}: {_last_lines(log)}")
+                                       f"{log}: {last_lines(log)}")
             time.sleep(0.5)
 
     # -- run and stop ------------------------------------------------------------------------
@@ -468,7 +392,7 @@ class LabServer:
                 log = self.logs / "postgres.log"
                 raise TalkingFaceError(f"PostgreSQL of {self.pgdata} did not stop (pg_ctl stop "
                                        f"-m fast); the last lines of its log {log}: "
-                                       f"{_last_lines(log)}")
+                                       f"{last_lines(log)}")
 
     def __enter__(self) -> "LabServer":
         return self.start()
@@ -494,21 +418,6 @@ def warn_trusting(pgdata: Path) -> bool:
           "password (made by an older `talkingface server`): set a password for the role and "
           "replace 'trust' by 'scram-sha-256' there, or start a new --folder", file=sys.stderr)
     return True
-
-
-def _url_host(host: str) -> str:
-    return f"[{host}]" if ":" in host else host
-
-
-def _lan_address() -> str:
-    """This machine's address on its network (the one its default route leaves from: a UDP
-    socket's connect sends nothing), else its host name."""
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        try:
-            s.connect(("10.255.255.255", 1))
-            return s.getsockname()[0]
-        except OSError:
-            return socket.gethostname()
 
 
 @contextlib.contextmanager
