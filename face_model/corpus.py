@@ -8,9 +8,12 @@
                              audio, markers, phones   (paths relative to corpus/)
                              [+ voice: "engine:voice" of the audio, when the corpus draws
                               voices per utterance]
-      audio/<utt_id>.wav     mono PCM16
+                             [+ quality: quality/<utt_id>.csv, in a corpus made from video]
+      audio/<utt_id>.wav     mono PCM16 (any lossless format the reader reads, e.g. FLAC)
       markers/<utt_id>.npy   float32 (n_frames, 79, 2), pixels, head motion included
       phones/<utt_id>.csv    start_s, end_s, phone   (44-class set)
+      quality/<utt_id>.csv   frame, confidence, interpolated   (one row per frame: the landmark
+                             detector's confidence, 1 where the frame's face was interpolated)
 
 :func:`load_corpus` validates every file before returning: a corpus either loads whole or fails
 with a :class:`CorpusError` naming the file and the problem.
@@ -33,7 +36,8 @@ from groundwork.errors import CorpusError, ParameterError
 EXPRESSIONS = ("neutral", "smile", "sad")
 MANIFEST_COLUMNS = ("utt_id", "speaker", "expression", "text", "n_frames", "fps",
                     "sample_rate", "audio", "markers", "phones")
-OPTIONAL_COLUMNS = ("voice",)  # written only when some row has it
+OPTIONAL_COLUMNS = ("voice", "quality")  # written only when some row has it
+QUALITY_COLUMNS = ("frame", "confidence", "interpolated")
 _FILE_COLUMNS = ("audio", "markers", "phones")  # the columns that name an utterance's files
 FPS = 30
 # Rates with an integer hop at 30 fps; anything else is refused or resampled to DEFAULT_SR.
@@ -71,6 +75,9 @@ class Utterance:
         In time order.
     voice : str
         The manifest's optional ``voice`` (``engine:voice``), "" when absent.
+    quality : ndarray, shape (n_frames, 2), or None
+        From video: per frame the detector's confidence and 1 where the face was interpolated
+        (the manifest's optional ``quality`` file); None for a synthetic corpus.
     """
 
     utt_id: str
@@ -83,6 +90,7 @@ class Utterance:
     markers: np.ndarray = field(repr=False)  # (n_frames, 79, 2) float32
     phones: list = field(repr=False)  # list[PhoneSegment]
     voice: str = ""  # the manifest's optional voice column ("engine:voice"; "" if absent)
+    quality: np.ndarray | None = field(default=None, repr=False)  # (n_frames, 2) or None
 
     @property
     def n_frames(self) -> int:
@@ -244,8 +252,27 @@ def _load_utterance(root: Path, row: dict, line: int, resample_to: int | None) -
                           f"{audio_frames:.2f} frames, but {paths['markers'].name} has {n_frames} "
                           "frames (more than one frame apart)")
     phones = read_phones(paths["phones"], len(y) / sr, fps)
+    quality = _read_quality(root, row, where, n_frames) if row.get("quality") else None
     return Utterance(row["utt_id"], row["speaker"], row["expression"], row["text"], fps, sr,
-                     y, markers, phones, voice=row.get("voice") or "")
+                     y, markers, phones, voice=row.get("voice") or "", quality=quality)
+
+
+def _read_quality(root: Path, row: dict, where: str, n_frames: int) -> np.ndarray:
+    """The ``quality`` file of a row: (n_frames, 2) confidence in [0, 1], interpolated 0/1."""
+    path = root / row["quality"]
+    if not path.is_file():
+        raise CorpusError(f"{where}: quality file {path} not found")
+    rows = read_manifest(path, QUALITY_COLUMNS, not_found="a corpus made from video")
+    try:
+        q = np.array([[float(r["confidence"]), float(r["interpolated"])] for r in rows])
+    except ValueError as exc:
+        raise CorpusError(f"{path}: {exc}; confidence and interpolated must be numbers") from None
+    if len(q) != n_frames:
+        raise CorpusError(f"{path}: {len(q)} frames, the manifest says {n_frames}")
+    if len(q) and (not np.all((q[:, 0] >= 0) & (q[:, 0] <= 1))
+                   or not np.all(np.isin(q[:, 1], (0, 1)))):
+        raise CorpusError(f"{path}: confidence must be in [0, 1] and interpolated 0 or 1")
+    return q.reshape(n_frames, 2)
 
 
 def read_manifest(path, columns=MANIFEST_COLUMNS, *,

@@ -7,8 +7,11 @@
 #   bash tools/setup.sh          base: what the replication needs (`make replicate`)
 #   bash tools/setup.sh server   base + the lab's tracking server (`make server`): Debian
 #                                postgresql, and requirements/lab.txt (psycopg 3)
-#   bash tools/setup.sh test     base + server + what the tests need (`make test`): Debian chromium
-#                                and chromium-driver, and requirements/lab.txt (selenium)
+#   bash tools/setup.sh face     base + the face environment (`$VENV-face`, requirements/face.txt):
+#                                MediaPipe Face Mesh for landmarks from real video
+#                                (`talkingface corpus from-video`, `talkingface evaluate-face`)
+#   bash tools/setup.sh test     base + server + face + what the tests need (`make test`): Debian
+#                                chromium and chromium-driver, and requirements/lab.txt (selenium)
 #
 # Re-running is cheap: the venv is rebuilt only when the lock file or pyproject changes, and the
 # lab's extras are reinstalled only when requirements/lab.txt (or what it is pinned against) does
@@ -18,8 +21,9 @@ cd "$(dirname "$0")/.."
 
 MODE=${1:-base}
 case "$MODE" in
-  base|server|test) ;;
-  *) echo "setup: unknown mode '$MODE'; allowed: base (the default), server, test" >&2; exit 2;;
+  base|server|face|test) ;;
+  *) echo "setup: unknown mode '$MODE'; allowed: base (the default), server, face, test" >&2
+     exit 2;;
 esac
 VENV=${VENV:-.venv}
 PY=${PYTHON:-python3}
@@ -35,7 +39,7 @@ DEB_PKGS="python3 python3-venv python3-pip flite festival festlex-cmu festlex-po
   libjack-jackd2-0 xvfb xauth"
 # server and test: postgresql (the lab's tracking server keeps its runs in it: `talkingface server`).
 # test: chromium and chromium-driver (the MLflow UI opened in a real, headless browser).
-if [ "$MODE" != base ]; then DEB_PKGS="$DEB_PKGS postgresql"; fi
+case "$MODE" in server|test) DEB_PKGS="$DEB_PKGS postgresql";; esac
 if [ "$MODE" = test ]; then DEB_PKGS="$DEB_PKGS chromium chromium-driver"; fi
 
 missing=()
@@ -75,7 +79,7 @@ fi
 
 # The lab's extras (server and test modes), pinned against the lock file: what they share with
 # it stays at the lock's versions.
-if [ "$MODE" != base ]; then
+if [ "$MODE" = server ] || [ "$MODE" = test ]; then
   LAB_STAMP="$VENV/.talkingface-lab-installed"
   want_lab=$(cat requirements/lab.txt requirements/lock.txt requirements/constraints.txt \
     | sha256sum | cut -d' ' -f1)
@@ -84,5 +88,23 @@ if [ "$MODE" != base ]; then
       -c requirements/lock.txt -r requirements/lab.txt
     echo "$want_lab" > "$LAB_STAMP"
     echo "setup: the lab's extras (requirements/lab.txt) ready in $VENV"
+  fi
+fi
+
+# The face environment (face and test modes): MediaPipe beside its own protobuf 4.25, which the
+# project's lock (protobuf 7) cannot hold; the project runs its Python as a subprocess
+# (face_model/landmark_worker.py). requirements/face.txt is complete, hence --no-deps.
+if [ "$MODE" = face ] || [ "$MODE" = test ]; then
+  FACE_VENV="${FACE_VENV:-$VENV-face}"
+  FACE_STAMP="$FACE_VENV/.talkingface-face-installed"
+  want_face=$(cat requirements/face.txt | sha256sum | cut -d' ' -f1)
+  if [ ! -f "$FACE_STAMP" ] || [ "$(cat "$FACE_STAMP")" != "$want_face" ]; then
+    [ -x "$FACE_VENV/bin/python" ] || "$PY" -m venv "$FACE_VENV"
+    "$FACE_VENV/bin/python" -m pip install -q --upgrade pip
+    "$FACE_VENV/bin/python" -m pip install -q --no-deps -r requirements/face.txt
+    "$FACE_VENV/bin/python" -c "import mediapipe, cv2; mediapipe.solutions.face_mesh.FaceMesh" \
+      || { echo "setup: the face environment $FACE_VENV does not import mediapipe" >&2; exit 1; }
+    echo "$want_face" > "$FACE_STAMP"
+    echo "setup: the face environment (requirements/face.txt) ready in $FACE_VENV"
   fi
 fi
