@@ -173,12 +173,14 @@ class Landmarks:
                        tuple(int(v) for v in d["size"]), str(d["detector"]))
 
 
-def _weights() -> tuple[np.ndarray, np.ndarray]:
-    """The correspondence as a (79, 478) weight matrix applied by :func:`markers_from_landmarks`."""
+def _weights() -> np.ndarray:
+    """The correspondence as a (79, 478) weight matrix applied by :func:`markers_from_landmarks`
+    (each row scaled to sum to exactly 1: the table's weights are rounded to 4 decimals, and a
+    marker must move exactly as far as a face that only moves)."""
     W = np.zeros((N_MARKERS, N_LANDMARKS))
     for k, (idx, w) in MARKER_LANDMARKS.items():
         W[k, list(idx)] = w
-    return W
+    return W / W.sum(axis=1, keepdims=True)
 
 
 def markers_from_landmarks(points: np.ndarray) -> np.ndarray:

@@ -234,22 +234,38 @@ def write_quality(path: Path, confidence: np.ndarray, interpolated: np.ndarray) 
             w.writerow([k, f"{c:.4f}", int(bool(i))])
 
 
-def make_utterance(video: Path, landmark_file: Path, text: str, words, root: Path,
-                   settings: FromVideoSettings) -> dict:
-    """One clip → one utterance's files under ``root``; its manifest row.
+@dataclass(frozen=True)
+class ClipData:
+    """One clip at 30 fps: audio at the corpus rate and the face's tracks."""
+
+    video: Path
+    audio: np.ndarray
+    sample_rate: int
+    markers: np.ndarray  # (n_frames, 79, 2) float32, image pixels
+    confidence: np.ndarray  # (n_frames,)
+    interpolated: np.ndarray  # (n_frames,) bool
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.markers)
+
+
+def clip_data(video: Path, landmark_file: Path, settings: FromVideoSettings,
+              scratch: Path) -> ClipData:
+    """A clip's audio and 30 fps tracks from its video and landmark file.
 
     Raises
     ------
     ClipRefused
-        Its face, audio or transcript (the message says which and why).
+        Its face or audio (the message says which and why).
     """
     try:
         lm = Landmarks.load(landmark_file)
     except (OSError, ValueError, KeyError) as exc:
         raise ClipRefused(f"{video}: its landmark file {landmark_file} is unreadable ({exc})")
     check_face(video, lm, settings)
-    with tempfile.TemporaryDirectory(dir=root) as scratch:
-        y = decode_audio(video, settings.sample_rate, Path(scratch))
+    with tempfile.TemporaryDirectory(dir=scratch) as tmp:
+        y = decode_audio(video, settings.sample_rate, Path(tmp))
     sr = settings.sample_rate
     dt = float(np.median(np.diff(lm.time_s))) if len(lm.time_s) > 1 else 1 / FPS
     video_s = float(lm.time_s[-1] - lm.time_s[0] + dt)
@@ -259,13 +275,26 @@ def make_utterance(video: Path, landmark_file: Path, text: str, words, root: Pat
                           f"allowed: at least 2 frames at {FPS} fps")
     n_samples = int(round(n_out * sr / FPS))
     y = np.pad(y[:n_samples], (0, max(0, n_samples - len(y))))
-    if words is not None and words and words[-1][1] > n_out / FPS + 0.1:
-        raise ClipRefused(f"{video}: the transcript's words end at {words[-1][1]:.2f} s but the "
-                          f"clip lasts {n_out / FPS:.2f} s: the transcript does not match it")
-    phones = align_audio(y, sr, text, source=str(video))
     markers, confidence, interpolated = clip_tracks(lm, n_out)
+    return ClipData(video, y, sr, markers, confidence, interpolated)
+
+
+def make_utterance(video: Path, landmark_file: Path, transcript, root: Path,
+                   settings: FromVideoSettings) -> dict:
+    """One clip → one utterance's files under ``root``; its manifest row.
+
+    Raises
+    ------
+    ClipRefused
+        Its face, audio or transcript (the message says which and why).
+    """
+    clip = clip_data(video, landmark_file, settings, root)
+    y, sr, n_out = clip.audio, clip.sample_rate, clip.n_frames
+    transcript.check_duration(n_out / FPS, source=str(video))
+    phones = align_audio(y, sr, transcript.text, source=str(video))
     utt_id = video.stem
-    rel = write_utterance(root, utt_id=utt_id, audio=y, sr=sr, markers=markers, phones=phones)
+    rel = write_utterance(root, utt_id=utt_id, audio=y, sr=sr, markers=clip.markers,
+                          phones=phones)
     if settings.audio_format == "flac":
         import soundfile as sf  # noqa: PLC0415
         wav = root / rel["audio"]
@@ -275,6 +304,6 @@ def make_utterance(video: Path, landmark_file: Path, text: str, words, root: Pat
         wav.unlink()
     (root / "quality").mkdir(exist_ok=True)
     rel["quality"] = f"quality/{utt_id}.csv"
-    write_quality(root / rel["quality"], confidence, interpolated)
+    write_quality(root / rel["quality"], clip.confidence, clip.interpolated)
     return {"utt_id": utt_id, "speaker": settings.speaker, "expression": settings.expression,
-            "text": text, "n_frames": n_out, "fps": FPS, "sample_rate": sr, **rel}
+            "text": transcript.text, "n_frames": n_out, "fps": FPS, "sample_rate": sr, **rel}

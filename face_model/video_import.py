@@ -12,6 +12,9 @@ import shutil
 from dataclasses import asdict
 from pathlib import Path
 
+import numpy as np
+from tqdm import tqdm
+
 from face_model.corpus import load_corpus, write_manifest
 from face_model.landmarks import MARKER_LANDMARKS, extract_landmarks
 from face_model.layout import LAYOUT_VERSION
@@ -39,21 +42,20 @@ def _keep_partial(job: dict):
 
 
 def _clip_task(args):
-    video, landmark_file, text, words, root, settings = args
+    video, landmark_file, transcript, root, settings = args
     try:
-        return make_utterance(video, landmark_file, text, words, root, settings), None
+        return make_utterance(video, landmark_file, transcript, root, settings), None
     except TalkingFaceError as exc:
         return None, (video.stem, str(exc))
 
 
 def _bar(total: int, desc: str, progress: bool):
-    from tqdm import tqdm  # noqa: PLC0415
     return tqdm(total=total, desc=desc, unit="clip", disable=not progress, leave=False)
 
 
 def corpus_from_video(src, out, *, settings: FromVideoSettings | None = None,
                       transcripts=None, workers: int = 2, licence: str = "",
-                      progress: bool = True, keep_landmarks=None) -> dict:
+                      progress: bool = True, keep_landmarks=None, source: str = "") -> dict:
     """Make a corpus at ``out`` from the videos of ``src``.
 
     Parameters
@@ -74,6 +76,8 @@ def corpus_from_video(src, out, *, settings: FromVideoSettings | None = None,
         Show progress bars.
     keep_landmarks : path-like, optional
         Move the landmark files (one ``.npz`` per clip) to this folder afterwards.
+    source : str
+        Where the videos came from, for ``corpus.json`` (default: ``src``'s full path).
 
     Returns
     -------
@@ -118,8 +122,7 @@ def corpus_from_video(src, out, *, settings: FromVideoSettings | None = None,
         if "error" in reply:
             refused.append((v.stem, f"{v}: {reply['error']}"))
             continue
-        t = texts[v]
-        tasks.append((v, lm_file, t.text, t.words, partial, settings))
+        tasks.append((v, lm_file, texts[v], partial, settings))
     rows = []
     with _bar(len(tasks), "utterances", progress) as bar:
         ctx = multiprocessing.get_context("fork")
@@ -135,7 +138,7 @@ def corpus_from_video(src, out, *, settings: FromVideoSettings | None = None,
     rows.sort(key=lambda r: r["utt_id"])
     write_manifest(partial, rows)
     _write_refusals(partial, refused)
-    info = {"source": str(src.resolve()), "made_by": "talkingface corpus from-video",
+    info = {"source": source or str(src.resolve()), "made_by": "talkingface corpus from-video",
             "detector": _detector(lm_dir, rows), "marker_correspondence":
             "face_model.landmarks.MARKER_LANDMARKS (tools/marker_correspondence.py)",
             "marker_layout_version": LAYOUT_VERSION, "licence": licence,
@@ -157,7 +160,6 @@ def corpus_from_video(src, out, *, settings: FromVideoSettings | None = None,
 
 
 def _detector(lm_dir: Path, rows: list) -> str:
-    import numpy as np  # noqa: PLC0415
     with np.load(lm_dir / f"{rows[0]['utt_id']}.npz") as d:
         return str(d["detector"])
 

@@ -1,0 +1,105 @@
+"""The import of real video end to end: the shipped GRID clips (tests/data/grid, CC BY 4.0, see
+its NOTICE.md) through MediaPipe in the face environment, into a corpus the reader takes, equal
+to the built-in real corpus made from the same clips, resumable, and trainable."""
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import face_model.video_import as video_import
+from face_model.corpus import load_corpus
+from face_model.video_corpus import FromVideoSettings
+from face_model.video_import import corpus_from_video
+from talkingface.cli.main import main
+
+REPO = Path(__file__).resolve().parents[2]
+GRID = REPO / "tests" / "data" / "grid"
+BUILTIN = REPO / "face_model" / "real_faces" / "grid-s1"
+CLIPS = ("bbbf8p", "lbbk4n", "sbbh2n")
+
+
+@pytest.fixture(scope="module")
+def imported(tmp_path_factory):
+    out = tmp_path_factory.mktemp("import") / "corpus"
+    assert main(["corpus", "from-video", str(GRID / "video"), "--out", str(out),
+                 "--speaker", "grid-s1"]) == 0
+    return out
+
+
+def test_the_import_makes_a_corpus_the_reader_takes(imported):
+    corpus = load_corpus(imported)
+    assert [u.utt_id for u in corpus.utterances] == list(CLIPS)
+    for u in corpus.utterances:
+        assert u.speaker == "grid-s1" and u.expression == "neutral" and u.sample_rate == 22050
+        assert abs(len(u.audio) / u.sample_rate - u.n_frames / 30) < 1 / 30
+        assert u.quality.shape == (u.n_frames, 2) and np.all(u.quality[:, 0] > 0.5)
+        assert u.phones[0].start_s == 0 and u.phones[-1].end_s == pytest.approx(
+            len(u.audio) / u.sample_rate, abs=0.011)
+    info = json.loads((imported / "corpus.json").read_text())
+    assert info["detector"].startswith("mediapipe 0.10.21") and info["refused"] == 1
+    with open(imported / "refused.csv", newline="") as f:
+        (row,) = list(csv.DictReader(f))
+    assert row["clip"] == "bbizzn"
+    assert "12 of 75 frames without a face (16 %); allowed: at most 10 %" in row["reason"]
+    assert not list(imported.parent.glob(".*partial*"))
+
+
+def test_the_import_reproduces_the_shipped_tracks(imported):
+    mine, shipped = load_corpus(imported), load_corpus(BUILTIN)
+    for clip in CLIPS:
+        a, b = mine[clip], shipped[clip]
+        assert a.n_frames == b.n_frames and a.text == b.text
+        np.testing.assert_allclose(a.markers, b.markers, atol=0.05)  # pixels
+        np.testing.assert_allclose(a.audio, b.audio, atol=1 / 32767)
+        assert a.phones == b.phones
+        np.testing.assert_allclose(a.quality, b.quality, atol=1e-3)
+
+
+def test_an_interrupted_import_resumes_from_the_landmarks_it_has(tmp_path, monkeypatch):
+    out = tmp_path / "corpus"
+
+    def interrupt(*_):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(video_import, "_write_refusals", interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        corpus_from_video(GRID / "video", out, settings=FromVideoSettings(speaker="grid-s1"),
+                          progress=False)
+    assert not out.exists()
+    monkeypatch.undo()
+    seen = []
+    real = video_import.extract_landmarks
+
+    def spy(jobs, **kw):
+        replies = real(jobs, **kw)
+        seen.extend(r.get("reused", False) for r in replies.values())
+        return replies
+
+    monkeypatch.setattr(video_import, "extract_landmarks", spy)
+    res = corpus_from_video(GRID / "video", out, settings=FromVideoSettings(speaker="grid-s1"),
+                            progress=False)
+    assert seen == [True] * 4 and res["utterances"] == 3
+    assert [u.utt_id for u in load_corpus(out).utterances] == list(CLIPS)
+
+
+def test_an_existing_corpus_is_never_overwritten(imported, capsys):
+    before = (imported / "manifest.csv").read_bytes()
+    assert main(["corpus", "from-video", str(GRID / "video"), "--out", str(imported)]) == 2
+    assert "already exists; give a new --out folder" in capsys.readouterr().err
+    assert (imported / "manifest.csv").read_bytes() == before
+
+
+def test_a_corpus_from_video_trains_with_the_same_commands(imported, tmp_path, monkeypatch):
+    corpus = tmp_path / "real"
+    shutil.copytree(imported, corpus)
+    monkeypatch.chdir(tmp_path)
+    assert main(["train", "--name", "r", "--corpus", str(corpus), "--set", "mlflow.enabled=false",
+                 "--set", "mapping.baselines=[linear]", "--set",
+                 "mapping.train.max_epochs=20"]) == 0
+    done = json.loads((tmp_path / "runs" / "r" / "mapping" / "done.json").read_text())
+    assert done and (tmp_path / "runs" / "r" / "mapping" / "tables.csv").is_file()
