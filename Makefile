@@ -25,6 +25,7 @@ bench: setup
 	$(PY) bench/bench_mapping.py
 	$(PY) bench/bench_streaming.py
 	$(PY) bench/bench_tracker.py
+	$(PY) bench/bench_import.py
 	$(PY) bench/bench_grid.py
 	$(PY) bench/bench_profile.py
 

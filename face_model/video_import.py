@@ -137,7 +137,7 @@ def corpus_from_video(src, out, *, settings: FromVideoSettings | None = None,
         raise CorpusError(first + more)
     rows.sort(key=lambda r: r["utt_id"])
     write_manifest(partial, rows)
-    _write_refusals(partial, refused)
+    _write_refusals(partial, refused, videos[0].parent)
     info = {"source": source or str(src.resolve()), "made_by": "talkingface corpus from-video",
             "detector": _detector(lm_dir, rows), "marker_correspondence":
             "face_model.landmarks.MARKER_LANDMARKS (tools/marker_correspondence.py)",
@@ -164,9 +164,11 @@ def _detector(lm_dir: Path, rows: list) -> str:
         return str(d["detector"])
 
 
-def _write_refusals(root: Path, refused: list) -> None:
+def _write_refusals(root: Path, refused: list, folder: Path) -> None:
+    """``refused.csv``: each refused clip and why (its file named within the source folder)."""
     if not refused:
         return
+    refused = [(clip, reason.replace(f"{folder}/", "")) for clip, reason in refused]
     with open(root / "refused.csv", "w", newline="") as f:
         w = csv.writer(f, lineterminator="\n")
         w.writerow(["clip", "reason"])
