@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import hashlib
 import json
 from pathlib import Path
 
@@ -31,7 +32,7 @@ from face_model.motion_units import MotionUnits
 from groundwork.atomic import atomic_file
 from groundwork.errors import ParameterError
 from mapping.animator import FaceAnimator
-from mapping.experiment import AudioMapping
+from mapping.checkpoint import AudioMapping
 from talkingface.paths import RunPaths
 from talkingface.stages.base import read_done
 from talkingface.stages.face_scoring import RealClip, clips_from_corpus, score_model
@@ -66,7 +67,6 @@ def real_inputs(paths, cfg) -> dict:
     if not manifest.is_file():
         raise ParameterError(f"real_speaker.corpus {src}: no manifest.csv (a corpus folder is "
                              "needed, e.g. one made by `talkingface corpus from-video`)")
-    import hashlib  # noqa: PLC0415
     return {"real_corpus": hashlib.sha256(manifest.read_bytes()).hexdigest()}
 
 
