@@ -35,7 +35,8 @@ import numpy as np
 
 from face_model.corpus import PhoneSegment, read_phones
 from face_model.corpus import read_manifest as read_manifest_rows
-from face_model.phones import PHONE_INDEX, PHONES
+from face_model.forced_align import ALIGNER_NAME, tidy_segments
+from face_model.phones import phone_class
 from groundwork.audio import read_wav
 from groundwork.errors import CorpusError
 
@@ -43,13 +44,10 @@ SET_DIR = Path(__file__).resolve().parent / "real_speech"
 MANIFEST = "manifest.csv"
 MANIFEST_COLUMNS = ("id", "wav", "labels", "speaker", "speaker_source", "label_source",
                     "label_origin", "transcript", "licence")
-ALIGNED = "pocketsphinx-5.1.1 forced alignment"
+ALIGNED = ALIGNER_NAME
 LABEL_SOURCES = ("hts", "textgrid", ALIGNED)
 PARTS = ("dev", "test")  # the optional ``part`` column
 SAMPLE_RATE = 16000
-_SILENCES = {"pau", "sil", "h#", "ssil", "sp", "brth", ""}
-# festival / ARPAbet symbols outside the 44 classes
-_OTHER = {"axr": "er", "em": "m", "hv": "hh", "nx": "n", "ix": "ih", "ux": "uw"}
 
 
 @dataclass(frozen=True)
@@ -75,38 +73,6 @@ class SpeechItem:
         return len(self.audio) / self.sr
 
 
-def phone_class(symbol: str, *, source: str = "") -> str:
-    """The 44-class label of an ARPAbet or festival phone symbol (any case, stress digits
-    allowed): ``AA1`` → ``aa``, ``pau`` → ``sil``, ``axr`` → ``er``."""
-    s = re.sub(r"[0-2]$", "", symbol.strip()).lower()
-    s = "sil" if s in _SILENCES else _OTHER.get(s, s)
-    if s not in PHONE_INDEX:
-        where = f" in {source}" if source else ""
-        raise CorpusError(f"phone symbol {symbol!r}{where} has no class among the 44: "
-                          f"{' '.join(PHONES)}")
-    return s
-
-
-def _tidy(segs: list, duration_s: float) -> list[PhoneSegment]:
-    """Contiguous segments from 0 to ``duration_s``: gaps and the ends filled with silence,
-    adjacent silences merged, times rounded to 0.1 ms."""
-    out: list[PhoneSegment] = []
-    t = 0.0
-    for s, e, p in list(segs) + [(duration_s, duration_s, "sil")]:
-        if s > t + 1e-9:
-            out.append(PhoneSegment(round(t, 4), round(s, 4), "sil"))
-        if e > s:
-            out.append(PhoneSegment(round(s, 4), round(e, 4), p))
-        t = max(t, e)
-    merged: list[PhoneSegment] = []
-    for seg in out:
-        if merged and merged[-1].phone == seg.phone == "sil":
-            merged[-1] = PhoneSegment(merged[-1].start_s, seg.end_s, "sil")
-        elif seg.end_s > seg.start_s:
-            merged.append(seg)
-    return merged
-
-
 def hts_segments(path, duration_s: float) -> list[PhoneSegment]:
     """Phones of an HTS full-context label file (times in 100 ns; the centre phone sits between
     ``-`` and ``+``), festival symbols mapped to the 44 classes (``ax`` stays ``ax``)."""
@@ -120,7 +86,7 @@ def hts_segments(path, duration_s: float) -> list[PhoneSegment]:
             raise CorpusError(f"{path}, line {line_no}: not an HTS full-context label")
         segs.append((int(parts[0]) / 1e7, int(parts[1]) / 1e7,
                      phone_class(m.group(1), source=f"{path}, line {line_no}")))
-    return _tidy(segs, duration_s)
+    return tidy_segments(segs, duration_s)
 
 
 def textgrid_segments(path, duration_s: float, tier: str = "phone") -> list[PhoneSegment]:
@@ -140,7 +106,7 @@ def textgrid_segments(path, duration_s: float, tier: str = "phone") -> list[Phon
             segs += [(s, mid, "p"), (mid, e, "t")]
         else:
             segs.append((s, e, phone_class(label, source=str(path))))
-    return _tidy(segs, duration_s)
+    return tidy_segments(segs, duration_s)
 
 
 def write_labels(path, segs) -> Path:

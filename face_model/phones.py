@@ -22,9 +22,11 @@ bilabials and labiodentals dominate the lips, vowels moderately, lingual consona
 """
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
-from groundwork.errors import ParameterError
+from groundwork.errors import CorpusError, ParameterError
 
 ARTIC_PARAMS = ("jaw", "aperture", "spread", "protrusion", "upper_raise", "lower_tuck", "closure")
 N_ARTIC = len(ARTIC_PARAMS)
@@ -123,6 +125,41 @@ def check_phone(phone: str, *, source: str = "") -> str:
             f"unknown phone {phone!r}{where}; allowed are the 44 classes: {' '.join(PHONES)}"
         )
     return phone
+
+
+# Symbols of other phone sets (festival, TIMIT, ARPAbet's extras) and their classes.
+_SILENCES = {"pau", "sil", "h#", "ssil", "sp", "brth", ""}
+_OTHER = {"axr": "er", "em": "m", "hv": "hh", "nx": "n", "ix": "ih", "ux": "uw"}
+
+
+def phone_class(symbol: str, *, source: str = "") -> str:
+    """The class of an ARPAbet or festival phone symbol.
+
+    Parameters
+    ----------
+    symbol : str
+        Any case, an ARPAbet stress digit allowed: ``AA1`` → ``aa``, ``pau`` → ``sil``,
+        ``axr`` → ``er``; silences (``pau sil h# ssil sp brth`` or empty) are ``sil``.
+    source : str
+        Where it was read (a file, a line), for the message.
+
+    Returns
+    -------
+    str
+        One of :data:`PHONES`.
+
+    Raises
+    ------
+    CorpusError
+        The symbol has no class; the message lists the 44.
+    """
+    s = re.sub(r"[0-2]$", "", symbol.strip()).lower()
+    s = "sil" if s in _SILENCES else _OTHER.get(s, s)
+    if s not in PHONE_INDEX:
+        where = f" in {source}" if source else ""
+        raise CorpusError(f"phone symbol {symbol!r}{where} has no class among the 44: "
+                          f"{' '.join(PHONES)}")
+    return s
 
 
 def target_matrix() -> np.ndarray:

@@ -8,70 +8,30 @@ its ``label_source``:
 * ``hts``: the HTS full-context labels shipped beside it (``label_origin``), festival symbols
   mapped to the 44 classes (``pau`` → ``sil``; ``ax`` kept);
 * ``textgrid``: its own TextGrid's ``phone`` tier (ARPAbet with stress; ``PT`` split in two);
-* ``pocketsphinx-5.1.1 forced alignment``: the transcript aligned to the audio by pocketsphinx's
-  en-US acoustic model (shipped in the wheel; nothing is downloaded), two passes as in the
-  package's own alignment test: words first (``set_align_text``), then phones
-  (``set_alignment``). Phones come in 10 ms frames; silences and noise are ``sil``; the ends
-  are padded with silence to the length of the audio.
+* ``pocketsphinx-5.1.1 forced alignment``: the transcript aligned to the audio by
+  :func:`face_model.forced_align.align` (pocketsphinx's en-US acoustic model, shipped in the
+  wheel; nothing is downloaded): words first, then phones in 10 ms frames; silences and noise
+  are ``sil``; the ends are padded with silence to the length of the audio.
 
 ``--check`` writes nothing and exits 1 when a regenerated file differs from the shipped one.
 """
 from __future__ import annotations
 
 import argparse
-import re
 import sys
 from pathlib import Path
-
-import numpy as np
-from pocketsphinx import Decoder
 
 REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from analysis.speech_set import (ALIGNED, SAMPLE_RATE, SET_DIR, _tidy, hts_segments,  # noqa: E402
-                                 phone_class, read_manifest, textgrid_segments, write_labels)
+from analysis.speech_set import (ALIGNED, SET_DIR, hts_segments, read_manifest,  # noqa: E402
+                                 textgrid_segments, write_labels)
+from face_model.forced_align import align, aligner, to_pcm16  # noqa: E402
 from groundwork.audio import read_wav  # noqa: E402
-from groundwork.errors import CorpusError  # noqa: E402
-
-FRAMES_PER_S = 100  # pocketsphinx's default frame rate
 
 
-def aligner() -> Decoder:
-    """A decoder with the wheel's default en-US model and dictionary, no language model."""
-    return Decoder(lm=None, loglevel="FATAL", backtrace=False)
-
-
-def _words(dec: Decoder, transcript: str) -> str:
-    words = re.sub(r"[^a-z0-9' ]+", " ", transcript.lower().replace("-", " ")).split()
-    oov = [w for w in words if dec.lookup_word(w) is None]
-    if oov:
-        raise CorpusError(f"words not in pocketsphinx's cmudict-en-us.dict: {oov}")
-    return " ".join(words)
-
-
-def align(dec: Decoder, samples: np.ndarray, transcript: str) -> list:
-    """``[(start_s, end_s, phone), ...]`` of int16 16 kHz mono ``samples`` spoken as
-    ``transcript``; phones in the 44 classes, covering the whole audio."""
-    buf = np.ascontiguousarray(samples, dtype="<i2").tobytes()
-    dec.set_align_text(_words(dec, transcript))
-    for second_pass in (False, True):
-        if second_pass:
-            dec.set_alignment()
-        dec.start_utt()
-        dec.process_raw(buf, no_search=False, full_utt=True)
-        dec.end_utt()
-    segs = []
-    for ph in dec.get_alignment().phones():
-        name = ph.name.lower()
-        name = "sil" if name.startswith(("+", "<")) else name
-        segs.append((ph.start / FRAMES_PER_S, (ph.start + ph.duration) / FRAMES_PER_S,
-                     phone_class(name, source="pocketsphinx alignment")))
-    return _tidy(segs, len(samples) / SAMPLE_RATE)
-
-
-def labels_for(row: dict, set_dir: Path, dec: Decoder | None) -> list:
+def labels_for(row: dict, set_dir: Path, dec=None) -> list:
     """The phone segments of one manifest row, from its label source."""
     y, sr = read_wav(set_dir / row["wav"])
     duration = len(y) / sr
@@ -80,8 +40,8 @@ def labels_for(row: dict, set_dir: Path, dec: Decoder | None) -> list:
     if row["label_source"] == "textgrid":
         return textgrid_segments(set_dir / row["label_origin"], duration)
     assert row["label_source"] == ALIGNED
-    samples = np.round(np.asarray(y, np.float64) * 32768).clip(-32768, 32767).astype(np.int16)
-    return align(dec or aligner(), samples, row["transcript"])
+    return align(dec or aligner(), to_pcm16(y, sr), row["transcript"],
+                 source=str(set_dir / row["wav"]))
 
 
 def regenerate(set_dir=SET_DIR, ids=None, *, check: bool = False, out=sys.stdout) -> list:
