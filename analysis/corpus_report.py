@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from analysis import figures
+from analysis.report import escape
 from face_model.alignment import align_markers, unflatten
 from face_model.layout import default_layout, mouth_opening
 from face_model.phones import PHONES
@@ -138,15 +139,61 @@ def _pct(x) -> str:
     return f"{100 * x:.2f} %"
 
 
-def corpus_section(report, corpus_summary: dict, figs: dict) -> None:
+def _expressions_text(per_expression: dict) -> str:
+    """``neutral and with expressions (smile, sad)``, or ``neutral speech only``."""
+    others = [e for e in per_expression if e != "neutral"]
+    if not others:
+        return "neutral speech only"
+    return f"neutral and with expressions ({', '.join(others)})"
+
+
+def corpus_section(report, corpus_summary: dict, figs: dict, *, given: dict | None = None,
+                   scope: str | None = None, switched_off: dict | None = None) -> None:
+    """The corpus part of the report: what it holds, its summary table and figures.
+
+    Parameters
+    ----------
+    report : analysis.report.Report
+        The report the section is added to.
+    corpus_summary : dict
+        :func:`summarize_corpus` of the run's corpus.
+    figs : dict
+        :func:`make_figures`' figures.
+    given : dict or None
+        For a given corpus (not synthesised): ``source`` (the folder it was taken from) and
+        ``info`` (its ``corpus.json``: where it came from, detector, licence, when it says).
+    scope : str or None
+        What the stages skip on this corpus (a corpus without smile or sad), said as it is.
+    switched_off : dict or None
+        ``{stage: why}`` of the stages the corpus switches off, shown as a table.
+    """
     s = corpus_summary
-    report.heading("The synthetic audio-visual corpus", stage="corpus", key="corpus")
-    report.paragraph(
-        f"{s['n_sentences']} sentences read by {s['n_speakers']} synthetic speaker(s), neutral and "
-        f"with expressions: {s['n_utterances']} utterances, {s['n_frames']} frames at 30 fps "
-        f"(the paper: {PAPER['n_sentences']} TIMIT sentences, {PAPER['n_frames']} frames). Speech "
-        f"by {s['backend']}; {s['phones_present']} of the 44 phone classes occur. Seed "
-        f"{s['seed']}.")
+    exprs = _expressions_text(s["per_expression"])
+    if given is None:
+        report.heading("The synthetic audio-visual corpus", stage="corpus", key="corpus")
+        report.paragraph(
+            f"{s['n_sentences']} sentences read by {s['n_speakers']} synthetic speaker(s), "
+            f"{exprs}: {s['n_utterances']} utterances, {s['n_frames']} frames at 30 fps (the "
+            f"paper: {PAPER['n_sentences']} TIMIT sentences, {PAPER['n_frames']} frames). Speech "
+            f"by {s['backend']}; {s['phones_present']} of the 44 phone classes occur. Seed "
+            f"{s['seed']}.")
+    else:
+        info = given.get("info") or {}
+        origin = "; ".join(f"{k} {escape(str(info[k]))}" for k in
+                           ("source", "detector", "version", "licence", "license") if info.get(k))
+        report.heading("The given audio-visual corpus", stage="corpus", key="corpus")
+        report.paragraph(
+            f"A given corpus, taken from {escape(given['source'])} (not synthesised): "
+            f"{s['n_sentences']} sentences by {s['n_speakers']} speaker(s), {exprs}: "
+            f"{s['n_utterances']} utterances, {s['n_frames']} frames at 30 fps (the paper: "
+            f"{PAPER['n_sentences']} TIMIT sentences, {PAPER['n_frames']} frames); "
+            f"{s['phones_present']} of the 44 phone classes occur."
+            + (f" Its corpus.json: {origin}." if origin else ""))
+    if scope:
+        report.paragraph(f"<b>{escape(scope)}</b>")
+    if switched_off:
+        report.table("Stages this corpus switches off", ["stage", "why"],
+                     [[k, escape(v)] for k, v in switched_off.items()], key="switched_off")
     rows = [[e, v["utterances"], v["frames"], f"{v['seconds']:.1f}"]
             for e, v in s["per_expression"].items()]
     rows.append(["total", s["n_utterances"], s["n_frames"],
@@ -159,7 +206,9 @@ def corpus_section(report, corpus_summary: dict, figs: dict) -> None:
                   "after alignment by the glasses, with the phones under it (grey: silence).")
 
 
-def units_section(report, units_summary: dict, figs: dict) -> None:
+def units_section(report, units_summary: dict, figs: dict, *, note: str | None = None) -> None:
+    """The Motion Units part of the report; ``note``: what was skipped (no expression MUs for
+    an expression the corpus does not hold)."""
     s = units_summary
     report.heading("Motion Units", stage="units", key="units")
     report.paragraph(
@@ -180,6 +229,8 @@ def units_section(report, units_summary: dict, figs: dict) -> None:
                       "the share of the variance in a flat tail of the spectrum (median eigenvalue "
                       "beyond axis 20 times the number of axes), which no few MUs can explain. "
                       "The expression residuals are small, so marker noise weighs more in them.")
+    if note:
+        report.paragraph(escape(note))
     report.figure(figs["variance"], "Cumulative variance explained; circles: the number kept; "
                   "stars: the paper's values.", width=0.75)
     report.figure(figs["utterance_mus"], "The utterance MUs as displacement arrows on the "

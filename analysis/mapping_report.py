@@ -241,7 +241,9 @@ def mapping_section(report, summary: dict, mapping_dir: Path, ablations_csv: Pat
     rows = summary["rows"]
     report.heading("Audio-to-MUP mapping (§VI) and its evaluation (§VII-A)", stage="mapping",
                    key="mapping")
-    report.paragraph(_mapping_settings_text(cfg))
+    report.paragraph(_mapping_settings_text(cfg, summary.get("expressions")))
+    if summary.get("note"):
+        report.paragraph(escape(summary["note"]))
     report.paragraph(_visual_source_text(summary["config"], mapping_dir.parent / "tracked"))
     _paper_tables(report, rows, method)
     gap = split_gap(rows, method)
@@ -263,11 +265,16 @@ def mapping_section(report, summary: dict, mapping_dir: Path, ablations_csv: Pat
         lookahead_section(report, ab, ablations_csv.parent / "lookahead.png")
 
 
-def _mapping_settings_text(cfg: dict) -> str:
-    """One paragraph: features, gate, bank and expression model as configured, and how the
-    figures are computed."""
+def _mapping_settings_text(cfg: dict, corpus_expressions: list | None = None) -> str:
+    """One paragraph: features, gate, bank and expression model as configured (none when the
+    corpus, whose ``corpus_expressions`` the stage records, holds neutral speech only), and how
+    the figures are computed."""
     expressions = (f"the cascade Υ<sub>k</sub> with {cfg['cascade_hidden']} hidden units"
                    if cfg["expression_model"] == "cascade" else "a bank retrained per expression")
+    if corpus_expressions is not None:
+        others = [e for e in corpus_expressions if e != "neutral"]
+        expressions = (f"{expressions}, for {' and '.join(others)}" if others else
+                       "none (the corpus holds neutral speech only)")
     return (
         f"Features: {cfg['n_mfcc']} MFCC per 30 fps frame{' with deltas' if cfg['deltas'] else ''}"
         f", context {cfg['context_back']} + 1 + {cfg['context_forward']} frames. Gate: one "

@@ -1,6 +1,7 @@
 """The face-in-motion part of the PDF: keyframes (Eqs. 3–4, Fig. 4), the round trip, the
 animated sentence (Fig. 6), the three expressions (Fig. 7) and the tracker evaluation (§V).
-Reads the stage folders only."""
+Reads the stage folders only; what a stage skipped (the keyframes and Fig. 7 on a corpus
+without smile and sad) is said in words."""
 from __future__ import annotations
 
 import json
@@ -13,6 +14,35 @@ def motion_section(report, keyframes_dir: Path, render_dir: Path | None,
                    tracking_dir: Path | None = None) -> None:
     report.heading("The face in motion", stage="keyframes", key="motion")
     kf = json.loads((keyframes_dir / "done.json").read_text())
+    if kf.get("skipped"):
+        report.paragraph(escape(kf["skipped"]))
+    else:
+        _keyframes(report, kf, keyframes_dir)
+    if render_dir is not None and (render_dir / "done.json").is_file():
+        r = json.loads((render_dir / "done.json").read_text())
+        text = escape(r["text"])
+        report.figure(render_dir / r["fig6"], f"Fig. 6 style: a held-out sentence animated from "
+                      f"its audio alone by the trained mapping ({r['utterance']}: \"{text}\"), "
+                      "ten frames with the phone under way.", width=0.95)
+        if r.get("fig7"):
+            shown = ", ".join(r.get("fig7_expressions") or ("neutral", "smile", "sad"))
+            report.figure(render_dir / r["fig7"], "Fig. 7 style: the same moment of that "
+                          f"sentence animated in each expression ({shown}).", width=0.7)
+        for what in r.get("skipped", []):
+            report.paragraph(f"Skipped: {escape(what)}")
+    if tracking_dir is not None and (tracking_dir / "done.json").is_file():
+        t = json.loads((tracking_dir / "done.json").read_text())
+        report.paragraph(t.get("summary", ""))
+        report.table("Tracker error against ground truth (mean marker error, pixels)",
+                     ["image noise sd", "raw Lucas-Kanade", "measurements", "MU-constrained"],
+                     [[f"{r['noise_sd']:.0f}", f"{r['lk_px']:.2f}", f"{r['measured_px']:.2f}",
+                       f"{r['constrained_px']:.2f}"] for r in t["rows"]])
+        if t.get("figure"):
+            report.figure(tracking_dir / t["figure"], t.get("caption", ""), width=0.7)
+
+
+def _keyframes(report, kf: dict, keyframes_dir: Path) -> None:
+    """The keyframes' paragraph, round-trip table and figure, from the stage's record."""
     samples = ", ".join(f"{k} {v}" for k, v in kf["samples"].items())
     report.paragraph(
         "Keyframes (§IV-B, §VII-B): smile, sad and the visemes i, a, o, f, u, m, each the median "
@@ -29,20 +59,3 @@ def motion_section(report, keyframes_dir: Path, render_dir: Path | None,
                       "= 9 (plus its mean), so the conversion loses a little, as measured here.")
     report.figure(keyframes_dir / "keyframes.png", "The eight keyframes (cf. the paper's Fig. 4) "
                   "drawn on the neutral face.", width=0.8)
-    if render_dir is not None and (render_dir / "done.json").is_file():
-        r = json.loads((render_dir / "done.json").read_text())
-        text = escape(r["text"])
-        report.figure(render_dir / r["fig6"], f"Fig. 6 style: a held-out sentence animated from "
-                      f"its audio alone by the trained mapping ({r['utterance']}: \"{text}\"), "
-                      "ten frames with the phone under way.", width=0.95)
-        report.figure(render_dir / r["fig7"], "Fig. 7 style: the same moment of that sentence "
-                      "animated neutral, smiling and sad.", width=0.7)
-    if tracking_dir is not None and (tracking_dir / "done.json").is_file():
-        t = json.loads((tracking_dir / "done.json").read_text())
-        report.paragraph(t.get("summary", ""))
-        report.table("Tracker error against ground truth (mean marker error, pixels)",
-                     ["image noise sd", "raw Lucas-Kanade", "measurements", "MU-constrained"],
-                     [[f"{r['noise_sd']:.0f}", f"{r['lk_px']:.2f}", f"{r['measured_px']:.2f}",
-                       f"{r['constrained_px']:.2f}"] for r in t["rows"]])
-        if t.get("figure"):
-            report.figure(tracking_dir / t["figure"], t.get("caption", ""), width=0.7)

@@ -101,9 +101,10 @@ def _num(v, digits: int = 2) -> str:
 
 
 def speech_section(rep, speech_dir: Path, voices_rows: list, *, table_ii_R: float | None,
-                   default_model: str | None) -> None:
+                   default_model: str | None, given_corpus: bool = False) -> None:
     """Add the section from ``speech_eval/`` (results.csv, results.json, figures) and the rows
-    of ``voices/results.csv``."""
+    of ``voices/results.csv``; ``given_corpus``: the run's corpus was given (recordings of its
+    own speaker), not synthesised, and has no voice-robust models."""
     results = _rows(speech_dir / "results.csv")
     if not results:
         return
@@ -112,7 +113,9 @@ def speech_section(rep, speech_dir: Path, voices_rows: list, *, table_ii_R: floa
     in_domain = {f"voices-{r['model']}": r for r in voices_rows}
     robust = f"voices-{default_model}" if default_model else None
     rep.paragraph(
-        "Every model above was trained on synthetic speech. Here each one animates recordings of "
+        ("Every model above was trained on the given corpus's speech. " if given_corpus else
+         "Every model above was trained on synthetic speech. ")
+        + "Here each one animates recordings of "
         "real people that no one in this project made (the evaluation set of "
         "analysis/real_speech/, with its sources and licences), and is scored against their "
         "phone labels: the gate's frame accuracy (phone class and viseme), whether the inner "
@@ -123,7 +126,8 @@ def speech_section(rep, speech_dir: Path, voices_rows: list, *, table_ii_R: floa
         "ARCTIC speaker slt; flite's awb and rms are ARCTIC awb and rms).")
     rep.paragraph(
         "Which model is which: Tables I-II are the paper's single-voice mapping "
-        "(mapping/gated_mlp_*.tfmap, one espeak voice). "
+        + ("(mapping/gated_mlp_*.tfmap, trained on the given corpus). " if given_corpus else
+           "(mapping/gated_mlp_*.tfmap, one espeak voice). ")
         + (f"The models named voices-* are the voice-robust configurations of configs/voices.yaml "
            f"(stage voices): one-voice is the paper's espeak voice, many-* a corpus speaking "
            f"with ten synthetic voices; -cmvn, -warp and -augment add cepstral normalisation, "
@@ -132,8 +136,11 @@ def speech_section(rep, speech_dir: Path, voices_rows: list, *, table_ii_R: floa
            f"also feeds the MLPs the recogniser's window of phones instead of the MFCC. "
            f"<b>{robust}</b> is the one `talkingface animate`, `talkingface "
            f"stream` and the study's synthetic face use by default." if robust else
-           "This run trained no voice-robust models (voices.grid: none), so `animate`, `stream` "
-           "and the study use the single-voice mapping."))
+           ("This run trained no voice-robust models (the corpus is given: the voices stage "
+            "speaks a synthetic corpus with other voices), so `animate` and `stream` use the "
+            "single-voice mapping." if given_corpus else
+            "This run trained no voice-robust models (voices.grid: none), so `animate`, "
+            "`stream` and the study use the single-voice mapping.")))
     best, scores = dev_choice(results)
     if best is not None:
         rep.paragraph(

@@ -120,15 +120,18 @@ def corpus_from_video(src, out, *, settings: FromVideoSettings | None = None,
     for v, lm_file in jobs:
         reply = replies[str(v)]
         if "error" in reply:
-            refused.append((v.stem, f"{v}: {reply['error']}"))
+            refused.append((v.stem, reply["error"]))  # the worker names the file
             continue
         tasks.append((v, lm_file, texts[v], partial, settings))
     rows = []
-    with _bar(len(tasks), "utterances", progress) as bar:
+    with _bar(len(tasks), "utterances", progress and bool(tasks)) as bar:
         ctx = multiprocessing.get_context("fork")
         with ctx.Pool(max(1, min(workers, len(tasks) or 1))) as pool:
             for row, refusal in pool.imap(_clip_task, tasks):
-                rows.append(row) if row else refused.append(refusal)
+                if row:
+                    rows.append(row)
+                else:
+                    refused.append(refusal)
                 bar.update()
     if not rows:
         shutil.rmtree(partial, ignore_errors=True)

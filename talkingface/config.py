@@ -2,8 +2,9 @@
 
 Each package owns the dataclass of its settings — ``synth`` (:mod:`data_synth.config`),
 ``units`` and ``tracker`` (:mod:`face_model.config`), ``mapping`` with its nested ``train``
-settings (:mod:`mapping.config`), ``study`` (:mod:`study.config`) — and this module adds the two
-that belong to the command line: ``mlflow`` (where runs are logged), ``ablations`` (the grid
+settings (:mod:`mapping.config`), ``study`` (:mod:`study.config`) — and this module adds the ones
+that belong to the pipeline and the command line: ``corpus`` (a given corpus instead of the
+synthetic one), ``mlflow`` (where runs are logged), ``ablations`` (the grid
 ``replicate`` trains as child runs, and its seeds), ``cluster`` (where grid tasks run),
 ``ceiling`` (the steps toward the ceiling) and ``voices`` (the grid of voice-robust models).
 It composes, loads, validates and dumps them.
@@ -34,6 +35,21 @@ from groundwork.settings import SettingError, check_fields, choices_of, integer,
 from mapping.config import MappingConfig
 from study.config import StudyConfig
 from talkingface.executor import scheduler_address
+
+
+@dataclass(frozen=True)
+class CorpusConfig:
+    """The run's corpus (stage ``corpus``): synthesised by :mod:`data_synth` (``source``
+    empty, the default), or a given corpus folder in the corpus contract (DESIGN.md, e.g. a
+    real speaker's recordings made from video), validated and copied into the run."""
+
+    source: str = ""  # empty: synthesise (synth.*); else a corpus folder (--corpus DIR)
+
+    def __post_init__(self):
+        require(self, "source", not self.source or (
+            self.source.strip() == self.source and self.source.isprintable()),
+            "empty (synthesise the corpus) or the path of a corpus folder, without leading "
+            "or trailing spaces or control characters")
 
 
 @dataclass(frozen=True)
@@ -114,6 +130,7 @@ MAX_SEED = 2**31 - 1  # derived seeds add offsets; scikit-learn takes seeds < 2*
 @dataclass(frozen=True)
 class Config:
     seed: int = integer(2002, ge=0, le=MAX_SEED)
+    corpus: CorpusConfig = field(default_factory=CorpusConfig)
     synth: SynthConfig = field(default_factory=SynthConfig)
     units: UnitsConfig = field(default_factory=UnitsConfig)
     mapping: MappingConfig = field(default_factory=MappingConfig)
@@ -133,6 +150,12 @@ class Config:
                 f"at most {MAX_SEED} - 1000 x (the largest of ablations.seeds and "
                 "ceiling.seeds, minus one): its replicates' seeds must stay within "
                 f"0..{MAX_SEED}", ("ablations.seeds", "ceiling.seeds"))
+        if self.corpus.source and self.mapping.visual_source == "tracked":
+            # the tracked corpus draws the synthetic marker face (talkingface.stages.applies)
+            raise SettingError("mapping.visual_source", self.mapping.visual_source,
+                               "markers when corpus.source names a given corpus (its markers "
+                               "were found in its own video; the tracked corpus draws them as "
+                               "the synthetic marker face)", ("corpus.source",))
 
 
 # -- YAML ------------------------------------------------------------------------------------

@@ -4,7 +4,7 @@
 
     runs/<name>/
       config.yaml    the resolved config of the last invocation
-      corpus/        data_synth output (the corpus contract)
+      corpus/        data_synth output, or a given corpus linked in (the corpus contract)
       units/         motion_units.npz, variance.csv
       keyframes/     keyframes.npz, roundtrip.csv, keyframes.png
       tracking/      the MU-constrained tracker on rendered video: error_curve.csv/.png
@@ -48,20 +48,48 @@ def check_run_name(name: str) -> str:
 
 @dataclass(frozen=True)
 class RunPaths:
+    """The folders of one run (see the module docstring).
+
+    ``RunPaths.create(name)``: ``runs/<name>`` of the command line. ``RunPaths.at(folder)``: a
+    run in any folder, e.g. a run nested in a stage of another run (``run(["units",
+    "mapping"], RunPaths.at(folder, cache_dir=outer.cache), cfg)``).
+    """
+
     name: str
     root: Path  # runs/<name>
     reports_dir: Path
     building: tuple = ()  # (stage, folder): a stage being built in a temporary folder
+    cache_dir: Path | None = None  # None: cache/ beside runs/ (see :attr:`cache`)
 
     def building_in(self, name: str, folder: Path) -> "RunPaths":
         """These paths with stage ``name`` written to ``folder`` (a stage is built beside its
         final folder and renamed into place only when it completed)."""
-        return RunPaths(self.name, self.root, self.reports_dir, (name, Path(folder)))
+        return RunPaths(self.name, self.root, self.reports_dir, (name, Path(folder)),
+                        self.cache_dir)
 
     @classmethod
     def create(cls, name: str, *, runs_dir="runs", reports_dir="reports") -> "RunPaths":
         check_run_name(name)
         return cls(name, Path(runs_dir) / name, Path(reports_dir))
+
+    @classmethod
+    def at(cls, folder, *, reports_dir=None, cache_dir=None) -> "RunPaths":
+        """The run in ``folder`` (any folder, named after it; no name rules).
+
+        Parameters
+        ----------
+        folder : path-like
+            The run's folder: its stages' folders are made in it.
+        reports_dir : path-like, optional
+            Where its report's PDF goes (default: ``folder`` itself).
+        cache_dir : path-like, optional
+            The content-keyed cache to share (default: ``cache/`` two levels above ``folder``,
+            as for ``runs/<name>``); a run nested in another run's stage passes the outer
+            run's :attr:`cache`.
+        """
+        folder = Path(folder)
+        return cls(folder.name, folder, Path(reports_dir) if reports_dir else folder,
+                   cache_dir=Path(cache_dir) if cache_dir else None)
 
     def stage(self, name: str) -> Path:
         """The folder of stage ``name`` (one of :data:`STAGE_FOLDERS`)."""
@@ -74,8 +102,9 @@ class RunPaths:
     @property
     def cache(self) -> Path:
         """The content-keyed cache beside ``runs/`` (:mod:`groundwork.cache`): what tasks,
-        stages and runs share (a corpus's features, its recognised phones)."""
-        return self.root.parent.parent / "cache"
+        stages and runs share (a corpus's features, its recognised phones); ``cache_dir`` when
+        set."""
+        return self.cache_dir if self.cache_dir is not None else self.root.parent.parent / "cache"
 
     @property
     def config(self) -> Path:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from talkingface.config import load_config
+from talkingface.config import apply_overrides, load_config
 
 
 def config_args(p: argparse.ArgumentParser) -> None:
@@ -21,6 +21,14 @@ def visual_source_arg(p: argparse.ArgumentParser) -> None:
                    "paper did (same as --set mapping.visual_source=...)")
 
 
+def corpus_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--corpus", dest="corpus_source", metavar="DIR",
+                   help="a given corpus folder (manifest.csv, audio/, markers/, phones/, e.g. a "
+                   "real speaker's recordings made from video) instead of the synthetic corpus; "
+                   "validated and linked into runs/<name>/corpus (same as --set "
+                   "corpus.source=DIR)")
+
+
 def run_args(p: argparse.ArgumentParser, what: str) -> None:
     p.add_argument("--name", required=True, help=what)
     p.add_argument("--overwrite", action="store_true",
@@ -29,14 +37,18 @@ def run_args(p: argparse.ArgumentParser, what: str) -> None:
 
 
 def resolve_config(args, *extra: str):
-    """The config of ``--config``, ``--set``, ``--seed``, ``--visual-source`` and ``extra``
-    overrides (``section.key=value``), in that order."""
+    """The config of ``--config``, ``--set``, ``--seed``, ``--visual-source``, ``extra``
+    overrides (``section.key=value``) and ``--corpus``, in that order (``--corpus DIR`` sets
+    ``corpus.source`` to DIR as typed, not parsed as YAML)."""
     overrides = list(getattr(args, "overrides", []))
     if getattr(args, "seed", None) is not None:
         overrides.append(f"seed={args.seed}")
     if getattr(args, "visual_source", None) is not None:
         overrides.append(f"mapping.visual_source={args.visual_source}")
-    return load_config(getattr(args, "config", None), overrides + list(extra))
+    cfg = load_config(getattr(args, "config", None), overrides + list(extra))
+    if getattr(args, "corpus_source", None) is not None:
+        cfg = apply_overrides(cfg, {"corpus": {"source": args.corpus_source}})
+    return cfg
 
 
 def grid_args(p: argparse.ArgumentParser, *, required: bool, workers_help: str) -> None:

@@ -24,10 +24,11 @@ from groundwork.atomic import check_output_file
 from groundwork.errors import TalkingFaceError
 from groundwork.memory import keep_freed_memory
 from groundwork.owner import acquire, release_all
-from talkingface.cli import cache as cache_cli, lab_server as server_cli, runs, study as study_cli
+from talkingface.cli import cache as cache_cli, faces as faces_cli, lab_server as server_cli, runs, \
+    study as study_cli
 from talkingface.cli.animate import animate_file, stream_file, stream_microphone
-from talkingface.cli.args import (config_args, grid_args, grid_overrides, resolve_config,
-                                  run_args, visual_source_arg)
+from talkingface.cli.args import (config_args, corpus_arg, grid_args, grid_overrides,
+                                  resolve_config, run_args, visual_source_arg)
 from talkingface.cli.live import input_devices
 from talkingface.config import apply_overrides, dump_config, load_config
 from talkingface.experiments.log import (artifact_root, check_tracking, log_speech_eval_model,
@@ -305,6 +306,7 @@ def _corpus_commands(sub) -> None:
 def _run_commands(sub) -> None:
     s = sub.add_parser("replicate", help="run every stage into runs/<name> and write the report")
     run_args(s, "run name (runs/<name>, reports/<name>.pdf)")
+    corpus_arg(s)
     visual_source_arg(s)
     grid_args(s, required=False, workers_help="worker processes for ablations (0: all cores)")
     s.add_argument("--voices", metavar="GRID",
@@ -316,6 +318,7 @@ def _run_commands(sub) -> None:
     s = sub.add_parser("train", help="train and evaluate the mapping and the baselines "
                        "(runs/<name>/mapping), logged to MLflow with the pyfunc model")
     run_args(s, "run name (its corpus and MUs are made if missing)")
+    corpus_arg(s)
     visual_source_arg(s)
     s.set_defaults(func=cmd_train)
 
@@ -328,6 +331,7 @@ def _run_commands(sub) -> None:
     s = sub.add_parser("ablate", help="one MLflow child run per setting of an ablation grid")
     grid_args(s, required=True, workers_help="worker processes (0: all cores)")
     run_args(s, "run whose corpus and MUs are used")
+    corpus_arg(s)
     visual_source_arg(s)
     s.set_defaults(func=cmd_ablate)
 
@@ -411,6 +415,7 @@ def build_parser() -> argparse.ArgumentParser:
     _corpus_commands(sub)
     _run_commands(sub)
     _face_commands(sub)
+    faces_cli.add_parser(sub)
     study_cli.add_parser(sub)
     server_cli.add_parser(sub)
     cache_cli.add_parser(sub)

@@ -14,8 +14,8 @@ from talkingface.executor import check_reachable, scheduler_address
 from talkingface.experiments.log import (check_tracking, grid_runs, log_grid, log_replication,
                                         log_train, log_voices, mlflow_run, tracking_uri)
 from talkingface.paths import RunPaths
-from talkingface.stages import (ABLATIONS, CEILING, GRID_STAGES, REPLICATION, VOICES, preflight,
-                                prepare_run, run)
+from talkingface.stages import (ABLATIONS, CEILING, GRID_STAGES, REPLICATION, VOICES,
+                                off_for_corpus, preflight, prepare_run, run)
 from talkingface.stages.base import time_summary
 
 
@@ -105,4 +105,15 @@ def ablate(name: str, cfg, *, overwrite: bool = False) -> dict:
 
 def stimuli(name: str, cfg, *, overwrite: bool = False) -> dict:
     """The study's stimuli of ``runs/<name>`` (its mapping trained first if needed)."""
+    refuse_off("stimuli", cfg)
     return run(["stimuli"], open_run(name, cfg, ["stimuli"], overwrite=overwrite), cfg)["stimuli"]
+
+
+def refuse_off(stage: str, cfg) -> None:
+    """Refuse a command for ``stage`` when the run's corpus switches it off (a given corpus,
+    one without smile and sad: :mod:`talkingface.stages.applies`), saying why."""
+    why = off_for_corpus([stage], cfg).get(stage)
+    if why:
+        raise ParameterError(f"stage {stage} does not apply to this run's corpus"
+                             + (f" (corpus.source {cfg.corpus.source})" if cfg.corpus.source
+                                else "") + f": {why}")

@@ -27,6 +27,7 @@ from groundwork.errors import TalkingFaceError
 from talkingface.config import flatten
 from talkingface.paths import RunPaths
 from talkingface.provenance import git_commit
+from talkingface.stages import STAGES
 from talkingface.stages.child_runs import ChildLog, logging_to
 from talkingface.stages.grid import VOICES, GridStage, log_child, replicate_folder, replicate_seed
 from talkingface.stages.voices import read_results
@@ -208,14 +209,14 @@ def _grid_parent(mlf, cfg, grid: GridStage, path: Path, nested: bool) -> ChildLo
 @contextmanager
 def grid_runs(mlf, cfg, grids, *, nested: bool = True):
     """Within the block the grid stages of ``grids`` (:class:`GridStage` s) that ``cfg`` asks
-    for log their child runs under a parent run each (:mod:`talkingface.stages.child_runs`);
+    for (and the run's corpus allows: the stage's ``enabled``) log their child runs under a parent run each (:mod:`talkingface.stages.child_runs`);
     yields ``{stage name: ChildLog}`` (empty without MLflow). A nested parent of a stage that
     failed is marked FAILED."""
     if mlf is None:
         yield {}
         return
     logs = {grid.name: _grid_parent(mlf, cfg, grid, grid.grid_path(cfg), nested)
-            for grid in grids if grid.has_grid(cfg)}
+            for grid in grids if STAGES[grid.name].enabled(cfg)}
     try:
         with logging_to(logs):
             yield logs
@@ -363,7 +364,10 @@ def log_replication(mlf, paths: RunPaths, done: dict) -> None:
     Units, the config, the report and the PDF."""
     corpus, units = done["corpus"], done["units"]
     mlf.set_tag("corpus_hash", corpus["corpus_hash"])
-    info = json.loads((paths.corpus / "corpus.json").read_text())
+    # the report's counts (a given corpus's corpus.json need not hold them)
+    info = json.loads((paths.report_dir / "summary.json").read_text())["corpus"]
+    if "source" in corpus:
+        mlf.set_tag("corpus_source", corpus["source"])
     mlf.log_metrics({"corpus.n_frames": info["n_frames"],
                      "corpus.n_utterances": info["n_utterances"],
                      "corpus.seconds": corpus["seconds"],

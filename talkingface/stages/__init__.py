@@ -2,16 +2,20 @@
 
 Each line of :data:`STAGES` is one stage's whole reuse rule (see :mod:`talkingface.stages.base`):
 the config it depends on, the stages whose results it reads, and when the config switches it
-off; a grid stage's rule is made from its :class:`talkingface.stages.grid.GridStage` by
-:func:`_grid_stage`. :data:`REPLICATION` is the order ``talkingface replicate`` runs them in;
-the other commands run the stages they need with :func:`run`, which runs missing or stale
-upstream stages first.
+off or the run's corpus rules out (:mod:`talkingface.stages.applies`: a given corpus, one
+without smile and sad); a grid stage's rule is made from its
+:class:`talkingface.stages.grid.GridStage` by :func:`_grid_stage`. :data:`REPLICATION` is the
+order ``talkingface replicate`` runs them in; the other commands run the stages they need with
+:func:`run`, which runs missing or stale upstream stages first.
 """
 from __future__ import annotations
 
 from talkingface.paths import RunPaths
-from talkingface.stages.base import Stage, prepare_run, read_done, run_stages, stale_stages
+from talkingface.stages.base import (Stage, prepare_run, read_done, run_order, run_stages,
+                                     stale_stages)
+from talkingface.stages.applies import study_applies, switched_off, synthesised
 from talkingface.stages.foundation import fit_keyframes, fit_units, make_corpus, sentence_file
+from talkingface.stages.given_corpus import corpus_config, corpus_inputs
 from talkingface.stages.motion import (evaluate_tracker, make_tracked_corpus, render_held_out,
                                        uses_tracked_corpus)
 from talkingface.stages.report import build_report
@@ -27,40 +31,46 @@ from talkingface.stages.voices import train_voices
 _TRAINING_INPUTS = ("corpus", "units", "tracked")
 
 
-def _grid_stage(grid: GridStage, run, *, config: tuple, speed_only: tuple) -> Stage:
+def _grid_stage(grid: GridStage, run, *, config: tuple, speed_only: tuple,
+                applies=None) -> Stage:
     """The stage of ``grid``: trained on the run's training inputs; its own settings
     (:attr:`GridStage.settings`) and its grid file's contents join its key; on when its config
-    names a grid; resumable as the grid stage says."""
+    names a grid and, with ``applies`` (``cfg -> bool``), the run's corpus allows it;
+    resumable as the grid stage says."""
+    enabled = grid.has_grid if applies is None else (
+        lambda cfg: grid.has_grid(cfg) and applies(cfg))
     return Stage(grid.name, run, config=(*config, *grid.settings), speed_only=speed_only,
-                 upstream=_TRAINING_INPUTS, enabled=grid.has_grid, files=grid.grid_file,
+                 upstream=_TRAINING_INPUTS, enabled=enabled, files=grid.grid_file,
                  resumable=grid.resumable)
 
 
 STAGES = {s.name: s for s in (
-    Stage("corpus", make_corpus, config=("seed", "synth"), speed_only=("synth.workers",),
-          files=sentence_file),
+    Stage("corpus", make_corpus, config=corpus_config, speed_only=("synth.workers",),
+          files=sentence_file, inputs=corpus_inputs),
     Stage("units", fit_units, config=("units",), upstream=("corpus",)),
     Stage("keyframes", fit_keyframes, upstream=("corpus", "units")),
     Stage("tracking", evaluate_tracker, config=("seed", "tracker.n_utterances",
-          "tracker.noise_levels", "tracker.init"), upstream=("corpus", "units")),
+          "tracker.noise_levels", "tracker.init"), upstream=("corpus", "units"),
+          enabled=synthesised),
     Stage("tracked", make_tracked_corpus, config=("seed", "tracker.init",
           "tracker.corpus_noise_sd"), upstream=("corpus", "units"), enabled=uses_tracked_corpus),
     Stage("mapping", train, config=("seed", "mapping"), speed_only=("mapping.workers",),
           upstream=_TRAINING_INPUTS),
     _grid_stage(VOICES, train_voices, config=("seed", "synth", "units", "mapping"),
-                speed_only=("synth.workers", "mapping.workers")),
+                speed_only=("synth.workers", "mapping.workers"), applies=synthesised),
     Stage("speech_eval", evaluate_speech, upstream=("corpus", "units", "mapping", "voices"),
           files=set_files),
     Stage("render", render_held_out, upstream=("corpus", "keyframes", "mapping")),
     Stage("stimuli", make_stimuli, config=("seed", "synth"), speed_only=("synth.workers",),
-          upstream=("units", "mapping", "voices")),
+          upstream=("units", "mapping", "voices"), enabled=study_applies),
     Stage("study_data", simulate_participants, config=("seed", "study"),
-          upstream=("corpus", "stimuli"), guard=keep_real_participants),
-    Stage("analysis", analyze, config=("seed",), upstream=("study_data",)),
+          upstream=("corpus", "stimuli"), guard=keep_real_participants, enabled=study_applies),
+    Stage("analysis", analyze, config=("seed",), upstream=("study_data",),
+          enabled=study_applies),
     _grid_stage(ABLATIONS, ablate, config=("seed", "mapping"), speed_only=("mapping.workers",)),
     _grid_stage(CEILING, decompose, config=("seed", "synth", "units", "mapping", "tracker.init",
                                             "tracker.corpus_noise_sd"),
-                speed_only=("synth.workers", "mapping.workers")),
+                speed_only=("synth.workers", "mapping.workers"), applies=synthesised),
     Stage("report", build_report, always=True),
 )}
 
@@ -80,6 +90,12 @@ def stale(names, paths: RunPaths, cfg) -> list[str]:
     return stale_stages(names, STAGES, paths, cfg)
 
 
+def off_for_corpus(names, cfg) -> dict:
+    """``{stage: why}`` for the stages among ``names`` (and their upstream stages) that the
+    run's corpus switches off (:func:`talkingface.stages.applies.switched_off`)."""
+    return switched_off(cfg, run_order(names, STAGES))
+
+
 def preflight(names, paths: RunPaths, cfg) -> list[str]:
     """Refuse before any work what :func:`run` would refuse on the way: a missing input file,
     or a stage that would have to replace a folder its guard keeps (real participants' data).
@@ -93,4 +109,4 @@ def preflight(names, paths: RunPaths, cfg) -> list[str]:
 
 
 __all__ = ["ABLATIONS", "CEILING", "GRID_STAGES", "GridStage", "REPLICATION", "STAGES", "Stage",
-           "VOICES", "preflight", "prepare_run", "read_done", "run", "stale"]
+           "VOICES", "off_for_corpus", "preflight", "prepare_run", "read_done", "run", "stale"]

@@ -10,7 +10,9 @@ reused exactly when its *key* is unchanged; the key is
 * the fingerprints of the upstream stages whose results it reads (``None`` for an upstream
   stage the config switches off), and
 * the SHA-256 of the files outside the run it reads (a user's sentence file, a grid file), by
-  content, so moving a file or the checkout changes nothing.
+  content, so moving a file or the checkout changes nothing, and
+* what else outside the run it reads, as the stage sums it up (a given corpus: its
+  ``corpus_hash``).
 
 So a changed mapping setting re-runs training and everything downstream of it, and a changed
 study setting re-runs the study stages and nothing upstream. A stale or interrupted stage
@@ -49,14 +51,22 @@ def _no_files(paths, cfg) -> list:
     return []
 
 
+def _no_inputs(paths, cfg) -> dict:
+    return {}
+
+
 @dataclass(frozen=True)
 class Stage:
     """One stage and its reuse rule (see the module docstring).
 
-    ``config``: dotted config keys the results depend on (``"synth"``, ``"tracker.init"``);
+    ``config``: dotted config keys the results depend on (``"synth"``, ``"tracker.init"``), or
+    a function of the config giving them (the corpus: ``synth`` only when it is synthesised);
     ``speed_only``: keys inside those that do not change the results; ``upstream``: stages whose
-    results it reads; ``enabled``: whether the config asks for the stage at all; ``files``:
-    files outside the run it reads; ``always``: never reused (the report); ``guard``: called with
+    results it reads; ``enabled``: whether the config asks for the stage at all (and whether it
+    applies to the run's corpus: :mod:`talkingface.stages.applies`); ``files``: files outside
+    the run it reads; ``inputs``: ``(paths, cfg) -> dict``, a summary of anything else outside
+    the run it reads (a given corpus's hash; an empty dict adds nothing to the key);
+    ``always``: never reused (the report); ``guard``: called with
     an existing folder before it would be replaced, raises to refuse; ``resumable``: an
     interrupted build under the same key is kept and goes on (the stage must keep only complete
     parts in its folder and check each against its own settings before reusing it).
@@ -64,11 +74,12 @@ class Stage:
 
     name: str
     run: Callable
-    config: tuple = ()
+    config: tuple | Callable = ()
     upstream: tuple = ()
     speed_only: tuple = ()
     enabled: Callable = _always
     files: Callable = _no_files
+    inputs: Callable = _no_inputs
     always: bool = False
     guard: Callable | None = None
     resumable: bool = False
@@ -142,7 +153,8 @@ def time_summary(done: dict, paths: RunPaths, since: float) -> list[str]:
 def stage_key(stage: Stage, stages: dict, paths: RunPaths, cfg) -> dict:
     """What a stage's results depend on, as plain data (see the module docstring)."""
     tree = to_dict(cfg)
-    conf = {k: select(tree, k) for k in stage.config}
+    keys = stage.config(cfg) if callable(stage.config) else stage.config
+    conf = {k: select(tree, k) for k in keys}
     for key in stage.speed_only:
         section, _, leaf = key.rpartition(".")
         if section in conf and isinstance(conf[section], dict):
@@ -153,7 +165,11 @@ def stage_key(stage: Stage, stages: dict, paths: RunPaths, cfg) -> dict:
         done = read_done(paths.stage(name)) if up.enabled(cfg) else None
         upstream[name] = done["fingerprint"] if done else None
     files = [_sha256(Path(p)) for p in stage.files(paths, cfg)]  # contents, wherever they are
-    return {"config": conf, "upstream": upstream, "files": files}
+    key = {"config": conf, "upstream": upstream, "files": files}
+    inputs = stage.inputs(paths, cfg)
+    if inputs:  # only then: the keys of the stages without inputs stay as they were
+        key["inputs"] = inputs
+    return key
 
 
 def fingerprint(key: dict) -> str:
@@ -196,11 +212,11 @@ def run_stage(stage: Stage, stages: dict, paths: RunPaths, cfg) -> dict:
 def run_stages(names, stages: dict, paths: RunPaths, cfg) -> dict:
     """Run the named stages, each after the upstream stages it needs (in order, once each);
     stages the config switches off are skipped. Returns ``{stage: done.json}``."""
-    return {n: run_stage(stages[n], stages, paths, cfg) for n in _run_order(names, stages)
+    return {n: run_stage(stages[n], stages, paths, cfg) for n in run_order(names, stages)
             if stages[n].enabled(cfg)}
 
 
-def _run_order(names, stages: dict) -> list[str]:
+def run_order(names, stages: dict) -> list[str]:
     """``names`` with their upstream stages, each after what it reads."""
     order: list[str] = []
 
@@ -222,7 +238,7 @@ def stale_stages(names, stages: dict, paths: RunPaths, cfg) -> list[str]:
     """The stages among ``names`` and their upstream stages that :func:`run_stages` would run
     (not reuse) for ``cfg``, in run order: those without a finished run of the same key, those
     downstream of one, and those never reused."""
-    order = _run_order(names, stages)
+    order = run_order(names, stages)
     stale: list[str] = []
     for name in order:
         stage = stages[name]

@@ -61,7 +61,7 @@ def clips_from_videos(src, *, speaker: str, workers: int = 2, progress: bool = T
         for v, lm_file in jobs:
             reply = replies[str(v)]
             if "error" in reply:
-                refused.append((v.stem, f"{v}: {reply['error']}"))
+                refused.append((v.stem, reply["error"]))  # the worker names the file
                 continue
             try:
                 c = clip_data(v, lm_file, settings, tmp)

@@ -1,8 +1,11 @@
 """The corpus, the Motion Units and the keyframes (paper §IV, §VII-A): three stages.
 
-``corpus/``: the synthetic corpus (:mod:`data_synth`). ``units/``: the Motion Units fitted on it
-and their variance table. ``keyframes/``: the Eq. 3–4 keyframe model, its MUP → keyframe → MUP
-round trip per expression (``roundtrip.csv``) and the keyframe shapes drawn on the face.
+``corpus/``: the synthetic corpus (:mod:`data_synth`), or a given one (``corpus.source``:
+:mod:`talkingface.stages.given_corpus`). ``units/``: the Motion Units fitted on it and their
+variance table (no expression MUs for an expression the corpus does not hold: a ``note`` says
+so). ``keyframes/``: the Eq. 3–4 keyframe model, its MUP → keyframe → MUP round trip per
+expression (``roundtrip.csv``) and the keyframe shapes drawn on the face (on a corpus without
+smile or sad, no model: ``skipped`` in its record says why).
 """
 from __future__ import annotations
 
@@ -15,24 +18,31 @@ from analysis.corpus_report import summarize_units
 from data_synth.generate import synthesize_corpus
 from face_model.alignment import corpus_deformations, unflatten
 from face_model.corpus import corpus_hash, load_corpus
-from face_model.keyframes import KEYFRAMES, KeyframeModel
+from face_model.keyframes import EXPRESSION_KEYFRAMES, KEYFRAMES, KeyframeModel
 from face_model.layout import default_layout
 from face_model.motion_units import MotionUnits, fit_corpus_units
 from face_model.render import FaceRenderer, face_grid
 from groundwork.atomic import atomic_file
 from groundwork.errors import ParameterError
 from talkingface.paths import RunPaths
+from talkingface.stages.applies import expression_note, given
 from talkingface.stages.base import write_csv
+from talkingface.stages.given_corpus import take_given_corpus
 
 def make_corpus(paths: RunPaths, cfg) -> dict:
-    """The synthetic corpus of the run."""
+    """The run's corpus: the given one (``corpus.source``) validated and linked in, or the
+    synthetic one."""
+    if given(cfg):
+        return take_given_corpus(paths, cfg)
     synthesize_corpus(paths.corpus, cfg.synth, cfg.seed, overwrite=True, progress=True)
     return {"corpus_hash": corpus_hash(paths.corpus)}
 
 
 def sentence_file(paths: RunPaths, cfg) -> list:
-    """The user's sentence file, when the corpus reads one (its contents join the key)."""
-    if not cfg.synth.text_file:
+    """The user's sentence file, when the corpus synthesises one that reads it (its contents
+    join the key; a given corpus's files join it as its inputs:
+    :func:`talkingface.stages.given_corpus.corpus_inputs`)."""
+    if given(cfg) or not cfg.synth.text_file:
         return []
     if not Path(cfg.synth.text_file).is_file():
         raise ParameterError(f"synth.text_file {cfg.synth.text_file} not found")
@@ -41,7 +51,12 @@ def sentence_file(paths: RunPaths, cfg) -> list:
 
 def fit_units_folder(corpus_dir: Path, out_dir: Path, cfg) -> dict:
     """Fit the Motion Units on a corpus folder; write ``motion_units.npz`` and
-    ``variance.csv`` into ``out_dir``. Used by the stage and by ``talkingface units``."""
+    ``variance.csv`` into ``out_dir``. Used by the stage and by ``talkingface units``.
+
+    Expression MUs are fitted for the expressions the corpus holds (none for a corpus of
+    neutral speech only); the result's ``expressions`` lists them, and its ``note``
+    (:func:`talkingface.stages.applies.expression_note`) says what is skipped without smile or
+    sad."""
     corpus = load_corpus(corpus_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -58,7 +73,12 @@ def fit_units_folder(corpus_dir: Path, out_dir: Path, cfg) -> dict:
         for k, v in summary["explained"].items():
             n = units.n_utterance if k == "neutral" else units.n_expression
             f.write(f"{k},{n},{v:.6f},{summary['paper'][k]}\n")
-    return {"fit_seconds": seconds, "summary": summary}
+    record = {"fit_seconds": seconds, "summary": summary,
+              "expressions": list(units.expressions_)}
+    note = expression_note(u.expression for u in corpus.utterances)
+    if note:
+        record["note"] = note
+    return record
 
 
 def fit_units(paths: RunPaths, cfg) -> dict:
@@ -67,9 +87,17 @@ def fit_units(paths: RunPaths, cfg) -> dict:
 
 
 def fit_keyframes(paths: RunPaths, cfg) -> dict:
-    """The keyframe model of the run's corpus and Motion Units, with its round trip."""
+    """The keyframe model of the run's corpus and Motion Units, with its round trip; on a
+    corpus without smile or sad (the paper's eight keyframes need both), no model: the record's
+    ``skipped`` says why."""
     corpus = load_corpus(paths.corpus)
     units = MotionUnits.load(paths.units_model)
+    missing = [k for k in EXPRESSION_KEYFRAMES if k not in units.expressions_]
+    if missing:
+        return {"skipped": f"The keyframes (Eqs. 3–4) are skipped: the paper's eight keyframes "
+                           f"include smile and sad, and the corpus holds no "
+                           f"{' or '.join(missing)} speech.",
+                "note": expression_note(u.expression for u in corpus.utterances)}
     defs = corpus_deformations(corpus, model=units.metadata_.get("alignment", "similarity"))
     model = KeyframeModel().fit(corpus, units, deformations=defs)
     out_dir = paths.keyframes

@@ -4,7 +4,9 @@
 Lucas–Kanade vs the MU-constrained fit), the error curve. ``tracked/``: the whole corpus rendered
 as marker video and tracked (``mapping.visual_source: tracked``; see :mod:`face_model.tracked_corpus`).
 ``render/``: a held-out sentence animated from its audio by the trained mapping (Fig. 6 style),
-the same moment in neutral, smile and sad (Fig. 7 style), and that sentence's keyframe tracks.
+the same moment in neutral, smile and sad (Fig. 7 style), and that sentence's keyframe tracks
+(the last two only when the mapping knows expressions and the run has a keyframe model:
+``skipped`` in its record says what was left out).
 """
 from __future__ import annotations
 
@@ -119,15 +121,28 @@ def render_held_out(paths: RunPaths, cfg) -> dict:
                      [f"{k / 30:.2f} s /{PHONES[phones[k]]}/" for k in picks],
                      out_dir / "fig6_sentence.png", ncols=5)
     k = int(np.argmax(mouth_opening(markers)))  # Fig. 7: the frame of widest mouth opening
-    faces, titles = [], []
-    for expr in animator.mapping.expressions:
-        _, m = animator.animate(utt.audio, utt.sample_rate, expr)
-        faces.append(renderer.render(m[k]))
-        titles.append(expr)
-    fig7 = face_grid(faces, titles, out_dir / "fig7_expressions.png", ncols=len(faces))
-    kf = KeyframeModel.load(paths.keyframes_model)
-    tracks = write_keyframe_tracks(out_dir / "keyframe_tracks.json",
-                                   kf.mups_to_keyframes(mups, "neutral"), 30,
-                                   expression="neutral", source=utt.utt_id)
-    return {"utterance": utt.utt_id, "text": utt.text, "fig6": fig6.name, "fig7": fig7.name,
-            "fig7_frame": k, "tracks": Path(tracks).name, "model": str(tfmap)}
+    record = {"utterance": utt.utt_id, "text": utt.text, "fig6": fig6.name, "fig7": None,
+              "fig7_frame": k, "tracks": None, "model": str(tfmap)}
+    expressions = animator.mapping.expressions
+    if any(e != "neutral" for e in expressions):
+        faces, titles = [], []
+        for expr in expressions:
+            _, m = animator.animate(utt.audio, utt.sample_rate, expr)
+            faces.append(renderer.render(m[k]))
+            titles.append(expr)
+        record["fig7"] = face_grid(faces, titles, out_dir / "fig7_expressions.png",
+                                   ncols=len(faces)).name
+        record["fig7_expressions"] = titles
+    else:
+        record["skipped"] = ["Fig. 7 (the same moment in each expression): the mapping knows "
+                             "neutral speech only"]
+    if paths.keyframes_model.is_file():
+        kf = KeyframeModel.load(paths.keyframes_model)
+        record["tracks"] = Path(write_keyframe_tracks(
+            out_dir / "keyframe_tracks.json", kf.mups_to_keyframes(mups, "neutral"), 30,
+            expression="neutral", source=utt.utt_id)).name
+    else:
+        record.setdefault("skipped", []).append(
+            "the keyframe tracks: the run has no keyframe model (the paper's eight keyframes "
+            "include smile and sad)")
+    return record

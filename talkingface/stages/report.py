@@ -11,14 +11,15 @@ from analysis.corpus_report import corpus_section, make_figures, summarize_corpu
 from analysis.mapping_report import ceiling_section, mapping_section
 from analysis.motion_report import motion_section
 from analysis.perception_report import perception_section
-from analysis.report import Report
+from analysis.report import Report, escape
 from analysis.speech_report import speech_section
 from analysis.study_report import study_section
 from face_model.corpus import load_corpus
 from face_model.motion_units import MotionUnits
 from talkingface.config import dump_config, flatten
 from talkingface.provenance import git_commit
-from talkingface.paths import RunPaths
+from talkingface.paths import STAGE_FOLDERS, RunPaths
+from talkingface.stages.applies import expression_note, given, switched_off
 from talkingface.stages.base import read_done
 from talkingface.stages.voices import read_results
 
@@ -31,11 +32,14 @@ def build_report(paths: RunPaths, cfg) -> dict:
     dump_config(cfg, paths.report_dir / "config.yaml")
     (paths.report_dir / "summary.json").write_text(json.dumps(summary, indent=1))
     figs = make_figures(corpus, units, summary, paths.report_dir)
+    scope = corpus_scope(paths, cfg, corpus)
     rep = Report(f"talkingface replication: {paths.name}",
                  "Hong, Wen &amp; Huang (2002), Real-Time Speech-Driven Face Animation with "
-                 "Expressions Using Neural Networks — rebuilt on a synthetic corpus")
-    corpus_section(rep, summary["corpus"], figs)
-    units_section(rep, summary["units"], figs)
+                 "Expressions Using Neural Networks — rebuilt on "
+                 + ("a given corpus" if scope["given"] else "a synthetic corpus"))
+    corpus_section(rep, summary["corpus"], figs, given=scope["given"], scope=scope["note"],
+                   switched_off=scope["switched_off"])
+    units_section(rep, summary["units"], figs, note=scope["note"])
     mapping = read_done(paths.mapping)
     if mapping:
         ablations = paths.ablations / "results.csv"
@@ -46,7 +50,7 @@ def build_report(paths: RunPaths, cfg) -> dict:
     default_model = (voices or {}).get("model")
     speech_section(rep, paths.stage("speech_eval"), read_results(paths),
                    table_ii_R=_table_ii_R(mapping, cfg.mapping.method),
-                   default_model=default_model)
+                   default_model=default_model, given_corpus=scope["given"] is not None)
     if read_done(paths.keyframes):
         motion_section(rep, paths.keyframes, paths.render, paths.tracking)
     if (paths.stimuli / "stimuli.json").is_file():
@@ -55,12 +59,40 @@ def build_report(paths: RunPaths, cfg) -> dict:
     if study is not None:
         perception_section(rep, study, paths.analysis)
     methods_section(rep, cfg, corpus.info, study=study)
-    rep.findings(findings(mapping=mapping, method=cfg.mapping.method, ab_dir=paths.ablations,
-                          ceiling_dir=paths.stage("ceiling"),
-                          speech_dir=paths.stage("speech_eval"), default_model=default_model,
-                          study=study, has=set(rep.refs.labels)))
+    items = findings(mapping=mapping, method=cfg.mapping.method, ab_dir=paths.ablations,
+                     ceiling_dir=paths.stage("ceiling"), speech_dir=paths.stage("speech_eval"),
+                     default_model=default_model, study=study, has=set(rep.refs.labels))
+    if scope["finding"]:
+        items.append(scope["finding"])
+    rep.findings(items)
     pdf = rep.build(paths.pdf)
-    return {"pdf": str(pdf)}
+    record = {"pdf": str(pdf)}
+    if scope["note"]:
+        record["note"] = scope["note"]
+    if scope["switched_off"]:
+        record["switched_off"] = scope["switched_off"]
+    return record
+
+
+def corpus_scope(paths: RunPaths, cfg, corpus) -> dict:
+    """What the run's corpus allows: ``given`` (``source`` and ``info`` of a given corpus, else
+    None), ``note`` (what the stages skip without smile or sad, else None), ``switched_off``
+    (``{stage: why}`` of the stages the corpus rules out) and the first page's ``finding``
+    saying so (None when nothing is skipped)."""
+    done = read_done(paths.corpus) or {}
+    given_info = ({"source": done.get("source", cfg.corpus.source), "info": corpus.info}
+                  if given(cfg) else None)
+    note = expression_note(u.expression for u in corpus.utterances)
+    off = switched_off(cfg, STAGE_FOLDERS)
+    finding = None
+    if note or off:
+        cite = "switched_off" if off else "corpus"
+        finding = ("<b>The corpus.</b> "
+                   + (f"A given corpus ({escape(given_info['source'])}). " if given_info else "")
+                   + (escape(note) + " " if note else "")
+                   + (f"Stages it switches off: {', '.join(off)} " if off else "See ")
+                   + f"({{label:{cite}}}, p. {{page:{cite}}}).")
+    return {"given": given_info, "note": note, "switched_off": off, "finding": finding}
 
 
 def _forest(paths: RunPaths):
@@ -100,6 +132,10 @@ def methods_section(rep, cfg, corpus_info: dict, *, study: dict | None = None) -
                       f"bootstrap and power simulations seeded with {cfg.seed}.")
     versions = corpus_info.get("versions", {})
     rep.table("Package versions", ["package", "version"], sorted(versions.items()))
-    flat = [[k, json.dumps(v)] for k, v in flatten(cfg).items() if "." in k]
-    rep.table("Resolved configuration", ["key", "value"], flat, col_widths=[200, 250])
+    unused = ("synth.",) if given(cfg) else ()  # a given corpus is not synthesised
+    flat = [[k, json.dumps(v)] for k, v in flatten(cfg).items()
+            if "." in k and not k.startswith(unused)]
+    rep.table("Resolved configuration", ["key", "value"], flat, col_widths=[200, 250],
+              note="The synth settings are left out: the corpus is given (corpus.source), not "
+                   "synthesised." if unused else "")
 

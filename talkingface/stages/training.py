@@ -32,6 +32,7 @@ from mapping.experiment import recognise_context, run_experiment
 from talkingface.config import to_dict
 from talkingface.executor import map_tasks
 from talkingface.paths import RunPaths
+from talkingface.stages.applies import expression_note
 from talkingface.stages.base import write_csv
 from talkingface.stages.motion import training_corpus
 
@@ -62,7 +63,9 @@ def train_and_evaluate(corpus_dir: Path, units_path: Path, out_dir: Path, cfg, *
     every task and run; ``figures``: draw the gate's confusion and the trajectories (a grid's
     tasks write the tables and the confusion's CSV only: the figures would cost them a third
     of their time, and the report draws the mapping stage's); ``map_fn``: where the methods ×
-    splits train (:func:`mapping.experiment.run_experiment`)."""
+    splits train (:func:`mapping.experiment.run_experiment`). The expression cascade is trained
+    for the expressions the corpus holds (none on neutral speech only: the summary's ``note``
+    says so)."""
     m = cfg.mapping
     corpus = load_corpus(corpus_dir)
     units = MotionUnits.load(units_path)
@@ -100,12 +103,18 @@ def train_and_evaluate(corpus_dir: Path, units_path: Path, out_dir: Path, cfg, *
     held = next((r for r in results if r.split == "utterance"), None)
     test_utts = ([d.utt_id for d, mk in zip(data, held.trained.masks) if not mk.any()]
                  if held is not None else [])
-    return {"rows": rows, "ranking": ranks, "gate": gate, "models": models,
-            "test_utterances": test_utts,
-            "feature_seconds": feature_seconds, "trajectories": traj.name if traj else None,
-            "fit_seconds": {f"{r.method}/{r.split}": r.fit_seconds for r in results},
-            "fits": network_costs(f for r in results for f in r.trained.fits),
-            "config": to_dict(cfg)}
+    record = {"rows": rows, "ranking": ranks, "gate": gate, "models": models,
+              "expressions": list(dict.fromkeys(u.expression for u in corpus.utterances)),
+              "test_utterances": test_utts,
+              "feature_seconds": feature_seconds,
+              "trajectories": traj.name if traj else None,
+              "fit_seconds": {f"{r.method}/{r.split}": r.fit_seconds for r in results},
+              "fits": network_costs(f for r in results for f in r.trained.fits),
+              "config": to_dict(cfg)}
+    note = expression_note(record["expressions"])
+    if note:  # no expression cascade for an expression the corpus does not hold
+        record["note"] = note
+    return record
 
 
 def network_costs(fits) -> dict:

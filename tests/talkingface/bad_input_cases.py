@@ -18,9 +18,11 @@ import io
 import json
 import pickle
 import shutil
+import subprocess
 import zipfile
 from pathlib import Path
 
+import imageio_ffmpeg
 import numpy as np
 
 from groundwork import modelfile
@@ -260,6 +262,10 @@ def add_bad_inputs(root: Path) -> None:
     _write_wav_raw(_copy_corpus(root, "stereo_corpus") / first["audio"],
                    np.stack([y, y], axis=1), int(first["sample_rate"]), 1)
     (_copy_corpus(root, "nomanifest_corpus") / "manifest.csv").unlink()
+    # a manifest naming a file outside its folder (the reader reads it; a given corpus is
+    # linked into a run file by file, inside the run's folder only)
+    manifest("outside_corpus", lambda h, rows: rows[0].__setitem__(
+        h.index("audio"), f"../c/{rows[0][h.index('audio')]}"))
     # -- WAV files
     (root / "empty.wav").write_bytes(b"")
     (root / "corrupt.wav").write_bytes(b"RIFF\x10\x00\x00\x00WAVEfmt nonsense")
@@ -368,6 +374,33 @@ def add_bad_inputs(root: Path) -> None:
     (root / "reports" / "study" / "study_data.pdf").write_bytes(b"%PDF of runs/R/study_data")
     # -- a tracking store that is not a database
     (root / "bad_mlflow.db").write_bytes(b"not a database " * 100)
+    add_bad_videos(root)
+
+
+GRID = Path(__file__).resolve().parents[1] / "data" / "grid"
+
+
+def add_bad_videos(root: Path) -> None:
+    """Videos ``corpus from-video`` and ``evaluate-face`` must refuse, each in a folder of its
+    own with a transcript: no face (a grey picture and a tone), no audio (a GRID clip without
+    its sound), a corrupt file, and a GRID clip whose transcript says something else."""
+    ffmpeg = imageio_ffmpeg.get_ffmpeg_exe()
+
+    def folder(name: str, text: str = "bin blue by f eight please") -> Path:
+        d = root / name
+        d.mkdir()
+        (d / "clip.txt").write_text(text + "\n")
+        return d
+
+    subprocess.run([ffmpeg, "-v", "error", "-f", "lavfi", "-i", "color=c=gray:s=160x120:d=1:r=25",
+                    "-f", "lavfi", "-i", "sine=frequency=300:duration=1:sample_rate=44100",
+                    "-shortest", "-c:v", "mpeg1video", "-c:a", "mp2",
+                    str(folder("v_noface") / "clip.mpg")], check=True)
+    subprocess.run([ffmpeg, "-v", "error", "-i", str(GRID / "video" / "bbbf8p.mpg"), "-an",
+                    "-c:v", "copy", str(folder("v_noaudio") / "clip.mpg")], check=True)
+    (folder("v_corrupt") / "clip.mpg").write_bytes(bytes(range(256)) * 40)
+    shutil.copy(GRID / "video" / "bbbf8p.mpg",
+                folder("v_mismatch", "place green with q nine again soon") / "clip.mpg")
 
 
 # -- the cases -------------------------------------------------------------------------------
@@ -385,6 +418,21 @@ SIM = ["study", "simulate", "--n", "4", "--study-dir", "sim_new"]
 RUNS = ["study", "run", "--study-dir", "sd_new", "--stimuli", "runs/R/stimuli"]
 
 CASES = [
+    # -- corpus from-video and evaluate-face: bad videos, folders and transcripts
+    (["corpus", "from-video", "v_noface", "--out", "newv"], ["v_noface/clip.mpg", "no face"]),
+    (["corpus", "from-video", "v_noaudio", "--out", "newv"], ["v_noaudio/clip.mpg", "no audio"]),
+    (["corpus", "from-video", "v_corrupt", "--out", "newv"], ["v_corrupt/clip.mpg", "video"]),
+    (["corpus", "from-video", "v_mismatch", "--out", "newv"],
+     ["v_mismatch/clip.mpg", "does not match the audio"]),
+    (["corpus", "from-video", "a_folder", "--out", "newv"], ["a_folder", "no videos"]),
+    (["corpus", "from-video", "no_such_folder", "--out", "newv"],
+     ["no_such_folder", "no such file or folder"]),
+    (["corpus", "from-video", "v_mismatch", "--out", "a_folder"],
+     ["a_folder", "already exists"]),
+    (["corpus", "from-video", "v_mismatch", "--out", "newv", "--workers", "0"],
+     ["--workers", "0"]),
+    (["evaluate-face", "--model", TFMAP, "a_folder"], ["a_folder", "no videos"]),
+    (["evaluate-face", "--model", TFMAP, "v_noface"], ["v_noface/clip.mpg", "no face"]),
     # -- command-line values: wrong type (argparse), out of range, contradictory
     (["synth", "--out", "new1", "--sentences", "abc"], ["--sentences", "abc"]),
     (["synth", "--out", "new1", "--sentences", "-1"], ["-1"]),
@@ -637,6 +685,23 @@ CASES = [
     (_units("stereo_corpus"), [".wav", "channels"]),
     (_units("bad_info_corpus"), ["corpus.json"]),
     (_units("info_list_corpus"), ["corpus.json"]),
+    # -- a given corpus (--corpus DIR, corpus.source): refused before the run is made
+    (["train", "--name", "G", *RUN, "--corpus", "missing_corpus"],
+     ["corpus.source", "missing_corpus", "not found"]),
+    (["train", "--name", "G", *RUN, "--corpus", "speech.wav"], ["speech.wav", "is a file"]),
+    (["replicate", "--name", "G", *QUICK, "--corpus", "a_folder"], ["a_folder", "manifest.csv"]),
+    (["replicate", "--name", "G", *QUICK, "--corpus", "nan_corpus"], ["nan_corpus", "NaN"]),
+    (["ablate", "--grid", "grid.yaml", "--name", "G", *RUN, "--corpus", "shape_corpus"],
+     ["shape_corpus", "(75, 40, 2)"]),
+    (["train", "--name", "G", *RUN, "--corpus", "outside_corpus"],
+     ["outside_corpus", "outside the corpus folder"]),
+    (["train", "--name", "G", *RUN, "--set", "corpus.source=phone_corpus"],
+     ["phone_corpus", "zz"]),
+    (["train", "--name", "G", *RUN, "--corpus", "c", "--visual-source", "tracked"],
+     ["mapping.visual_source", "corpus.source"]),
+    (["study", "stimuli", "--name", "G", *RUN, "--set", "corpus.source=c"],
+     ["stimuli", "does not apply", "corpus.source c"]),
+    (["train", "--name", "R", *RUN, "--corpus", "c"], ["different config"]),
     # -- WAV files (speech to animate and to stream)
     (["animate", "missing.wav", "-o", "o.mp4", "--model", "R"], ["missing.wav"]),
     (_animate(wav="empty.wav"), ["empty.wav"]),

@@ -43,7 +43,7 @@ def test_set_overrides_parse_yaml_scalars():
 
 @pytest.mark.parametrize("assignment, message", [
     ("synth.no_such_key=1", r"unknown config key synth\.no_such_key; allowed in synth: .*speakers"),
-    ("nosection.key=1", r"unknown config section 'nosection'; allowed: seed, synth"),
+    ("nosection.key=1", r"unknown config section 'nosection'; allowed: seed, corpus, synth"),
     ("synth.speakers=two", r"synth\.speakers must be an integer, got 'two'"),
     ("synth.speakers", r"--set expects section\.key=value, got 'synth\.speakers'"),
     ("synth.speakers.x=1", r"synth\.speakers must be an integer, got \{'x': 1\}"),
@@ -204,6 +204,8 @@ BAD_VALUES = [
     ("cluster.scheduler=tcp://host:65536", "'tcp://host:65536'"),
     ("cluster.scheduler=tcp://a host:8786", "'tcp://a host:8786'"),
     ("seed=2147483000", "2147483000"),  # its third replicate's seed would pass 2**31 - 1
+    ('corpus.source=" my corpus"', "' my corpus'"),
+    ('corpus.source="a\\nb"', "'a\\nb'"),
 ]
 
 
@@ -213,6 +215,17 @@ def test_each_bad_value_is_refused_with_its_key_and_value(assignment, shown):
     with pytest.raises(ParameterError) as info:
         load_config(None, [assignment])
     assert str(info.value).startswith(f"{key} is {shown}; allowed: "), str(info.value)
+
+
+def test_a_given_corpus_has_no_tracked_copy():
+    """A given corpus's markers were found in its own video; the tracked corpus draws them as
+    the synthetic marker face, so the two are refused together, in either order."""
+    for order in (["corpus.source=c", "mapping.visual_source=tracked"],
+                  ["mapping.visual_source=tracked", "corpus.source=c"]):
+        with pytest.raises(ParameterError, match=r"^mapping\.visual_source is 'tracked'; "
+                                                 r"allowed: markers when corpus\.source"):
+            load_config(None, order)
+    assert load_config(None, ["corpus.source=c"]).corpus.source == "c"
 
 
 def test_every_section_has_a_bad_value_in_the_table():
@@ -453,7 +466,7 @@ def test_exponent_numbers_set_float_settings(tmp_path):
                                                  r"byte-order mark\); save it as UTF-8"),
     ("synth:\n  speakers: 2\n".encode("utf-16-le"), r"is not UTF-8 text \(it holds NUL bytes"),
     ("synth:\n  voice: é\n".encode("latin-1"), r"is not UTF-8 text \(byte 16: b'\\xe9'\)"),
-    (b"- synth\n- units\n", r"must be a mapping of sections \(seed, synth, .*\), got list "
+    (b"- synth\n- units\n", r"must be a mapping of sections \(seed, corpus, synth, .*\), got list "
                             r"\['synth', 'units'\]"),
     (b"42\n", r"must be a mapping of sections .*, got int 42"),
     (b"synth: 3\n", r"config section 'synth' must be a mapping, got 3"),

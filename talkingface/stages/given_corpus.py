@@ -1,0 +1,195 @@
+"""A given corpus (``corpus.source``, ``--corpus DIR``) as the run's corpus.
+
+The ``corpus`` stage takes a corpus folder in the corpus contract (DESIGN.md) instead of
+synthesising one: the folder is validated by the one reader (:func:`face_model.corpus.load_corpus`)
+before anything of the run is written (the stage's key reads it: :func:`corpus_inputs`), then
+its files are hard-linked into the run's ``corpus/`` folder (copied where a link cannot be made,
+e.g. across file systems). The stage is built in a partial folder and renamed into place only
+when complete (:func:`talkingface.stages.base.run_stage`), so an interrupted copy leaves nothing
+behind under ``corpus/``.
+
+The stage's key is ``corpus.source`` (not the ``synth`` settings, which a given corpus does not
+read), its :func:`face_model.corpus.corpus_hash` (the manifest and the audio, markers and phones
+it lists) and a SHA-256 of the other files taken (``corpus.json``, a corpus from video's
+``quality/`` files): a changed corpus is copied again, with everything downstream of it; an
+unchanged one is reused. A corpus is read and hashed once per process however often
+its key is asked for, while its files keep their sizes and modification times
+(:func:`_signature`).
+
+Hard links share the files with the source folder: edit a given corpus by writing new files
+(as the project's writers do), never in place.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+from pathlib import Path
+
+from face_model.corpus import corpus_hash, load_corpus, read_manifest
+from groundwork.errors import CorpusError
+from talkingface.paths import RunPaths
+from talkingface.stages.applies import expression_note, given
+
+# manifest columns that never name a file; every other column's cells that name a file inside
+# the corpus folder are taken (audio, markers, phones, a corpus from video's ``quality``, ...)
+_VALUE_COLUMNS = ("utt_id", "speaker", "expression", "text", "n_frames", "fps", "sample_rate",
+                  "voice")
+_HASHED = ("audio", "markers", "phones")  # what corpus_hash reads besides the manifest
+INFO = "corpus.json"
+MANIFEST = "manifest.csv"
+
+_checked: dict = {}  # (folder, signature) -> what check_source found
+
+
+def source_folder(cfg) -> Path:
+    """The given corpus folder of ``cfg`` (``corpus.source``), as an absolute path."""
+    return Path(cfg.corpus.source).expanduser().absolute()
+
+
+def _refuse(src: Path, problem: str) -> CorpusError:
+    return CorpusError(f"corpus.source {src}: {problem}")
+
+
+def corpus_files(root: Path) -> list[Path]:
+    """The files of the corpus at ``root`` that the run takes, relative to it: ``manifest.csv``,
+    ``corpus.json`` (when there is one) and every file the manifest names.
+
+    Raises
+    ------
+    CorpusError
+        A manifest cell names a path outside the corpus folder.
+    """
+    rows = read_manifest(root / MANIFEST, ("utt_id",))
+    out = [Path(MANIFEST)] + ([Path(INFO)] if (root / INFO).is_file() else [])
+    inside = root.resolve()
+    for line, row in enumerate(rows, start=2):
+        for column, value in row.items():
+            if column in _VALUE_COLUMNS or not value or column is None:
+                continue
+            rel = Path(value)
+            if not (root / rel).is_file():
+                continue  # not a file name (the reader refuses a missing audio, markers, phones)
+            if rel.is_absolute() or not (root / rel).resolve().is_relative_to(inside):
+                raise CorpusError(f"{root / MANIFEST}, line {line}: {column} {value!r} is "
+                                  "outside the corpus folder; allowed: paths relative to it, "
+                                  "inside it")
+            out.append(rel)
+    return list(dict.fromkeys(out))
+
+
+def _signature(root: Path) -> tuple | None:
+    """Size, modification time and inode of every file the run takes (None: unreadable; the
+    reader then says why)."""
+    try:
+        return tuple((str(rel), st.st_size, st.st_mtime_ns, st.st_ino)
+                     for rel in corpus_files(root) for st in [(root / rel).stat()])
+    except (OSError, CorpusError):
+        return None
+
+
+def check_source(cfg) -> dict:
+    """Validate the given corpus of ``cfg`` with :func:`face_model.corpus.load_corpus` and sum
+    it up: ``corpus_hash``, ``other_files`` (the hash of the files ``corpus_hash`` does not
+    read), ``expressions`` (with utterances, in manifest order), ``n_utterances``. Read once
+    per process while its files are unchanged.
+
+    Raises
+    ------
+    CorpusError
+        One line naming the folder and the problem: not found, not a folder, or the reader's
+        refusal (naming the file).
+    """
+    src = source_folder(cfg)
+    if not src.exists():
+        raise _refuse(src, "folder not found; allowed: a corpus folder (manifest.csv, audio/, "
+                           "markers/, phones/) or empty to synthesise the corpus")
+    if not src.is_dir():
+        raise _refuse(src, "is a file; allowed: a corpus folder (manifest.csv, audio/, "
+                           "markers/, phones/)")
+    sig = _signature(src)
+    found = _checked.get((src, sig)) if sig is not None else None
+    if found is None:
+        try:
+            corpus = load_corpus(src)
+            corpus_files(src)
+        except CorpusError as exc:
+            raise _refuse(src, f"not a valid corpus: {exc}") from None
+        expressions = list(dict.fromkeys(u.expression for u in corpus.utterances))
+        found = {"corpus_hash": corpus_hash(src), "other_files": _other_files_hash(src),
+                 "expressions": expressions, "n_utterances": len(corpus)}
+        del corpus
+        if sig is not None and _signature(src) == sig:  # unchanged while it was read
+            _checked[(src, sig)] = found
+    return dict(found)
+
+
+def _other_files_hash(root: Path) -> str:
+    """SHA-256 over the names and contents of the files the run takes that
+    :func:`face_model.corpus.corpus_hash` does not read (``corpus.json``, ``quality/`` files,
+    ...), in the order of :func:`corpus_files`."""
+    hashed = {Path(r[k]) for r in read_manifest(root / MANIFEST, ("utt_id",)) for k in _HASHED
+              if r.get(k)}
+    h = hashlib.sha256()
+    for rel in corpus_files(root):
+        if rel != Path(MANIFEST) and rel not in hashed:
+            h.update(str(rel).encode() + b"\0" + (root / rel).read_bytes())
+    return h.hexdigest()
+
+
+def corpus_config(cfg) -> tuple:
+    """The config keys the corpus depends on: ``corpus.source`` for a given corpus, else the
+    seed and the synthesis settings."""
+    return ("corpus.source",) if given(cfg) else ("seed", "synth")
+
+
+def corpus_inputs(paths: RunPaths, cfg) -> dict:
+    """The corpus stage's inputs outside the run (:class:`talkingface.stages.base.Stage`):
+    a given corpus's ``corpus_hash`` and the hash of its other files (``corpus.json``,
+    ``quality/``), validating it; nothing for a synthesised one."""
+    if not given(cfg):
+        return {}
+    found = check_source(cfg)
+    return {"corpus_hash": found["corpus_hash"], "other_files": found["other_files"]}
+
+
+def link_or_copy(src: Path, dst: Path) -> bool:
+    """``dst`` as a hard link to ``src``, or a copy where a link cannot be made (another file
+    system, links not supported or not allowed). Returns whether it is a link."""
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        os.link(src, dst)
+        return True
+    except OSError:
+        shutil.copy2(src, dst)
+        return False
+
+
+def take_given_corpus(paths: RunPaths, cfg) -> dict:
+    """The given corpus of ``cfg`` validated and linked (or copied) into the run's corpus
+    folder; returns what ``done.json`` records: ``source`` (the folder), ``corpus_hash``,
+    ``expressions``, ``n_utterances``, ``linked`` and ``copied`` (files) and, when the corpus
+    lacks smile or sad, the ``note`` of what is skipped.
+
+    Raises
+    ------
+    CorpusError
+        As :func:`check_source`; or the source changed while it was being copied.
+    """
+    src = source_folder(cfg)
+    found = check_source(cfg)
+    before = _signature(src)
+    linked = copied = 0
+    for rel in corpus_files(src):
+        if link_or_copy(src / rel, paths.corpus / rel):
+            linked += 1
+        else:
+            copied += 1
+    if _signature(src) != before:
+        raise _refuse(src, "changed while it was being copied; run the command again when "
+                           "nothing writes to it")
+    record = {"source": str(src), **found, "linked": linked, "copied": copied}
+    note = expression_note(found["expressions"])
+    if note:
+        record["note"] = note
+    return record
