@@ -53,6 +53,20 @@ class CorpusConfig:
 
 
 @dataclass(frozen=True)
+class RealSpeakerConfig:
+    """The paper's pipeline on a real speaker (stage ``real_speaker``), beside the synthetic
+    corpus's: ``builtin`` (GRID s1, ``face_model/real_faces/grid-s1``), a corpus folder made
+    from video (``talkingface corpus from-video``), or empty (off)."""
+
+    corpus: str = "builtin"
+
+    def __post_init__(self):
+        require(self, "corpus", self.corpus.strip() == self.corpus and self.corpus.isprintable(),
+                "builtin, empty (off) or the path of a corpus folder, without leading or "
+                "trailing spaces or control characters")
+
+
+@dataclass(frozen=True)
 class MlflowConfig:
     """Experiment tracking (MLflow). Empty uri: $MLFLOW_TRACKING_URI, else ./mlflow.db."""
 
@@ -131,6 +145,7 @@ MAX_SEED = 2**31 - 1  # derived seeds add offsets; scikit-learn takes seeds < 2*
 class Config:
     seed: int = integer(2002, ge=0, le=MAX_SEED)
     corpus: CorpusConfig = field(default_factory=CorpusConfig)
+    real_speaker: RealSpeakerConfig = field(default_factory=RealSpeakerConfig)
     synth: SynthConfig = field(default_factory=SynthConfig)
     units: UnitsConfig = field(default_factory=UnitsConfig)
     mapping: MappingConfig = field(default_factory=MappingConfig)

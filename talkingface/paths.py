@@ -37,7 +37,7 @@ _NAME = re.compile(r"(?!.*\.\.)[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
 
 STAGE_FOLDERS = ("corpus", "units", "keyframes", "tracking", "tracked", "mapping", "voices",
                  "speech_eval", "render", "stimuli", "study_data", "analysis", "ablations",
-                 "ceiling", "report")
+                 "ceiling", "real_speaker", "report")
 
 
 def check_run_name(name: str) -> str:

@@ -25,6 +25,8 @@ from talkingface.stages.study import (analyze, keep_real_participants, make_stim
 from talkingface.stages.ablations import ablate
 from talkingface.stages.ceiling import decompose
 from talkingface.stages.grid import ABLATIONS, CEILING, GRID_STAGES, VOICES, GridStage
+from talkingface.stages.real_speaker import evaluate_real_speaker, real_inputs, \
+    real_speaker_applies
 from talkingface.stages.training import train
 from talkingface.stages.voices import train_voices
 
@@ -71,12 +73,16 @@ STAGES = {s.name: s for s in (
     _grid_stage(CEILING, decompose, config=("seed", "synth", "units", "mapping", "tracker.init",
                                             "tracker.corpus_noise_sd"),
                 speed_only=("synth.workers", "mapping.workers"), applies=synthesised),
+    Stage("real_speaker", lambda paths, cfg: evaluate_real_speaker(paths, cfg, run),
+          config=("seed", "units", "mapping", "real_speaker"), speed_only=("mapping.workers",),
+          upstream=("units", "mapping", "voices"), enabled=real_speaker_applies,
+          inputs=real_inputs),
     Stage("report", build_report, always=True),
 )}
 
 REPLICATION = ("corpus", "units", "keyframes", "tracking", "tracked", "mapping", "voices",
                "speech_eval", "render", "stimuli", "study_data", "analysis", "ablations",
-               "ceiling", "report")
+               "ceiling", "real_speaker", "report")
 
 
 def run(names, paths: RunPaths, cfg) -> dict:

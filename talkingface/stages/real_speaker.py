@@ -154,7 +154,7 @@ def evaluate_real_speaker(paths: RunPaths, cfg, runner) -> dict:
     for name, s in scores.items():
         write_scores_csv(s, out / f"per_clip_{name}.csv")
     neutral = speaker_neutrals(corpus)[clips[0].speaker]
-    median_clip = sorted(scores["speaker"].clips, key=lambda r: r["r"])[len(clips) // 2]["clip"]
+    median_clip = sorted(scores["speaker"].clips, key=lambda r: r.r)[len(clips) // 2].clip
     strip_clip = next(c for c in clips if c.clip == median_clip)
     _strip(out / "strip.npz", strip_clip, {"speaker": speaker, "synthetic": synthetic}, neutral,
            scores)

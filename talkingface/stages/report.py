@@ -11,6 +11,7 @@ from analysis.corpus_report import corpus_section, make_figures, summarize_corpu
 from analysis.mapping_report import ceiling_section, mapping_section
 from analysis.motion_report import motion_section
 from analysis.perception_report import perception_section
+from analysis.real_face_report import real_speaker_section
 from analysis.report import Report, escape
 from analysis.speech_report import speech_section
 from analysis.study_report import study_section
@@ -58,6 +59,8 @@ def build_report(paths: RunPaths, cfg) -> dict:
     study = read_done(paths.analysis)
     if study is not None:
         perception_section(rep, study, paths.analysis)
+    if (paths.stage("real_speaker") / "summary.json").is_file():
+        real_speaker_section(rep, paths.stage("real_speaker"), paths.report_dir)
     methods_section(rep, cfg, corpus.info, study=study)
     items = findings(mapping=mapping, method=cfg.mapping.method, ab_dir=paths.ablations,
                      ceiling_dir=paths.stage("ceiling"), speech_dir=paths.stage("speech_eval"),

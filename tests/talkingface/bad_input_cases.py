@@ -28,7 +28,8 @@ import numpy as np
 from groundwork import modelfile
 from groundwork.owner import lock_path
 
-TINY = ["--set", "synth.n_sentences=3", "--set", "synth.workers=2", "--set", "mlflow.enabled=false"]
+TINY = ["--set", "synth.n_sentences=3", "--set", "synth.workers=2", "--set", "mlflow.enabled=false",
+        "--set", "real_speaker.corpus=''"]  # the real-speaker stage: test_cli_pipeline
 QUICK = [*TINY, "--set", "mapping.baselines=[linear]", "--set", "mapping.train.max_epochs=20",
          "--set", "study.n_participants=4", "--set", "voices.grid=none",
          "--set", "ceiling.grid=none", "--ablations", "none"]

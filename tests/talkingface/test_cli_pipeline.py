@@ -13,7 +13,8 @@ from talkingface.cli.main import main
 # these settings (small_run_dir in tests/conftest.py).
 from tests.talkingface.bad_input_cases import QUICK as SMALL_RUN
 
-TINY = ["--set", "synth.n_sentences=3", "--set", "synth.workers=2"]
+# the real-speaker stage (GRID s1, 196 sentences) runs in test_replicate_writes_runs_report_and_mlflow
+TINY = ["--set", "synth.n_sentences=3", "--set", "synth.workers=2", "--set", "real_speaker.corpus=''"]
 # the tracker's evaluation on 3 utterances (one per expression; 6 by default) and two training
 # seeds per ceiling step (3 by default): every stage and its bookkeeping, with less work
 SMALLER = ["--set", "tracker.n_utterances=3", "--set", "ceiling.seeds=2"]
@@ -57,7 +58,8 @@ def test_replicate_writes_runs_report_and_mlflow(workdir, capsys):
     (workdir / "voices.yaml").write_text(VOICES_GRID)
     (workdir / "ceiling.yaml").write_text(CEILING_GRID)
     assert main(["replicate", "--name", "tiny", *TINY, *SMALLER, "--ablations", "none",
-                 "--voices", "voices.yaml", "--set", "ceiling.grid=ceiling.yaml"]) == 0
+                 "--voices", "voices.yaml", "--set", "ceiling.grid=ceiling.yaml",
+                 "--set", "real_speaker.corpus=builtin"]) == 0
     run = workdir / "runs" / "tiny"
     for p in ("config.yaml", "corpus/manifest.csv", "corpus/done.json", "units/motion_units.npz",
               "units/variance.csv", "report/summary.json", "report/mu_variance.png"):
@@ -71,6 +73,13 @@ def test_replicate_writes_runs_report_and_mlflow(workdir, capsys):
     assert mismatches(workdir / "reports" / "tiny.pdf") == []
     assert "MU variance explained: ours vs the paper's" in text
     assert "Utterance MUs (neutral speech)" in text and "97.56 %" in text
+    # the paper's pipeline on the built-in real speaker, scored against the real lips
+    real = json.loads((run / "real_speaker" / "summary.json").read_text())
+    assert real["corpus"]["utterances"] == 196 and real["test_utterances"]
+    assert (run / "real" / "mapping" / "tables.csv").is_file()
+    assert "A real speaker (GRID s1)" in text and "Cooke" in text
+    speaker_r = real["face_scores"]["speaker_model"]["pooled"]["r_pooled"]
+    assert f"{speaker_r:.3f}" in text
     summary = json.loads((run / "report" / "summary.json").read_text())
     ours = f"{100 * summary['units']['explained']['neutral']:.2f} %"
     assert ours in text  # our figure, as text, in the table

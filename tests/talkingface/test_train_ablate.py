@@ -14,7 +14,7 @@ import pytest
 
 from talkingface.cli.main import main
 
-TINY = ["--set", "synth.n_sentences=4", "--set", "synth.workers=2"]
+TINY = ["--set", "synth.n_sentences=4", "--set", "synth.workers=2", "--set", "real_speaker.corpus=''"]
 
 
 def test_gated_mlp_beats_linear_and_vq_on_held_out_sentences(default_corpus):

@@ -367,7 +367,7 @@ def test_the_served_page_and_the_lookup_change_nothing(ui, store, capsys):
 # -- a real ablation grid, as a person reads it ------------------------------------------------
 GRID_YAML = ("base:\n  mapping.splits: [utterance]\n  mapping.train.max_epochs: 5\n"
              "children:\n  paper: {}\n  baseline-linear: {mapping.method: linear}\n")
-TINY = ["--set", "synth.n_sentences=4", "--set", "synth.workers=2"]
+TINY = ["--set", "synth.n_sentences=4", "--set", "synth.workers=2", "--set", "real_speaker.corpus=''"]
 
 # the runs the table lists (a run's name is a link to its page), top to bottom
 _RUN_ROWS_JS = """

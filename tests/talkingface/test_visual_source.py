@@ -14,7 +14,7 @@ from mapping.checkpoint import AudioMapping
 from talkingface.cli.main import main
 from talkingface.config import Config, load_config
 
-TINY = ["--set", "synth.n_sentences=4", "--set", "synth.workers=2"]
+TINY = ["--set", "synth.n_sentences=4", "--set", "synth.workers=2", "--set", "real_speaker.corpus=''"]
 SMALL_TRAIN = ["--set", "mapping.baselines=[linear]", "--set", "mapping.splits=[utterance]"]
 
 
