@@ -43,7 +43,7 @@ def test_set_overrides_parse_yaml_scalars():
 
 @pytest.mark.parametrize("assignment, message", [
     ("synth.no_such_key=1", r"unknown config key synth\.no_such_key; allowed in synth: .*speakers"),
-    ("nosection.key=1", r"unknown config section 'nosection'; allowed: seed, corpus, synth"),
+    ("nosection.key=1", r"unknown config section 'nosection'; allowed: seed, corpus, real_speaker, synth"),
     ("synth.speakers=two", r"synth\.speakers must be an integer, got 'two'"),
     ("synth.speakers", r"--set expects section\.key=value, got 'synth\.speakers'"),
     ("synth.speakers.x=1", r"synth\.speakers must be an integer, got \{'x': 1\}"),
@@ -206,6 +206,7 @@ BAD_VALUES = [
     ("seed=2147483000", "2147483000"),  # its third replicate's seed would pass 2**31 - 1
     ('corpus.source=" my corpus"', "' my corpus'"),
     ('corpus.source="a\\nb"', "'a\\nb'"),
+    ('real_speaker.corpus=" grid"', "' grid'"),
 ]
 
 
@@ -466,7 +467,7 @@ def test_exponent_numbers_set_float_settings(tmp_path):
                                                  r"byte-order mark\); save it as UTF-8"),
     ("synth:\n  speakers: 2\n".encode("utf-16-le"), r"is not UTF-8 text \(it holds NUL bytes"),
     ("synth:\n  voice: é\n".encode("latin-1"), r"is not UTF-8 text \(byte 16: b'\\xe9'\)"),
-    (b"- synth\n- units\n", r"must be a mapping of sections \(seed, corpus, synth, .*\), got list "
+    (b"- synth\n- units\n", r"must be a mapping of sections \(seed, corpus, real_speaker, synth, .*\), got list "
                             r"\['synth', 'units'\]"),
     (b"42\n", r"must be a mapping of sections .*, got int 42"),
     (b"synth: 3\n", r"config section 'synth' must be a mapping, got 3"),

@@ -142,7 +142,8 @@ def test_real_stages_declare_what_a_study_and_a_mapping_setting_rerun(tmp_path):
     # the voice-robust models are trained with the run's mapping settings too
     assert stale(REPLICATION, paths, mapping) == ["mapping", "voices", "speech_eval", "render",
                                                   "stimuli", "study_data", "analysis",
-                                                  "ablations", "ceiling", "report"]
+                                                  "ablations", "ceiling", "real_speaker",
+                                                  "report"]
     tracked = load_config(None, ["mapping.visual_source=tracked"])
     assert stale(REPLICATION, paths, tracked)[:2] == ["tracked", "mapping"]
 
