@@ -300,7 +300,7 @@ def _corpus_paragraph(rep, summary: dict) -> None:
         "were refused by the import. Motion Units were fitted and the mapping trained on this "
         "corpus alone (a nested run), and scored on its held-out sentences. "
         f"Source: {escape(c.get('source', 'not given'))}. "
-        f"Licence: {escape(c.get('licence', 'not given'))}."
+        f"Licence: {escape(str(c.get('licence') or 'not given').rstrip('.'))}."
         + (f" {escape(GRID_ATTRIBUTION)}." if grid else ""))
 
 
