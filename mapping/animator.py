@@ -33,7 +33,7 @@ from groundwork.errors import ParameterError
 from mapping.checkpoint import rest_mups
 from mapping.features import (MFCC_SETTINGS, algorithmic_latency_s, hop_samples, mfcc,
                                window_dbfs, window_future)
-from mapping.recogniser import PhoneStream
+from mapping.recogniser import phone_stream
 
 
 class FaceAnimator:
@@ -142,7 +142,8 @@ class StreamingAnimator:
         self._cmvn = self.context.start_stream()  # running CMVN sums (None: no CMVN)
         mapping = self.animator.mapping
         # the recogniser gate's phones: decided ones by frame (None: the gate needs none)
-        self._phones = (PhoneStream(self.sr, self.fps, self.forward, self.back)
+        self._phones = (phone_stream(getattr(mapping.mapper, "recogniser", "pocketsphinx"),
+                                     self.sr, self.fps, self.forward, self.back)
                         if mapping.needs_phones else None)
         self._heard: dict[int, list] = {}  # frame → its window of phones
         self._n_heard = 0

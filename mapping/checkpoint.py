@@ -160,7 +160,9 @@ class AudioMapping:
                                  "a corpus's true phone labels and cannot animate audio")
         return fit_length(recognise_windows(y_m, self.sample_rate, fps=self.fps,
                                             delay_frames=m.context_forward,
-                                            back=m.context_back), n_frames)
+                                            back=m.context_back,
+                                            recogniser=getattr(m, "recogniser",
+                                                               "pocketsphinx")), n_frames)
 
     def gate_classes(self, y: np.ndarray, sr: int) -> np.ndarray:
         """The gate's class of every frame of mono audio (a gated mapping only)."""

@@ -18,6 +18,9 @@ are unchanged:
   (:mod:`mapping.recogniser`): the recogniser front end; or "labels", the corpus's own phone
   labels — an oracle for the ceiling of any audio model on the corpus, which cannot animate
   audio;
+* ``recogniser`` — with the recogniser gate, which recogniser hears the phones: "pocketsphinx"
+  (its en-US allphone decoder) or "hama" (a multilingual CTC phoneme model; issue 29,
+  :mod:`mapping.hama_front`), one interface (:func:`mapping.recogniser.phone_stream`);
 * ``mlp_input`` — what the MLP bank reads: "mfcc", the paper's MFCC context, or "phones", the
   recogniser's window of phones around the frame (one-hot; the phone-posterior front end, the
   route Rhubarb Lip Sync takes), which needs the recogniser gate;
@@ -54,6 +57,7 @@ GATE_FRONT_END_NAMES = ("mfcc", "recogniser", "labels")  # mapping.gated_mlp.GAT
 MLP_INPUT_NAMES = ("mfcc", "phones")  # mapping.gated_mlp.MLP_INPUTS
 WINDOW_ALIGN_NAMES = ("centre", "right")  # mapping.features.WINDOW_ALIGNS
 PHONE_TRAINING_NAMES = ("recognised", "labels")  # mapping.gated_mlp.PHONE_TRAINING
+RECOGNISER_NAMES = ("pocketsphinx", "hama")  # mapping.recogniser.RECOGNISERS
 
 
 @dataclass(frozen=True)
@@ -140,6 +144,9 @@ class MappingConfig:
     # gate: one Gaussian mixture per phone class on the MFCC ("mfcc", the paper), or the phones
     # of a recogniser trained on real speech ("recogniser", mapping.recogniser)
     gate_front_end: str = choice(*GATE_FRONT_END_NAMES)
+    # with the recogniser gate, which recogniser: pocketsphinx's en-US allphone decoder, or
+    # hama's multilingual CTC phoneme model (issue 29; mapping.hama_front)
+    recogniser: str = choice(*RECOGNISER_NAMES)
     # what the MLPs read: the MFCC context (the paper) or the recogniser's window of phones
     mlp_input: str = choice(*MLP_INPUT_NAMES)
     # with the recogniser gate, what training reads: the phones the recogniser heard in the

@@ -25,7 +25,7 @@ from groundwork.errors import ParameterError
 from mapping.augment import augment, retime_labels, retime_targets, rir_bank
 from mapping.config import AugmentSettings
 from mapping.features import FEATURES_VERSION, audio_features, hop_samples
-from mapping.recogniser import RECOGNISER_NAME, fit_length, recognise_windows
+from mapping.recogniser import fit_length, recognise_windows, recogniser_name
 
 SPLITS = ("random_frames", "utterance")
 
@@ -94,7 +94,8 @@ def build_dataset(corpus, units, *, n_mfcc: int = 10, deltas: bool = False,
     heard = {}
     if recognise_context is not None:
         heard = _per_utterance(
-            corpus, cache, ("recognised", RECOGNISER_NAME, tuple(recognise_context)),
+            corpus, cache, ("recognised", recogniser_name(*recognise_context[2:]),
+                            tuple(recognise_context)),
             lambda u: recognised_windows(u.audio, u.sample_rate, u.fps, recognise_context,
                                          u.n_frames), desc="recognising phones" if progress
             else None)
@@ -130,9 +131,10 @@ def _per_utterance(corpus, cache, what: tuple, make, desc: str | None = None) ->
 def recognised_windows(y: np.ndarray, sr: int, fps: int, context: tuple, n_frames: int
                        ) -> np.ndarray:
     """The recogniser's windows (n_frames, back + 1 + forward) of audio ``y`` for the context
-    ``(back, forward)``, fitted to ``n_frames``."""
-    back, forward = context
-    return fit_length(recognise_windows(y, sr, fps=fps, delay_frames=forward, back=back),
+    ``(back, forward[, recogniser])`` (pocketsphinx unless named), fitted to ``n_frames``."""
+    back, forward, *which = context
+    return fit_length(recognise_windows(y, sr, fps=fps, delay_frames=forward, back=back,
+                                        recogniser=which[0] if which else "pocketsphinx"),
                       n_frames)
 
 

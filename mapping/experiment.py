@@ -49,7 +49,7 @@ def make_mapper(method: str, mcfg: MappingConfig, *, n_utterance: int = 7,
                         cascade_hidden=mcfg.cascade_hidden, cmvn=mcfg.cmvn,
                         cmvn_warmup_frames=mcfg.cmvn_warmup_frames,
                         gate_front_end=mcfg.gate_front_end, mlp_input=mcfg.mlp_input,
-                        phone_training=mcfg.phone_training,
+                        phone_training=mcfg.phone_training, recogniser=mcfg.recogniser,
                         train=mcfg.train,
                         random_state=random_state)
     if method in BASELINES:
@@ -105,12 +105,12 @@ def train_method(method: str, data: list, masks: list, mcfg: MappingConfig, *,
 
 
 def recognise_context(mcfg: MappingConfig) -> tuple | None:
-    """The window ``(back, forward)`` of recognised phones the data must carry: the mapping's
-    context with the recogniser gate (decided with its look-ahead), else None (no
-    recognition)."""
+    """The window ``(back, forward, recogniser)`` of recognised phones the data must carry: the
+    mapping's context with the recogniser gate (decided with its look-ahead by the recogniser of
+    ``mapping.recogniser``), else None (no recognition)."""
     if mcfg.gate_front_end != "recogniser":
         return None
-    return (mcfg.context_back, mcfg.context_forward)
+    return (mcfg.context_back, mcfg.context_forward, mcfg.recogniser)
 
 
 def predict_utterance(mapper, d):

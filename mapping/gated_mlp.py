@@ -50,7 +50,7 @@ from mapping.features import ContextFeatures, check_context, check_seed
 from mapping.nets import MLP, NetRegressor, fit_many
 from mapping.normalize import check_cmvn
 from mapping.phone_gate import COVARIANCE_TYPES, PhoneGate, class_groups, merge_small_classes
-from mapping.recogniser import N_PHONES, label_windows, phone_inputs
+from mapping.recogniser import RECOGNISERS, N_PHONES, label_windows, phone_inputs
 from mapping.state import (ArrayGroup, nest, part_name, settings_from_params,
                            settings_to_params)
 
@@ -63,7 +63,7 @@ _HYPER_PARAMETERS = ("n_utterance", "context_back", "context_forward", "n_classe
 # added later: a model saved without them has these values
 _LATER_HYPER_PARAMETERS = {"cmvn": "none", "cmvn_warmup_frames": 30,
                            "gate_front_end": "mfcc", "mlp_input": "mfcc",
-                           "phone_training": "recognised"}
+                           "phone_training": "recognised", "recogniser": "pocketsphinx"}
 GATE_FRONT_ENDS = ("mfcc", "recogniser", "labels")  # mapping.config.GATE_FRONT_END_NAMES
 MLP_INPUTS = ("mfcc", "phones")  # mapping.config.MLP_INPUT_NAMES
 PHONE_TRAINING = ("recognised", "labels")  # mapping.config.PHONE_TRAINING_NAMES
@@ -89,6 +89,9 @@ class GatedMLP:
     mlp_input : {"mfcc", "phones"}
         What the MLPs read: the MFCC context (the paper) or the recogniser's window of phones
         (needs the recogniser gate).
+    recogniser : {"pocketsphinx", "hama"}
+        With the recogniser gate, which recogniser hears the phones
+        (:data:`mapping.recogniser.RECOGNISERS`).
     phone_training : {"recognised", "labels"}
         With the recogniser gate, the phones training reads: those the recogniser heard in the
         training audio, or the corpus's labels (see the module docstring).
@@ -117,7 +120,7 @@ class GatedMLP:
                  expression_model: str = "cascade", cascade_hidden: int = 30,
                  cmvn: str = "none", cmvn_warmup_frames: int = 30,
                  gate_front_end: str = "mfcc", mlp_input: str = "mfcc",
-                 phone_training: str = "recognised",
+                 phone_training: str = "recognised", recogniser: str = "pocketsphinx",
                  train: TrainSettings = TrainSettings(), random_state: int = 0):
         self.n_utterance = n_utterance
         self.context_back = context_back
@@ -135,6 +138,7 @@ class GatedMLP:
         self.gate_front_end = gate_front_end
         self.mlp_input = mlp_input
         self.phone_training = phone_training
+        self.recogniser = recogniser
         self.train = train
         self.random_state = random_state
 
@@ -156,6 +160,9 @@ class GatedMLP:
         if self.mlp_input not in MLP_INPUTS:
             raise ParameterError(f"mlp_input must be one of {MLP_INPUTS}, got "
                                  f"{self.mlp_input!r}")
+        if self.recogniser not in RECOGNISERS:
+            raise ParameterError(f"recogniser must be one of {RECOGNISERS}, got "
+                                 f"{self.recogniser!r}")
         if self.phone_training not in PHONE_TRAINING:
             raise ParameterError(f"phone_training must be one of {PHONE_TRAINING}, got "
                                  f"{self.phone_training!r}")

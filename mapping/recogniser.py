@@ -1,4 +1,11 @@
-"""A phone recogniser trained on real speech as the gate's front end (issue 12, part 6).
+"""A phone recogniser trained on real speech as the gate's front end (issue 12, part 6; issue 29).
+
+Two recognisers sit behind one interface (``mapping.recogniser``, :data:`RECOGNISERS`):
+``pocketsphinx`` (this module's :class:`PhoneStream`) and ``hama`` (a multilingual CTC phoneme
+model, :class:`mapping.hama_front.HamaStream`). :func:`phone_stream` makes either's stream,
+:func:`recognise_windows` runs one over a whole utterance exactly as live, and
+:func:`recogniser_name` names the model and version (cache keys, reports). Both streams take the
+same arguments and give the same windows; everything below is pocketsphinx's.
 
 pocketsphinx's en-US acoustic model (in its PyPI wheel, no download) decodes the audio into
 phones with its phone language model (``allphone`` search; FIELD_NOTES "Real speech available
@@ -39,6 +46,7 @@ of the project's 44 classes (:data:`face_model.phones.PHONE_INDEX`).
 """
 from __future__ import annotations
 
+import hashlib
 import os
 
 import numpy as np
@@ -47,11 +55,13 @@ from pocketsphinx import Decoder, get_model_path
 
 from face_model.phones import PHONE_INDEX, PHONES
 from groundwork.errors import ParameterError
+from mapping import hama_front
 
 RECOGNISER_RATE = 16000  # Hz, the acoustic model's rate
 RECOGNISER_FPS = 100  # the decoder's frames per second
 DECODER_SETTINGS = {"lw": 2.0, "beam": 1e-20, "pbeam": 1e-20, "bestpath": False}
 RECOGNISER_NAME = "pocketsphinx-5.1.1 allphone"
+RECOGNISERS = ("pocketsphinx", "hama")  # mapping.config.RECOGNISER_NAMES
 SILENCE = PHONE_INDEX["sil"]
 N_PHONES = len(PHONES)  # the 44 classes
 MIN_UTTERANCE_S = 5.0  # an utterance may end at a pause once it is this long (s)
@@ -253,19 +263,56 @@ def fit_length(labels: np.ndarray, n: int) -> np.ndarray:
     return np.concatenate([labels, np.repeat(labels[-1:], n - len(labels), axis=0)])
 
 
+def recogniser_name(recogniser: str = "pocketsphinx") -> str:
+    """The model and version of a recogniser of :data:`RECOGNISERS`."""
+    _check_recogniser(recogniser)
+    return RECOGNISER_NAME if recogniser == "pocketsphinx" else hama_front.RECOGNISER_NAME
+
+
+def _check_recogniser(recogniser: str) -> None:
+    if recogniser not in RECOGNISERS:
+        raise ParameterError(f"unknown recogniser {recogniser!r}; allowed: "
+                             f"{', '.join(RECOGNISERS)}")
+
+
+def phone_stream(recogniser: str, sample_rate: int, fps: int = 30, delay_frames: int = 3,
+                 back: int = 0):
+    """A fresh stream of the recogniser ``recogniser`` (:data:`RECOGNISERS`): a
+    :class:`PhoneStream` or a :class:`mapping.hama_front.HamaStream`, the same interface."""
+    _check_recogniser(recogniser)
+    if recogniser == "hama":
+        return hama_front.HamaStream(sample_rate, fps, delay_frames, back)
+    return PhoneStream(sample_rate, fps, delay_frames, back)
+
+
 def recognise_windows(y: np.ndarray, sample_rate: int, *, fps: int = 30, delay_frames: int = 3,
-                      back: int = 0) -> np.ndarray:
+                      back: int = 0, recogniser: str = "pocketsphinx") -> np.ndarray:
     """The window of phones (n_frames, back + 1 + delay_frames) of every frame of a whole
-    utterance, exactly as a :class:`PhoneStream` fed the same audio live decides them;
+    utterance, exactly as the recogniser's stream fed the same audio live decides them;
     ``ceil(n_samples / hop)`` frames. Column ``back`` is each frame's phone."""
-    stream = PhoneStream(sample_rate, fps, delay_frames, back)
-    stream.push_windows(y)
-    stream.flush_windows()
-    return stream.windows
+    y = np.ascontiguousarray(y, dtype=np.float32)
+    key = (recogniser, int(sample_rate), int(fps), int(delay_frames), int(back),
+           hashlib.sha1(y.tobytes()).hexdigest())
+    if key not in _HEARD:
+        stream = phone_stream(recogniser, sample_rate, fps, delay_frames, back)
+        stream.push_windows(y)
+        stream.flush_windows()
+        if len(_HEARD) >= _HEARD_SIZE:
+            _HEARD.pop(next(iter(_HEARD)))
+        _HEARD[key] = stream.windows
+    return _HEARD[key].copy()
 
 
-def recognise(y: np.ndarray, sample_rate: int, *, fps: int = 30, delay_frames: int = 3
-              ) -> np.ndarray:
-    """Phone index per frame of a whole utterance, exactly as a :class:`PhoneStream` fed the same
-    audio live decides them; ``ceil(n_samples / hop)`` frames."""
-    return recognise_windows(y, sample_rate, fps=fps, delay_frames=delay_frames)[:, 0]
+# the windows of the last utterances recognised, by recogniser, settings and audio: scoring a
+# recording asks for them more than once (the animation and the gate's classes), and a grid's
+# models with the same recogniser and context hear the same phones
+_HEARD: dict = {}
+_HEARD_SIZE = 512
+
+
+def recognise(y: np.ndarray, sample_rate: int, *, fps: int = 30, delay_frames: int = 3,
+              recogniser: str = "pocketsphinx") -> np.ndarray:
+    """Phone index per frame of a whole utterance, exactly as the recogniser's stream fed the
+    same audio live decides them; ``ceil(n_samples / hop)`` frames."""
+    return recognise_windows(y, sample_rate, fps=fps, delay_frames=delay_frames,
+                             recogniser=recogniser)[:, 0]

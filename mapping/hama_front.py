@@ -1,0 +1,330 @@
+"""The hama phoneme recogniser as the gate's front end (issue 29), offline and live alike.
+
+hama 1.7.0 (Apache-2.0, a wheel with its own engine and a 4.7 MB multilingual phoneme model, no
+download) reads 16 kHz audio and gives, every 20 ms, log posteriors over 191 tokens: 189 IPA
+symbols (:mod:`mapping.ipa` maps each to a phone class or to none), a word boundary and the CTC
+blank. Its phone *identity* is far better than pocketsphinx's on real voices (phone error rate
+≈ 18 % against ≈ 56 % on the real-speech set); its *timing* is CTC's: each phone is one spike
+of posterior among blanks, and the model attends over its whole input, so a phone depends on
+the audio around it.
+
+Timing from the posteriors. A spike is an output frame whose most probable token is a phone
+symbol different from the frame before's (CTC's collapse). Each spike labels the output frames
+nearer to it than to the next spike — the boundary half-way between two spikes — up to
+:data:`REACH` frames on each side; a frame no spike reaches is silence. The spikes sit
+:data:`SPIKE_LAG` frames (40 ms) after the phone they mark, so video frame k (instant k / fps)
+reads output frame ⌊50·k / fps⌋ + SPIKE_LAG. The three settings were chosen on the development
+part of the real-speech set (``analysis/real_speech``, part ``dev``): midpoint boundaries
+against 0.35 / 0.65 of the way, lags 1.5–3 frames, reaches 3–8 frames.
+
+Streaming (:class:`HamaStream`). The audio (at the mapping's rate) is cut into blocks of one
+video frame and resampled to 16 kHz by one ``soxr.ResampleStream``, as for pocketsphinx. Every
+``hop_frames`` blocks the model decodes the last ``window_s`` seconds heard (a window starting
+on the 20-ms output grid, so every decode labels the same global output frames); then every
+frame k with k + ``delay_frames`` ≤ blocks heard (the audio has reached its instant plus the
+look-ahead, as for pocketsphinx) is decided from the latest decode, with its window of
+phones k − back … k + delay_frames (past frames outside the decode keep the phones they were
+decided with; future ones not yet decoded are silence). A frame is thus decided exactly
+``delay_frames`` frames after its instant, from audio reaching ``delay_frames − hop_frames + 1``
+to ``delay_frames`` frames past it: the look-ahead is a bound. At the end of the audio one last
+decode decides the rest. Every decision reads only the blocks fed, never how the
+caller cut its chunks, so offline (:func:`mapping.recogniser.recognise_windows`) and live give
+the same phones for any chunking. The cost is one model run on ``window_s`` of audio per
+``hop_frames`` frames (≈ 57 ms per second of audio on one core here).
+"""
+from __future__ import annotations
+
+import numpy as np
+import soxr
+
+from face_model.phones import PHONE_INDEX
+from groundwork.errors import ParameterError
+from mapping.ipa import BLANK, check_vocabulary
+
+HAMA_RATE = 16000  # Hz, the model's rate
+OUTPUT_HOP = 320  # samples of 16 kHz audio per output frame (20 ms)
+OUTPUT_FPS = HAMA_RATE // OUTPUT_HOP  # 50
+SPIKE_LAG = 2  # output frames from a phone to its spike (chosen on the dev part)
+REACH = 6  # output frames a spike labels on each side at most (chosen on the dev part)
+WINDOW_S = 1.0  # seconds of audio each streaming decode reads
+HOP_FRAMES = 3  # video frames between streaming decodes
+MIN_DECODE_SAMPLES = OUTPUT_HOP  # a decode needs one output frame of audio
+# soxr's low-quality filter: 7 ms of delay from 22,050 Hz, where "HQ" holds back 30 ms — which
+# the phones, whose spikes come 40 ms late already, cannot spare at a 100-ms look-ahead
+RESAMPLE_QUALITY = "QQ"
+SILENCE = PHONE_INDEX["sil"]
+RECOGNISER_NAME = "hama-1.7.0 phoneme CTC"
+
+_MODEL: tuple | None = None  # (ASRModel, class index per token, blank id), loaded once
+
+
+def model() -> tuple:
+    """``(hama ASRModel, class index of every token (-1: none), blank id)``, loaded once per
+    process; the vocabulary is checked against :mod:`mapping.ipa` (a symbol the table lacks is a
+    :class:`ParameterError` naming it)."""
+    global _MODEL
+    if _MODEL is None:
+        from hama.asr import ASRModel  # a 4.7 MB model and 0.1 s of imports: only when used
+        m = ASRModel()
+        classes = np.asarray(check_vocabulary(m.decoder_tokens), dtype=np.int64)
+        _MODEL = (m, classes, m.decoder_tokens.index(BLANK))
+    return _MODEL
+
+
+def log_posteriors(x: np.ndarray) -> np.ndarray:
+    """The model's log posteriors (n_out, 191) of 16 kHz mono float audio ``x`` (≥ one output
+    frame of samples); output frame i covers samples [320 i, 320 (i + 1))."""
+    m, _, _ = model()
+    wav = np.ascontiguousarray(np.clip(x, -1.0, 1.0), dtype=np.float32).reshape(1, -1)
+    if wav.shape[1] < MIN_DECODE_SAMPLES:
+        raise ParameterError(f"hama needs at least {MIN_DECODE_SAMPLES} samples, got "
+                             f"{wav.shape[1]}")
+    lp, n = m.session.run([m._log_probs_output_name, m._out_lengths_output_name],
+                          {m._waveform_input_name: wav,
+                           m._waveform_lengths_input_name: np.array([wav.shape[1]], np.int64)})
+    return np.asarray(lp[0][: int(np.asarray(n).reshape(-1)[0])])
+
+
+def output_classes(log_probs: np.ndarray, *, reach: int = REACH) -> np.ndarray:
+    """Phone class per output frame (n_out,) from the posteriors' spikes (see the module
+    docstring): each spike labels the frames nearer to it than to its neighbours, up to
+    ``reach`` frames away; other frames are silence."""
+    _, classes, blank = model()
+    best = np.asarray(log_probs).argmax(axis=1)
+    before = np.r_[-1, best[:-1]]
+    spikes = np.nonzero((best != blank) & (classes[best] >= 0) & (best != before))[0]
+    out = np.full(len(best), SILENCE, dtype=np.int64)
+    if not len(spikes):
+        return out
+    frames = np.arange(len(best))
+    right = np.clip(np.searchsorted(spikes, frames), 0, len(spikes) - 1)
+    left = np.clip(right - 1, 0, len(spikes) - 1)
+    nearest = np.where(np.abs(frames - spikes[left]) <= np.abs(spikes[right] - frames),
+                       spikes[left], spikes[right])
+    near = np.abs(nearest - frames) <= reach
+    out[near] = classes[best[nearest[near]]]
+    return out
+
+
+class HamaStream:
+    """Recognised phones per video frame of one audio stream (see the module docstring); the
+    same interface as :class:`mapping.recogniser.PhoneStream`.
+
+    Parameters
+    ----------
+    sample_rate : int
+        The rate of the audio pushed (Hz); block k (video frame k) ends at sample
+        round((k + 1) · sample_rate / fps).
+    fps : int
+        Video frames per second.
+    delay_frames : int
+        Frames of look-ahead before a frame's phone is decided (≥ 0).
+    back : int
+        Past frames in each decision's window (≥ 0).
+    window_s : float
+        Seconds of audio each decode reads (> 0).
+    hop_frames : int
+        Video frames between decodes (≥ 1).
+    """
+
+    def __init__(self, sample_rate: int, fps: int = 30, delay_frames: int = 3, back: int = 0,
+                 *, window_s: float = WINDOW_S, hop_frames: int = HOP_FRAMES):
+        if isinstance(sample_rate, bool) or not isinstance(sample_rate, (int, np.integer)) \
+                or sample_rate <= 0 or isinstance(fps, bool) \
+                or not isinstance(fps, (int, np.integer)) or fps <= 0:
+            raise ParameterError(f"sample rate and fps must be positive integers, got "
+                                 f"{sample_rate!r} Hz and {fps!r} fps")
+        for name, v, lo in (("delay_frames", delay_frames, 0), ("back", back, 0),
+                            ("hop_frames", hop_frames, 1)):
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+                raise ParameterError(f"{name} must be an integer ≥ {lo}, got {v!r}")
+        if not np.isfinite(window_s) or window_s <= 0:
+            raise ParameterError(f"window_s must be a positive number of seconds, got "
+                                 f"{window_s!r}")
+        model()  # load (and check the vocabulary) before the first block
+        self.sample_rate, self.fps = int(sample_rate), int(fps)
+        self.delay, self.back, self.hop_frames = int(delay_frames), int(back), int(hop_frames)
+        self.window = int(round(window_s * HAMA_RATE))
+        self._resampler = (None if self.sample_rate == HAMA_RATE else
+                           soxr.ResampleStream(self.sample_rate, HAMA_RATE, 1,
+                                               dtype="float32", quality=RESAMPLE_QUALITY))
+        self._pending = np.zeros(0, np.float32)  # samples of the block not yet complete
+        self._heard = np.zeros(0, np.float32)  # 16 kHz audio from sample self._h0 on
+        self._h0 = 0
+        self._fed = 0  # 16 kHz samples heard
+        self._blocks = 0
+        self._n_samples = 0
+        self._windows: list[list[int]] = []
+        self._done = False
+        self.decodes = 0  # model runs so far
+        self.record: list | None = None  # a list: every decode kept as (blocks heard, decode)
+        self._latest = (0, np.zeros(0, np.int64))  # the latest decode (none yet: silence)
+
+    def _feed(self, block: np.ndarray, last: bool = False) -> None:
+        x = block if self._resampler is None else self._resampler.resample_chunk(block,
+                                                                                 last=last)
+        if len(x):
+            self._heard = np.concatenate([self._heard, x.astype(np.float32)])
+            self._fed += len(x)
+            keep = self.window + OUTPUT_HOP  # the next window starts no earlier than this
+            if len(self._heard) > 2 * keep:
+                cut = ((self._fed - keep - self._h0) // OUTPUT_HOP) * OUTPUT_HOP
+                if cut > 0:
+                    self._heard, self._h0 = self._heard[cut:], self._h0 + cut
+
+    def _decode(self) -> tuple[int, np.ndarray]:
+        """``(first global output frame, classes per output frame)`` of the last window heard;
+        early in the stream the window is filled on the left with silence (a short input makes
+        the model hear phones in noise)."""
+        start = max(0, self._fed - self.window)
+        start = (start // OUTPUT_HOP) * OUTPUT_HOP
+        x = self._heard[start - self._h0:]
+        if len(x) < MIN_DECODE_SAMPLES:
+            return start // OUTPUT_HOP, np.zeros(0, np.int64)
+        pad = -(-max(0, self.window - len(x)) // OUTPUT_HOP) * OUTPUT_HOP
+        self.decodes += 1
+        decode = ((start - pad) // OUTPUT_HOP,
+                  output_classes(log_posteriors(np.concatenate([np.zeros(pad, np.float32), x]))))
+        if self.record is not None:
+            self.record.append((self._blocks, decode))
+        return decode
+
+    def _label(self, decode: tuple, j: int) -> int:
+        if j < 0:
+            return SILENCE
+        label = read_frame(decode, j, self.fps)
+        if label is None:  # before the window: as decided then
+            return self._windows[j][self.back] if j < len(self._windows) else SILENCE
+        return label
+
+    def _decide_due(self, decode: tuple, until: int) -> list[list[int]]:
+        out = []
+        while len(self._windows) < until:
+            k = len(self._windows)
+            window = [self._label(decode, j) for j in range(k - self.back, k + self.delay + 1)]
+            self._windows.append(window)
+            out.append(window)
+        return out
+
+    def push(self, chunk: np.ndarray) -> list[int]:
+        """Add mono samples (any length); return the phones of the frames newly decided."""
+        return [w[self.back] for w in self.push_windows(chunk)]
+
+    def push_windows(self, chunk: np.ndarray) -> list[list[int]]:
+        """Add mono samples (any length); return the windows of the frames newly decided."""
+        if self._done:
+            raise ParameterError("the phone stream has ended; start a new one")
+        chunk = np.asarray(chunk, dtype=np.float32)
+        if chunk.ndim != 1 or not np.all(np.isfinite(chunk)):
+            raise ParameterError("the audio chunk must be mono and finite")
+        self._n_samples += len(chunk)
+        audio = np.concatenate([self._pending, chunk])
+        out, used = [], 0
+        while True:
+            size = self._boundary(self._blocks + 1) - self._boundary(self._blocks)
+            if len(audio) - used < size:
+                break
+            self._feed(audio[used:used + size])
+            used += size
+            self._blocks += 1
+            if self._blocks % self.hop_frames == 0:
+                self._latest = self._decode()
+            # frame k is due once k + delay blocks are in (and, with no look-ahead, once audio
+            # follows its instant: the last frame exists only if it does): the latest decode
+            out += self._decide_due(self._latest, min(self._blocks - self.delay + 1,
+                                                      self._blocks))
+        self._pending = audio[used:]
+        return out
+
+    def _boundary(self, k: int) -> int:
+        """The sample at which block k starts: round(k · sample_rate / fps)."""
+        return (2 * k * self.sample_rate + self.fps) // (2 * self.fps)
+
+    def flush(self) -> list[int]:
+        """End of the audio: the phones of the remaining frames (``ceil(n_samples · fps /
+        sample_rate)`` in all), from one last decode."""
+        return [w[self.back] for w in self.flush_windows()]
+
+    def flush_windows(self) -> list[list[int]]:
+        """End of the audio: the windows of the remaining frames, from one last decode."""
+        if self._done:
+            return []
+        self._done = True
+        self._feed(self._pending, last=True)
+        n_total = -(-self._n_samples * self.fps // self.sample_rate)
+        if n_total <= len(self._windows):
+            return []
+        return self._decide_due(self._decode(), n_total)
+
+    @property
+    def windows(self) -> np.ndarray:
+        """Every window decided so far (n_decided, back + 1 + delay_frames), frame 0 first."""
+        return np.asarray(self._windows, dtype=np.int64).reshape(-1, self.back + 1 + self.delay)
+
+    @property
+    def labels(self) -> np.ndarray:
+        """Every phone decided so far, frame 0 first."""
+        return self.windows[:, self.back]
+
+
+def read_frame(decode: tuple, j: int, fps: int) -> int | None:
+    """Video frame j's phone in a decode ``(first global output frame, classes)``: the class of
+    output frame ⌊50·j / fps⌋ + SPIKE_LAG; when the frame's instant was heard but its spike
+    lies past the decode's end, the class of the decode's last frame (what is heard at the edge
+    of the audio); silence for a frame not heard yet; None before the decode's window."""
+    first, classes = decode
+    g0 = (j * OUTPUT_FPS) // fps  # the output frame holding the frame's instant
+    g = g0 + SPIKE_LAG
+    end = first + len(classes)
+    if g < first:
+        return None
+    if g < end:
+        return int(classes[g - first])
+    if g0 < end and len(classes):
+        return int(classes[-1])
+    return SILENCE
+
+
+def labels_at_delays(y: np.ndarray, sample_rate: int, fps: int, delays) -> dict:
+    """``{look-ahead frames: phone per video frame}``: for each look-ahead of ``delays``, the
+    phones a :class:`HamaStream` with that ``delay_frames`` decides on audio ``y`` — from one
+    stream's decodes, since a decode reads only the audio heard, whatever the look-ahead. Frame
+    k with look-ahead d is decided once k + d blocks are heard, by the latest decode (one every
+    ``HOP_FRAMES`` blocks), or at the end of the audio by the last decode."""
+    stream = HamaStream(sample_rate, fps, 0, 0)
+    stream.record = []
+    stream.push(y)
+    decodes = list(stream.record)  # one every HOP_FRAMES blocks
+    blocks = stream._blocks
+    stream.flush()
+    final = (stream.record[len(decodes)][1] if len(stream.record) > len(decodes)
+             else stream._decode())  # the end-of-audio decode
+    n = -(-len(y) * fps // sample_rate)
+    at = np.array([b for b, _ in decodes], dtype=np.int64)
+    none = (0, np.zeros(0, np.int64))
+    out = {}
+    for d in delays:
+        labels = np.full(n, SILENCE, dtype=np.int64)
+        # frame k is decided at block k + d (or at the end) by the latest decode made by then
+        due = max(int(d), 1)  # blocks past frame k when it is decided
+        which = np.searchsorted(at, np.arange(n) + due, side="right") - 1
+        for k in range(n):
+            decode = (final if k + due > blocks else
+                      decodes[which[k]][1] if which[k] >= 0 else none)
+            label = read_frame(decode, k, fps)
+            labels[k] = SILENCE if label is None else label
+        out[int(d)] = labels
+    return out
+
+
+def whole_utterance(y16: np.ndarray, n_frames: int, fps: int = 30) -> np.ndarray:
+    """Phone class per video frame (n_frames,) of one 16 kHz utterance decoded whole (no
+    streaming: every phone sees all the audio; a clip shorter than ``WINDOW_S`` filled on the
+    left with silence, as a stream's first decodes are) — the recogniser's offline
+    reference."""
+    pad = -(-max(0, int(WINDOW_S * HAMA_RATE) - len(y16)) // OUTPUT_HOP) * OUTPUT_HOP
+    x = np.concatenate([np.zeros(pad, np.float32), np.asarray(y16, np.float32)])
+    classes = (output_classes(log_posteriors(x))[pad // OUTPUT_HOP:]
+               if len(y16) >= MIN_DECODE_SAMPLES else np.zeros(0, np.int64))
+    return np.array([read_frame((0, classes), k, fps) for k in range(n_frames)],
+                    dtype=np.int64).reshape(n_frames)
