@@ -196,6 +196,7 @@ class FileScores:
     seen: bool
     seconds: float
     part: str  # "dev" or "test" (analysis.speech_set)
+    labels: str  # "independent" of both recognisers, or "aligned" by pocketsphinx
     phone_acc: float
     viseme_acc: float
     bilabial: Contact
@@ -209,6 +210,7 @@ class FileScores:
         b, f = self.bilabial, self.labiodental
         return {"id": self.id, "speaker_source": self.speaker_source,
                 "split": "seen" if self.seen else "unseen", "part": self.part,
+                "labels": self.labels,
                 "seconds": round(self.seconds, 3),
                 "frames": self.n_frames, "phone_acc": self.phone_acc,
                 "viseme_acc": self.viseme_acc, "bilabial_segments": b.n,
@@ -255,7 +257,8 @@ def score_file(animator: FaceAnimator, item, synth: SynthConfig, seed: int, *, s
     ref = reference_opening(item.phones, n, fps, synth, seed)
     return FileScores(
         id=item.id, speaker_source=item.speaker_source, seen=seen, seconds=item.duration_s,
-        part=item.part, phone_acc=phone_acc, viseme_acc=vis_acc,
+        part=item.part, labels="independent" if item.independent else "aligned",
+        phone_acc=phone_acc, viseme_acc=vis_acc,
         bilabial=segment_contact(opening, fps, item.phones, BILABIALS, threshold),
         labiodental=segment_contact(opening, fps, item.phones, LABIODENTALS, threshold),
         vowel_median_px=vowel_median(opening, true), r_reference=correlation(opening, ref),
@@ -335,7 +338,10 @@ def score_model(name: str, mapping, units, items, seen_sources=frozenset()) -> M
     summary = [pooled([f for f in files if f.seen], "seen"),
                pooled([f for f in files if not f.seen], "unseen"), pooled(files, "all"),
                *[pooled([f for f in files if not f.seen and f.part == p], f"unseen-{p}")
-                 for p in PARTS]]
+                 for p in PARTS],
+               *[pooled([f for f in files if not f.seen and f.part == "test"
+                         and f.labels == lab], f"unseen-test-{lab}")
+                 for lab in ("independent", "aligned")]]
     return ModelScores(name, threshold, files, summary)
 
 

@@ -1,24 +1,44 @@
-"""The reference bar on real speech: pocketsphinx's phone recogniser (trained on real speech)
-read as visemes frame by frame, whole-utterance and streaming.
+"""The front ends on real speech: each phone recogniser of ``mapping.recogniser`` read as
+visemes frame by frame, whole-utterance and streaming, and its look-ahead curve (issue 29).
 
-Settings (FIELD_NOTES, "Real speech available offline"): the wheel's en-US acoustic model with
-its phone language model, ``allphone`` search, ``lw=2.0``, ``beam=pbeam=1e-20``, no best-path
-pass. Whole utterance: the final hypothesis after all the audio. Streaming: the audio is fed in
-blocks of one video frame (frame boundaries at ``round(k·sr/fps)`` samples); frame t is labelled
-from the partial hypothesis (``Decoder.seg()``) as soon as the audio reaches t + ``delay_s``, and
-the frames still open at the end from the final hypothesis. A frame no segment covers yet is
-silence. Phones are the 39 ARPAbet phones plus ``SIL`` (noise fillers are silence).
+pocketsphinx (FIELD_NOTES, "Real speech available offline"): the wheel's en-US acoustic model
+with its phone language model, ``allphone`` search, ``lw=2.0``, ``beam=pbeam=1e-20``, no
+best-path pass. Whole utterance: the final hypothesis after all the audio. Streaming: the audio
+is fed in blocks of one video frame (frame boundaries at ``round(k·sr/fps)`` samples); frame t
+is labelled from the partial hypothesis (``Decoder.seg()``) as soon as the audio reaches t +
+the look-ahead, and the frames still open at the end from the final hypothesis. A frame no
+segment covers yet is silence. Phones are the 39 ARPAbet phones plus ``SIL`` (noise fillers
+are silence).
+
+hama (:mod:`mapping.hama_front`): whole utterance, one decode of all the audio; streaming, the
+:class:`~mapping.hama_front.HamaStream` the gate uses, one decode of the last second every three
+frames. Its decodes do not depend on the look-ahead, so one stream's decodes give every point of
+the look-ahead curve (:func:`mapping.hama_front.labels_at_delays`, tested equal to a stream per
+look-ahead).
+
+Every figure is pooled over seen / unseen speakers, the unseen development and test parts, and
+within the test part separately over recordings whose labels are independent of both
+recognisers (``analysis.speech_set``: HTS, TextGrid, GRID word alignments) and those labelled by
+pocketsphinx's own alignment — which favours pocketsphinx.
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
+from analysis.figures import report_figure
 from analysis.speech_eval import phone_frames, viseme_index
 from analysis.speech_set import PARTS
 from face_model.phones import PHONE_INDEX
 from groundwork.errors import ParameterError
+from mapping import hama_front
 from mapping.recogniser import (RECOGNISER_FPS as FRAMES_PER_S, RECOGNISER_NAME,
                                 RECOGNISER_RATE as SAMPLE_RATE, new_decoder, phone_index, to_pcm16)
+
+LOOKAHEAD_FRAMES = (0, 1, 2, 3, 4, 5, 6)  # the look-ahead curve, video frames (0–200 ms)
+LABELS = ("independent", "aligned")  # the test part by where its labels came from
+NAMES = {"pocketsphinx": RECOGNISER_NAME, "hama": hama_front.RECOGNISER_NAME}
 
 
 class PhoneRecogniser:
@@ -64,62 +84,133 @@ class PhoneRecogniser:
         """Phone index per frame, frame t decided when the audio reaches t + ``delay_s``."""
         if delay_s < 0:
             raise ParameterError(f"delay_s must be >= 0, got {delay_s}")
+        return self.streaming_delays(y, sr, (delay_s,))[0]
+
+    def streaming_delays(self, y: np.ndarray, sr: int, delays_s) -> list[np.ndarray]:
+        """:meth:`streaming` for every look-ahead of ``delays_s`` from one decoding (the
+        partial hypotheses do not depend on the look-ahead)."""
         pcm = self._pcm(y, sr)
         n = self.n_frames(len(pcm))
-        out = np.full(n, -1)
+        outs = [np.full(n, -1) for _ in delays_s]
+        done = [0] * len(delays_s)
         d = self.decoder = new_decoder()
         d.start_utt()
-        done = 0
         for b in range(n):
             lo, hi = round(b * SAMPLE_RATE / self.fps), round((b + 1) * SAMPLE_RATE / self.fps)
-            d.process_raw(pcm[lo:hi].tobytes(), full_utt=False)
+            if len(pcm[lo:hi]):  # the last frame's block may hold no sample
+                d.process_raw(pcm[lo:hi].tobytes(), full_utt=False)
             reached = min(hi, len(pcm)) / SAMPLE_RATE
             segs = None
-            while done < n and done / self.fps + delay_s <= reached + 1e-9:
-                segs = self._segments() if segs is None else segs
-                out[done] = self._label(segs, done)
-                done += 1
+            for i, delay in enumerate(delays_s):
+                while done[i] < n and done[i] / self.fps + delay <= reached + 1e-9:
+                    segs = self._segments() if segs is None else segs
+                    outs[i][done[i]] = self._label(segs, done[i])
+                    done[i] += 1
         d.end_utt()
         segs = self._segments()
-        for k in range(done, n):
-            out[k] = self._label(segs, k)
-        return out
+        for i, out in enumerate(outs):
+            for k in range(done[i], n):
+                out[k] = self._label(segs, k)
+        return outs
 
 
-def recogniser_scores(items, seen_sources=frozenset(), *, delay_s: float = 0.1,
-                      fps: int = 30) -> tuple[list, list]:
-    """``(per-file rows, rows pooled over seen / unseen / all files)`` of the recogniser on the
-    recordings ``items`` (``analysis.speech_set``): phone and viseme frame accuracy of the whole
-    utterance, and viseme frame accuracy streaming with ``delay_s`` of look-ahead. Phone
-    accuracy counts the 44 classes; ``ax dx el en`` labels are never recognised (pocketsphinx
-    has only the 39 ARPAbet phones), so it is a lower bound."""
-    rec = PhoneRecogniser(fps)
-    files, pooled = [], {"seen": [], "unseen": [], **{f"unseen-{p}": [] for p in PARTS}}
-    for it in items:
-        whole = rec.whole(it.audio, it.sr)
-        stream = rec.streaming(it.audio, it.sr, delay_s)
-        true = phone_frames(it.phones, np.arange(len(whole)) / fps)
-        hits = {"phone": true == whole, "viseme": viseme_index(true) == viseme_index(whole),
-                "stream": viseme_index(true) == viseme_index(stream)}
-        split = "seen" if it.speaker_source in seen_sources else "unseen"
-        pooled[split].append(hits)
-        if split == "unseen":
-            pooled[f"unseen-{it.part}"].append(hits)
-        files.append({"model": RECOGNISER_NAME, "id": it.id,
-                      "speaker_source": it.speaker_source, "split": split, "part": it.part,
-                      "seconds": round(it.duration_s, 3), "frames": len(true),
-                      "phone_acc": float(hits["phone"].mean()),
-                      "viseme_acc": float(hits["viseme"].mean()),
-                      f"viseme_acc_stream_{round(1000 * delay_s)}ms":
-                          float(hits["stream"].mean())})
-    pooled["all"] = pooled["seen"] + pooled["unseen"]
-    summary = []
-    for split in ("seen", "unseen", "all", *[f"unseen-{p}" for p in PARTS]):
-        hits = pooled[split]
-        row = {"model": RECOGNISER_NAME, "split": split, "files": len(hits)}
-        if hits:
-            for key, name in (("phone", "phone_acc"), ("viseme", "viseme_acc"),
-                              ("stream", f"viseme_acc_stream_{round(1000 * delay_s)}ms")):
-                row[name] = float(np.mean(np.concatenate([h[key] for h in hits])))
-        summary.append(row)
-    return files, summary
+def recognised(recogniser: str, y: np.ndarray, sr: int, fps: int = 30) -> tuple:
+    """``(whole-utterance phones, {look-ahead frames: streaming phones})`` of one 16 kHz
+    recording by ``recogniser`` (pocketsphinx | hama), per video frame."""
+    if recogniser == "pocketsphinx":
+        rec = PhoneRecogniser(fps)
+        streams = rec.streaming_delays(y, sr, [k / fps for k in LOOKAHEAD_FRAMES])
+        return rec.whole(y, sr), dict(zip(LOOKAHEAD_FRAMES, streams))
+    if recogniser == "hama":
+        if sr != hama_front.HAMA_RATE:
+            raise ParameterError(f"the recogniser needs {hama_front.HAMA_RATE} Hz audio, got "
+                                 f"{sr} Hz")
+        n = int(np.ceil(len(y) * fps / sr))
+        return (hama_front.whole_utterance(y, n, fps),
+                hama_front.labels_at_delays(y, sr, fps, LOOKAHEAD_FRAMES))
+    raise ParameterError(f"unknown recogniser {recogniser!r}; allowed: {', '.join(NAMES)}")
+
+
+def recogniser_scores(items, seen_sources=frozenset(), *, delay_s: float = 0.1, fps: int = 30,
+                      recognisers=tuple(NAMES)) -> tuple[list, list, list]:
+    """``(per-file rows, pooled rows, look-ahead rows)`` of each recogniser on the recordings
+    ``items`` (``analysis.speech_set``): phone and viseme frame accuracy of the whole
+    utterance, viseme accuracy streaming with ``delay_s`` of look-ahead, and viseme accuracy
+    streaming at every look-ahead of :data:`LOOKAHEAD_FRAMES`. Phone accuracy counts the 44
+    classes; ``ax dx el en`` labels are never recognised by pocketsphinx (only the 39 ARPAbet
+    phones), so it is a lower bound there."""
+    key = f"viseme_acc_stream_{round(1000 * delay_s)}ms"
+    delay_frames = round(delay_s * fps)
+    if delay_frames not in LOOKAHEAD_FRAMES or abs(delay_frames / fps - delay_s) > 1e-9:
+        raise ParameterError(f"delay_s {delay_s} is not one of the look-aheads "
+                             f"{[round(k / fps, 3) for k in LOOKAHEAD_FRAMES]} s")
+    files, summary, curve = [], [], []
+    splits = ("seen", "unseen", "all", *[f"unseen-{p}" for p in PARTS],
+              *[f"unseen-test-{lab}" for lab in LABELS])
+    for recogniser in recognisers:
+        name = NAMES[recogniser]
+        pooled = {s: [] for s in splits}
+        for it in items:
+            whole, streams = recognised(recogniser, it.audio, it.sr, fps)
+            true = phone_frames(it.phones, np.arange(len(whole)) / fps)
+            vtrue = viseme_index(true)
+            hits = {"phone": true == whole, "viseme": vtrue == viseme_index(whole),
+                    **{k: vtrue == viseme_index(s[:len(true)]) for k, s in streams.items()}}
+            seen = it.speaker_source in seen_sources
+            files.append({"model": name, "id": it.id, "speaker_source": it.speaker_source,
+                          "split": "seen" if seen else "unseen", "part": it.part,
+                          "labels": LABELS[0] if it.independent else LABELS[1],
+                          "seconds": round(it.duration_s, 3), "frames": len(true),
+                          "phone_acc": float(hits["phone"].mean()),
+                          "viseme_acc": float(hits["viseme"].mean()),
+                          key: float(hits[delay_frames].mean())})
+            for g in _groups_of_row(files[-1]):
+                pooled[g].append(hits)
+        for split in splits:
+            hits = pooled[split]
+            row = {"model": name, "split": split, "files": len(hits)}
+            if hits:
+                row["seconds"] = round(sum(f["seconds"] for f in files if f["model"] == name
+                                           and split in _groups_of_row(f)), 2)
+                for k, col in (("phone", "phone_acc"), ("viseme", "viseme_acc"),
+                               (delay_frames, key)):
+                    row[col] = float(np.mean(np.concatenate([h[k] for h in hits])))
+                for k in LOOKAHEAD_FRAMES:
+                    curve.append({"model": name, "split": split, "lookahead_frames": k,
+                                  "lookahead_ms": round(1000 * k / fps, 1),
+                                  "viseme_acc": float(np.mean(np.concatenate(
+                                      [h[k] for h in hits])))})
+            summary.append(row)
+    return files, summary, curve
+
+
+def _groups_of_row(row: dict) -> list[str]:
+    """The pooled rows a recording's per-file row counts in."""
+    out = [row["split"], "all"]
+    if row["split"] == "unseen":
+        out.append(f"unseen-{row['part']}")
+        if row["part"] == "test":
+            out.append(f"unseen-test-{row['labels']}")
+    return out
+
+
+def lookahead_figure(curve: list[dict], path, *, width: float = 0.8) -> Path:
+    """Streaming viseme accuracy against look-ahead (0–200 ms) of each recogniser on the unseen
+    test speakers: solid on the recordings with independent labels, dashed on those labelled
+    by pocketsphinx's alignment (``curve``: :func:`recogniser_scores`' look-ahead rows)."""
+    with report_figure(path, width=width, height_in=2.6) as fig:
+        ax = fig.subplots()
+        for i, name in enumerate(dict.fromkeys(r["model"] for r in curve)):
+            for lab, style in zip(LABELS, ("-", "--")):
+                pts = [(r["lookahead_ms"], r["viseme_acc"]) for r in curve
+                       if r["model"] == name and r["split"] == f"unseen-test-{lab}"]
+                if pts:
+                    x, y = zip(*pts)
+                    ax.plot(x, y, style, marker="o", ms=3, color=f"C{i}",
+                            label=f"{name.split()[0]}, {lab} labels")
+        ax.axvline(100, color="0.6", lw=0.8)
+        ax.set_xlabel("look-ahead (ms)")
+        ax.set_ylabel("viseme accuracy, streaming")
+        ax.grid(alpha=0.3)
+        ax.legend()
+    return Path(path)

@@ -19,8 +19,13 @@ TARGETS = ("The project's targets on unseen speakers: viseme accuracy at least 0
 # test speakers): the highest mean of these figures over the unseen development recordings.
 DEV_RULE = ("viseme_acc", "bilabial_closed_frac", "labiodental_contact_frac", "r_reference")
 SPLITS = (("unseen-test", "unseen speakers, test part"),
+          ("unseen-test-independent", "unseen speakers, test part, labels independent of both "
+                                      "recognisers"),
+          ("unseen-test-aligned", "unseen speakers, test part, labels by pocketsphinx's "
+                                  "alignment"),
           ("unseen-dev", "unseen speakers, development part"),
           ("seen", "seen speakers"))
+RECOGNISERS = ("pocketsphinx", "hama")  # the recogniser rows' model names start so
 
 
 def dev_choice(results: list[dict], prefix: str = "voices-") -> tuple[str | None, dict]:
@@ -62,9 +67,10 @@ def file_intervals(per_file: list[dict], model: str, split: str, *, level: float
     resampling its recordings (per_file.csv rows) with replacement: the recordings, not the
     frames, are the independent units. A figure pools as its results.csv value does (hits over
     frames, closed over segments); figures missing for the model are left out."""
-    where, _, part = split.partition("-")
+    where, _, rest = split.partition("-")
+    part, _, labels = rest.partition("-")
     rows = [r for r in per_file if r["model"] == model and r["split"] == where
-            and (not part or r["part"] == part)]
+            and (not part or r["part"] == part) and (not labels or r.get("labels") == labels)]
     out = {}
     rng = np.random.default_rng(seed)
     picks = rng.integers(0, len(rows), size=(n_boot, len(rows))) if rows else None
@@ -133,7 +139,9 @@ def speech_section(rep, speech_dir: Path, voices_rows: list, *, table_ii_R: floa
            f"with ten synthetic voices; -cmvn, -warp and -augment add cepstral normalisation, "
            f"the VTLP warp and augmented copies; -recogniser takes the gate's phones from "
            f"pocketsphinx (trained on real speech) instead of mixtures on our MFCC; -phones "
-           f"also feeds the MLPs the recogniser's window of phones instead of the MFCC. "
+           f"also feeds the MLPs the recogniser's window of phones instead of the MFCC; -hama "
+           f"takes those phones from hama's multilingual phoneme model instead of "
+           f"pocketsphinx; -labels trains the phone-input MLPs on the corpus's phone labels. "
            f"<b>{robust}</b> is the one `talkingface animate`, `talkingface "
            f"stream` and the study's synthetic face use by default." if robust else
            ("This run trained no voice-robust models (the corpus is given: the voices stage "
@@ -174,16 +182,57 @@ def speech_section(rep, speech_dir: Path, voices_rows: list, *, table_ii_R: floa
                   ["model", "files", "phone acc", "viseme acc", "viseme acc, stream 100 ms",
                    "/p b m/ closed", "/p b m/ centre / vowel", "/f v/ contact",
                    "r vs reference", "in-domain R (Table II)"], body,
-                  note="The recogniser row is pocketsphinx's phone recogniser (trained on real "
-                       "speech), the bar a synthetic-trained gate has to reach; it draws no "
-                       "face, so only its accuracies are given. In-domain R: test R on the run's "
+                  note="The recogniser rows are pocketsphinx's and hama's phone recognisers "
+                       "(trained on real speech), the bar a gate fed by them cannot pass; they "
+                       "draw no face, so only their accuracies are given. In-domain R: test R on the run's "
                        "single-voice corpus, utterance split, as in Table II. [a, b]: 95 % "
                        f"percentile bootstrap interval over the recordings ({BOOTSTRAP:,} "
                        f"resamples, seed {BOOTSTRAP_SEED}). " + TARGETS,
                   key=f"speech_{split}")
+    front_ends(rep, results, per_file, speech_dir)
     figure_model = robust or "gated_mlp_utterance"
     for model in dict.fromkeys([figure_model, "gated_mlp_utterance"]):
         fig = speech_dir / f"opening_{model}.png"
         if fig.is_file():
             rep.figure(fig, f"Predicted lip opening of {model} on a real sentence, against the "
                             "reference drawn from its phone labels; /p b m/ and /f v/ shaded.")
+
+
+FRONT_END_SPLITS = (("unseen-test-independent", "test, independent labels"),
+                    ("unseen-test-aligned", "test, pocketsphinx-aligned labels"),
+                    ("unseen-test", "test, all"), ("unseen-dev", "development"))
+
+
+def front_ends(rep, results: list, per_file: list, speech_dir: Path) -> None:
+    """The recognisers alone, whole-utterance and streaming, on each kind of labels, and their
+    look-ahead curve (``lookahead.csv`` / ``lookahead.png`` of speech_eval)."""
+    rows = [r for r in results if r["model"].startswith(RECOGNISERS)
+            and r.get("files") not in ("", "0", None)]
+    body = []
+    for split, title in FRONT_END_SPLITS:
+        for r in (r for r in rows if r["split"] == split):
+            ci = file_intervals(per_file, r["model"], split)
+            body.append([r["model"], title, r["files"], r.get("seconds") or "–",
+                         _num(r.get("phone_acc")),
+                         _with_interval(r.get("viseme_acc"), ci.get("viseme_acc")),
+                         _with_interval(r.get("viseme_acc_stream_100ms"),
+                                        ci.get("viseme_acc_stream_100ms"))])
+    if not body:
+        return
+    rep.table("The front ends alone: each recogniser's visemes against independent and "
+              "aligner-made labels",
+              ["recogniser", "recordings", "files", "seconds", "phone acc", "viseme acc",
+               "viseme acc, stream 100 ms"], body,
+              note="Independent labels: HTS (ARCTIC a0009), a TextGrid (praatio's bobby) and "
+                   "GRID s1 sentences labelled from GRID's own word alignments with espeak-ng's "
+                   "in-word phone durations (analysis/real_speech/README.md); aligned: "
+                   "pocketsphinx's forced alignment of the transcript, which favours "
+                   "pocketsphinx. Streaming: hama decodes the last second every 3 frames, so a "
+                   "frame waits 100–167 ms at a 100-ms look-ahead. [a, b]: 95 % bootstrap "
+                   "interval over recordings.", key="speech_front_ends")
+    fig = speech_dir / "lookahead.png"
+    if fig.is_file():
+        rep.figure(fig, "Streaming viseme accuracy of each recogniser against its look-ahead "
+                        "(0–200 ms) on the unseen test speakers: solid, labels independent of "
+                        "both recognisers; dashed, labels by pocketsphinx's alignment "
+                        "(lookahead.csv).", width=0.8, key="speech_lookahead")

@@ -2,9 +2,12 @@
 and the converters from the sources' own phone labels to the 44 classes.
 
 The folder holds real recordings found in package archives (CMU ARCTIC ``slt`` and ``awb``, the
-pocketsphinx test recordings, praatio's "bobby"), 16 kHz mono PCM16 WAV, each with a phone file in
-the corpus format (``start_s, end_s, phone``; phones in the 44-class set of
-:mod:`face_model.phones`). ``manifest.csv`` has one row per recording:
+pocketsphinx test recordings, praatio's "bobby"; 16 kHz mono PCM16 WAV) and 40 GRID speaker s1
+sentences whose audio is the built-in real corpus's FLAC (``face_model/real_faces/grid-s1``, read
+through a relative path), each with a phone file in the corpus format (``start_s, end_s, phone``;
+phones in the 44-class set of :mod:`face_model.phones`). Audio of another rate or format (any
+that soundfile reads) is resampled to :data:`SAMPLE_RATE` when loaded. ``manifest.csv`` has one
+row per recording:
 
 =================  ==========================================================================
 ``id``             a short name (``slt_a0009``)
@@ -13,9 +16,13 @@ the corpus format (``start_s, end_s, phone``; phones in the 44-class set of
 ``speaker``        the speaker's own name in the set (``arctic_slt``, ``ps_male_1`` …)
 ``speaker_source`` where the voice comes from; a training voice built from the same speaker
                    (flite's ``slt`` is ARCTIC ``slt``) makes the recording *seen*
-``label_source``   ``hts`` (the HTS labels shipped with it), ``textgrid`` (its own TextGrid)
-                   or ``pocketsphinx-5.1.1 forced alignment`` (``tools/align_real_speech.py``)
-``label_origin``   the original annotation file in the set (hts, textgrid), else empty
+``label_source``   ``hts`` (the HTS labels shipped with it), ``textgrid`` (its own TextGrid),
+                   ``pocketsphinx-5.1.1 forced alignment`` (``tools/align_real_speech.py``) or
+                   ``grid word alignment + espeak-ng in-word durations`` (GRID's own ``.align``
+                   word times, phones inside a word timed by espeak-ng:
+                   ``tools/grid_speech_labels.py``); all but the aligner's are
+                   :data:`INDEPENDENT_SOURCES`
+``label_origin``   the original annotation file in the set (hts, textgrid, GRID), else empty
 ``part``           ``dev`` or ``test`` (optional; ``test`` when absent): the development speakers
                    a configuration may be chosen on, and the test speakers it is reported on
 ``transcript``     the words spoken
@@ -37,7 +44,7 @@ from face_model.corpus import PhoneSegment, read_phones
 from face_model.corpus import read_manifest as read_manifest_rows
 from face_model.forced_align import ALIGNER_NAME, tidy_segments
 from face_model.phones import phone_class
-from groundwork.audio import read_wav
+from groundwork.audio import read_wav, resample
 from groundwork.errors import CorpusError
 
 SET_DIR = Path(__file__).resolve().parent / "real_speech"
@@ -45,7 +52,10 @@ MANIFEST = "manifest.csv"
 MANIFEST_COLUMNS = ("id", "wav", "labels", "speaker", "speaker_source", "label_source",
                     "label_origin", "transcript", "licence")
 ALIGNED = ALIGNER_NAME
-LABEL_SOURCES = ("hts", "textgrid", ALIGNED)
+GRID_WORDS = "grid word alignment + espeak-ng in-word durations"
+LABEL_SOURCES = ("hts", "textgrid", ALIGNED, GRID_WORDS)
+# Labels made without either recogniser compared on the set (pocketsphinx, hama).
+INDEPENDENT_SOURCES = frozenset({"hts", "textgrid", GRID_WORDS})
 PARTS = ("dev", "test")  # the optional ``part`` column
 SAMPLE_RATE = 16000
 
@@ -71,6 +81,12 @@ class SpeechItem:
     @property
     def duration_s(self) -> float:
         return len(self.audio) / self.sr
+
+    @property
+    def independent(self) -> bool:
+        """Its labels were made independently of both phone recognisers compared on the set
+        (``label_source`` in :data:`INDEPENDENT_SOURCES`)."""
+        return self.label_source in INDEPENDENT_SOURCES
 
 
 def hts_segments(path, duration_s: float) -> list[PhoneSegment]:
@@ -173,11 +189,12 @@ def _load_item(set_dir: Path, row: dict) -> SpeechItem:
     wav = set_dir / row["wav"]
     if not wav.is_file():
         raise CorpusError(f"{wav}: audio file of {row['id']!r} not found")
-    y, sr = read_wav(wav)  # a file it cannot read is an AudioFileError naming it
-    if sr != SAMPLE_RATE or len(y) == 0:
-        raise CorpusError(f"{wav}: need {SAMPLE_RATE} Hz mono audio with samples, got {sr} Hz, "
-                          f"{len(y)} samples")
-    phones = read_labels(set_dir / row["labels"], len(y) / sr)
+    # WAV, FLAC, ... ; a file it cannot read, empty or not mono is an AudioFileError naming it
+    y, sr = read_wav(wav)
+    duration_s = len(y) / sr  # the labels are checked against the file's own length
+    if sr != SAMPLE_RATE:
+        y, sr = resample(y, sr_in=sr, sr_out=SAMPLE_RATE), SAMPLE_RATE
+    phones = read_labels(set_dir / row["labels"], duration_s)
     return SpeechItem(id=row["id"], wav=wav, labels=set_dir / row["labels"],
                       speaker=row["speaker"], speaker_source=row["speaker_source"],
                       label_source=row["label_source"], label_origin=row["label_origin"] or "",

@@ -25,8 +25,8 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from analysis.speech_set import (ALIGNED, SET_DIR, hts_segments, read_manifest,  # noqa: E402
-                                 textgrid_segments, write_labels)
+from analysis.speech_set import (ALIGNED, GRID_WORDS, SET_DIR, hts_segments,  # noqa: E402
+                                 read_manifest, textgrid_segments, write_labels)
 from face_model.forced_align import align, aligner, to_pcm16  # noqa: E402
 from groundwork.audio import read_wav  # noqa: E402
 
@@ -47,7 +47,9 @@ def labels_for(row: dict, set_dir: Path, dec=None) -> list:
 def regenerate(set_dir=SET_DIR, ids=None, *, check: bool = False, out=sys.stdout) -> list:
     """Write (or with ``check`` compare) the phone files; returns the ids that differ."""
     set_dir = Path(set_dir)
-    rows = [r for r in read_manifest(set_dir) if ids is None or r["id"] in ids]
+    # the GRID part has its own tool (tools/grid_speech_labels.py)
+    rows = [r for r in read_manifest(set_dir) if (ids is None or r["id"] in ids)
+            and r["label_source"] != GRID_WORDS]
     dec = aligner() if any(r["label_source"] == ALIGNED for r in rows) else None
     differ = []
     for row in rows:

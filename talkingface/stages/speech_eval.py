@@ -5,8 +5,12 @@ reference bar of a recogniser trained on real speech (:mod:`analysis.speech_reco
 Files written (``runs/<name>/speech_eval/`` for the stage; for the command, ``--out FILE`` and
 files named after it: ``FILE``, ``<stem>_per_file.csv``, ``<stem>.json``, ``<stem>_opening_…``):
 
-    results.csv     per model (and the recogniser) × split (seen, unseen, all): the pooled figures
+    results.csv     per model (and each recogniser) × split (seen, unseen, all, the unseen
+                    development and test parts, the test part's independently labelled and
+                    aligner-labelled recordings): the pooled figures
     per_file.csv    per model × recording
+    lookahead.csv   per recogniser × split × look-ahead (0–200 ms): streaming viseme accuracy
+    lookahead.png   that curve on the unseen test speakers, both kinds of labels
     results.json    both, with the set, the threshold and which speakers counted as seen
     opening_<model>.png  predicted vs reference lip opening on one real sentence with its phones
 """
@@ -17,7 +21,7 @@ import json
 from pathlib import Path
 
 from analysis.speech_eval import opening_figure, score_model, training_speakers
-from analysis.speech_recogniser import recogniser_scores
+from analysis.speech_recogniser import lookahead_figure, recogniser_scores
 from analysis.speech_set import MANIFEST, SET_DIR, load_speech_set, read_manifest
 from face_model.motion_units import MotionUnits
 from groundwork.errors import ParameterError
@@ -43,6 +47,8 @@ def output_files(out_csv) -> dict:
     stem = "" if out_csv.stem == "results" else f"{out_csv.stem}_"
     return {"results": out_csv, "per_file": out_csv.with_name(f"{stem}per_file.csv"),
             "json": out_csv.with_suffix(".json"),
+            "lookahead": out_csv.with_name(f"{stem}lookahead.csv"),
+            "lookahead_figure": out_csv.with_name(f"{stem}lookahead.png"),
             "figure": lambda model: out_csv.with_name(f"{stem}opening_{model}.png")}
 
 
@@ -72,11 +78,14 @@ def evaluate_models(models: dict, out_csv, *, set_dir=SET_DIR, recogniser: bool 
                              f"{'seen' if fig.seen else 'unseen'}): \"{figure_item.transcript}\"")
     if recogniser:
         if progress:
-            progress("the reference recogniser (pocketsphinx) on the same recordings")
+            progress("the recognisers (pocketsphinx, hama) on the same recordings")
         seen_any = frozenset(s for v in seen_by.values() for s in v)
-        rec_files, rec_summary = recogniser_scores(items, seen_any, delay_s=STREAM_DELAY_S)
+        rec_files, rec_summary, curve = recogniser_scores(items, seen_any,
+                                                          delay_s=STREAM_DELAY_S)
         summary += rec_summary
         per_file += rec_files
+        write_csv(files["lookahead"], curve)
+        lookahead_figure(curve, files["lookahead_figure"])
     write_csv(files["results"], summary)
     write_csv(files["per_file"], per_file)
     result = {"set_dir": str(Path(set_dir)), "recordings": [it.id for it in items],

@@ -42,14 +42,15 @@ def set_copy(tmp_path):
 
 
 def test_the_shipped_set_is_16k_mono_with_labels_covering_the_audio(speech_set):
-    assert len(speech_set) == 14
+    assert len(speech_set) == 54  # 14 recordings found in packages, 40 GRID s1 sentences
     assert {it.speaker_source for it in speech_set} == {
-        "arctic_slt", "arctic_awb", "pocketsphinx_test_male", "librivox_reader", "praatio_bobby"}
+        "arctic_slt", "arctic_awb", "pocketsphinx_test_male", "librivox_reader", "praatio_bobby",
+        "grid_s1"}
     for it in speech_set:
         assert it.sr == 16000 and it.audio.ndim == 1
         assert it.phones[0].start_s == 0 and abs(it.phones[-1].end_s - it.duration_s) < 0.01
         assert all(a.end_s == b.start_s for a, b in zip(it.phones, it.phones[1:]))
-    assert 40 < sum(it.duration_s for it in speech_set) < 45
+    assert 160 < sum(it.duration_s for it in speech_set) < 161
     size = sum(p.stat().st_size for p in SET_DIR.rglob("*") if p.is_file())
     assert size < 1.5e6
 

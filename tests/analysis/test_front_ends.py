@@ -1,0 +1,66 @@
+"""The front ends on real speech (issue 29): the look-ahead curve read from one decoding equals a
+stream per look-ahead, and the recognisers' rows split the test part by where its labels came
+from."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from analysis.speech_recogniser import (LABELS, LOOKAHEAD_FRAMES, NAMES, PhoneRecogniser,
+                                        lookahead_figure, recogniser_scores)
+from analysis.speech_set import load_speech_set
+from groundwork.errors import ParameterError
+from mapping import hama_front
+
+
+@pytest.fixture(scope="module")
+def two():
+    # one recording with independent (HTS) labels, one labelled by pocketsphinx's alignment
+    return load_speech_set(ids=["slt_a0009", "ps_cards_001"])
+
+
+def test_hama_curve_from_one_decoding_equals_a_stream_per_look_ahead(two):
+    it = two[0]
+    curve = hama_front.labels_at_delays(it.audio, it.sr, 30, LOOKAHEAD_FRAMES)
+    for d in LOOKAHEAD_FRAMES:
+        stream = hama_front.HamaStream(it.sr, 30, d, 0)
+        stream.push(it.audio)
+        stream.flush()
+        assert np.array_equal(curve[d], stream.labels), d
+
+
+def test_pocketsphinx_curve_from_one_decoding_equals_a_decoding_per_look_ahead(two):
+    it = two[1]
+    rec = PhoneRecogniser()
+    many = rec.streaming_delays(it.audio, it.sr, [k / 30 for k in LOOKAHEAD_FRAMES])
+    for k, labels in zip(LOOKAHEAD_FRAMES, many):
+        assert np.array_equal(labels, rec.streaming(it.audio, it.sr, k / 30)), k
+
+
+def test_the_recognisers_rows_split_the_test_part_by_label_source(two, tmp_path):
+    files, summary, curve = recogniser_scores(two)
+    assert {r["model"] for r in files} == set(NAMES.values())
+    by = {(r["model"], r["split"]): r for r in summary}
+    for name in NAMES.values():
+        # slt_a0009 is a test recording with HTS labels, ps_cards_001 a dev one (aligned)
+        assert by[(name, "unseen-test-independent")]["files"] == 1
+        assert by[(name, "unseen-test-aligned")]["files"] == 0
+        assert by[(name, "unseen-dev")]["files"] == 1
+        indep = next(r for r in files if r["model"] == name and r["id"] == "slt_a0009")
+        assert indep["labels"] == LABELS[0]
+        assert by[(name, "unseen-test-independent")]["viseme_acc"] == indep["viseme_acc"]
+        # the 100-ms column is the curve's 3-frame point
+        point = next(r for r in curve if r["model"] == name and r["lookahead_frames"] == 3
+                     and r["split"] == "unseen-test-independent")
+        assert point["viseme_acc"] == indep["viseme_acc_stream_100ms"]
+        assert len([r for r in curve if r["model"] == name and r["split"] == "all"]) == \
+            len(LOOKAHEAD_FRAMES)
+        # both hear the sentence: far above chance on its independent labels
+        assert indep["viseme_acc"] > 0.6
+    png = lookahead_figure(curve, tmp_path / "lookahead.png")
+    assert png.stat().st_size > 10_000
+
+
+def test_a_look_ahead_off_the_curve_is_refused(two):
+    with pytest.raises(ParameterError, match=r"delay_s 0\.05 is not one of the look-aheads"):
+        recogniser_scores(two[:1], delay_s=0.05)

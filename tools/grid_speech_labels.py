@@ -1,0 +1,322 @@
+"""Phone labels for GRID speaker s1 sentences of the real-speech evaluation set, made without
+either phone recogniser the set compares (``analysis/real_speech/grid/``).
+
+    python tools/grid_speech_labels.py [--set-dir DIR] [--align-dir DIR] [--check] [--measure]
+
+Sentences: every :data:`STEP`-th id, in sorted order and starting with the first, of the 196
+sentences of the built-in real corpus (``face_model/real_faces/grid-s1/manifest.csv``): 40.
+Their audio is not copied; the manifest points at the corpus's FLAC (22,050 Hz) by a relative
+path and the set's loader resamples it to 16 kHz.
+
+Labels (``label_source`` :data:`analysis.speech_set.GRID_WORDS`), for each sentence:
+
+* the word boundaries are GRID's own (``grid/<id>.align``, GRID's word alignment copied
+  unchanged, times in 1/25000 s, read by :func:`face_model.transcripts.read_align`); ``sil``,
+  ``sp`` and gaps are ``sil``; the final silence is cut where the audio ends (GRID's last line
+  ends at 2.98 s, the corpus's audio at 89/30 = 2.967 s);
+* inside a word, its phones and their relative durations are espeak-ng's
+  (:mod:`data_synth.espeak`, the default voice of :class:`data_synth.speech.SynthRequest`)
+  speaking the word alone (:func:`data_synth.speech.phone_segments`), scaled into GRID's span.
+  espeak's silence before and after the word is dropped (before a word-initial stop it is the
+  closure, which after a pause is silent in the recording too, so GRID's word starts at the
+  release); a phone espeak reports with no duration of its own (the final /l/ of the letter
+  "l", merged into its vowel) takes the second half of the phone before it;
+* times are rounded to 0.1 ms (:func:`face_model.forced_align.tidy_segments`).
+
+An ``.align`` whose entries end more than :data:`COVER_TOLERANCE_S` before the audio does, or
+with a word running past the end of the audio, is refused naming the file.
+
+Written: ``grid/<id>.align`` (from ``--align-dir``, default: the copies already in the set),
+``grid/<id>.csv``, ``grid/NOTICE.md`` and the manifest's ``grid_s1`` rows (replaced; the other
+rows are kept as they are). ``--check`` writes nothing: it regenerates every file in memory and
+exits 1 naming each that differs. ``--measure`` prints the labels' quality figures (the
+README's): /p b m/ segments against the real lips' closed level, and viseme agreement per
+30 fps frame with the built-in corpus's pocketsphinx-aligned phones.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:
+    sys.path.insert(0, str(REPO))
+
+from analysis.face_eval import closure_threshold  # noqa: E402
+from analysis.speech_eval import (VOWELS, phone_frames, segment_contact,  # noqa: E402
+                                  viseme_index)
+from analysis.speech_set import (GRID_WORDS, MANIFEST, SET_DIR, read_labels,  # noqa: E402
+                                 write_labels)
+from data_synth.espeak import EspeakBackend  # noqa: E402
+from data_synth.speech import SynthRequest, phone_segments  # noqa: E402
+from face_model.alignment import align_markers  # noqa: E402
+from face_model.corpus import PhoneSegment, read_phones  # noqa: E402
+from face_model.forced_align import tidy_segments  # noqa: E402
+from face_model.layout import mouth_opening  # noqa: E402
+from face_model.phones import BILABIALS, PHONE_INDEX  # noqa: E402
+from face_model.transcripts import read_align  # noqa: E402
+from groundwork.audio import read_wav  # noqa: E402
+from groundwork.errors import CorpusError, ParameterError  # noqa: E402
+
+BUILTIN = REPO / "face_model" / "real_faces" / "grid-s1"
+STEP = 5  # every 5th sentence of the built-in corpus, in sorted id order
+SUBDIR = "grid"
+SPEAKER = "grid_s1"
+COVER_TOLERANCE_S = 0.04  # one GRID video frame (25 fps): how far short of the audio it may end
+FPS = 30
+LICENCE = ("GRID corpus (Cooke, Barker, Cunningham & Shao 2006), CC BY 4.0 "
+           f"({SUBDIR}/NOTICE.md)")
+NOTICE = f"""# GRID speaker s1: word alignments and derived phone labels
+
+The `.align` files here are the GRID corpus's own word alignments of 40 sentences of speaker s1
+(every {STEP}th sentence of the built-in real corpus `face_model/real_faces/grid-s1`), copied
+unchanged: one `start end word` per line, times in 1/25000 s, `sil` and `sp` silence.
+
+The `.csv` files are **derived (modified) labels** made from them by
+`tools/grid_speech_labels.py`: GRID's word boundaries kept, `sil` and `sp` written `sil`, the
+final silence cut where the audio ends, and each word divided into its phones (the project's 44
+classes) with the relative durations espeak-ng gives the word spoken alone, scaled into GRID's
+word span. The audio they label is the built-in corpus's FLAC
+(`face_model/real_faces/grid-s1/audio/<id>.flac`: GRID's audio track resampled to 22,050 Hz;
+see `face_model/real_faces/grid-s1/NOTICE.md`).
+
+Source: the GRID corpus, M. Cooke, J. Barker, S. Cunningham, X. Shao (2006), "An audio-visual
+corpus for speech perception and automatic speech recognition", *JASA* 120(5):2421–2424;
+released on Zenodo (record 3625687) under the Creative Commons Attribution 4.0 licence
+(https://creativecommons.org/licenses/by/4.0/).
+"""
+
+
+def subset_ids(corpus_dir=BUILTIN) -> list[str]:
+    """The sentences labelled: every :data:`STEP`-th id of the corpus, sorted, from the first."""
+    with open(Path(corpus_dir) / "manifest.csv", newline="", encoding="utf-8") as f:
+        ids = sorted(row["utt_id"] for row in csv.DictReader(f))
+    return ids[::STEP]
+
+
+def _word_phones(word: str, result, backend) -> list[tuple[str, float]]:
+    """``[(phone, seconds)]`` of one word spoken alone, silence handled as the module says."""
+    segs = phone_segments(result, backend, text=word, lead_samples=0,
+                          total_samples=len(result.audio))
+    while segs and segs[0].phone == "sil":
+        segs = segs[1:]
+    while segs and segs[-1].phone == "sil":
+        segs = segs[:-1]
+    if not segs or any(s.phone == "sil" for s in segs):
+        raise ParameterError(f"espeak-ng spoke {word!r} as {[s.phone for s in segs]}; a word "
+                             "needs phones and no pause inside")
+    timed = [[s.phone, s.end_s - s.start_s] for s in segs]
+    spoken = [p for p in (backend.to_class(ph.mnemonic, text=word) for ph in result.phones)
+              if p != "sil"]
+    out, k = [], 0
+    for phone in spoken:  # the phones espeak names, some without a duration of their own
+        if k < len(timed) and timed[k][0] == phone:
+            out.append(timed[k])
+            k += 1
+        elif out:
+            out[-1][1] /= 2
+            out.append([phone, out[-1][1]])
+        else:
+            raise ParameterError(f"espeak-ng gave the first phone of {word!r} no duration")
+    assert k == len(timed), (word, spoken, timed)
+    return [(p, d) for p, d in out]
+
+
+def word_phones(words, *, workers: int | None = None) -> dict[str, list[tuple[str, float]]]:
+    """Each word's espeak-ng phones and durations (s), the word spoken alone, default voice."""
+    words = sorted(set(words))
+    backend = EspeakBackend()
+    results = backend.synthesize_many([SynthRequest(text=w) for w in words],
+                                      workers=workers or min(8, os.cpu_count() or 1))
+    return {w: _word_phones(w, r, backend) for w, r in zip(words, results)}
+
+
+def sentence_labels(align_path, duration_s: float, phones: dict) -> list[PhoneSegment]:
+    """Contiguous phone segments over ``[0, duration_s]`` from GRID's words and ``phones``.
+
+    Raises
+    ------
+    CorpusError
+        Naming ``align_path``: its entries stop more than :data:`COVER_TOLERANCE_S` before the
+        audio ends, run more than 0.1 s past it, or a word ends after the audio.
+    """
+    tr = read_align(align_path)
+    tr.check_duration(duration_s)
+    if tr.end_s < duration_s - COVER_TOLERANCE_S:
+        raise CorpusError(f"{align_path}: its word alignment ends at {tr.end_s:.3f} s but the "
+                          f"audio lasts {duration_s:.3f} s; it must cover the audio (allowed: "
+                          f"up to {COVER_TOLERANCE_S:g} s short)")
+    segs = []
+    for start, end, word in tr.words:
+        if end > duration_s + 1e-9:
+            raise CorpusError(f"{align_path}: the word {word!r} ends at {end:.3f} s, after "
+                              f"the audio ({duration_s:.3f} s)")
+        parts = phones[word]
+        cum = np.concatenate([[0.0], np.cumsum([d for _, d in parts])])
+        bounds = start + (end - start) * cum / cum[-1]
+        segs += [(bounds[i], bounds[i + 1], p) for i, (p, _) in enumerate(parts)]
+    out = tidy_segments(segs, duration_s)
+    if sum(s.phone != "sil" for s in out) != len(segs):
+        raise CorpusError(f"{align_path}: a phone shorter than 0.1 ms after scaling")
+    return out
+
+
+def _duration(wav) -> float:
+    y, sr = read_wav(wav)
+    return len(y) / sr
+
+
+def _csv_bytes(segs) -> bytes:
+    with tempfile.TemporaryDirectory() as tmp:  # write_labels: the set's one writer
+        return write_labels(Path(tmp) / "x.csv", segs).read_bytes()
+
+
+def manifest_rows(set_dir, ids, aligns: dict) -> list[dict]:
+    """The manifest rows of the GRID sentences (``aligns``: id → .align path)."""
+    rows = []
+    for utt in ids:
+        wav = os.path.relpath(BUILTIN / "audio" / f"{utt}.flac", set_dir)
+        rows.append({"id": f"grid_s1_{utt}", "wav": Path(wav).as_posix(),
+                     "labels": f"{SUBDIR}/{utt}.csv", "speaker": SPEAKER,
+                     "speaker_source": SPEAKER, "label_source": GRID_WORDS,
+                     "label_origin": f"{SUBDIR}/{utt}.align", "part": "test",
+                     "transcript": read_align(aligns[utt]).text, "licence": LICENCE})
+    return rows
+
+
+def _manifest_bytes(set_dir: Path, grid_rows: list[dict]) -> bytes:
+    with open(set_dir / MANIFEST, newline="", encoding="utf-8") as f:
+        reader = csv.DictReader(f)
+        columns = reader.fieldnames
+        rows = [r for r in reader if r["speaker_source"] != SPEAKER]
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, columns, lineterminator="\n")
+    w.writeheader()
+    w.writerows(rows + grid_rows)
+    return buf.getvalue().encode("utf-8")
+
+
+def build(set_dir=SET_DIR, align_dir=None) -> dict[str, bytes]:
+    """Every file the tool owns, ``{path relative to the set: contents}``, made in memory."""
+    set_dir = Path(set_dir)
+    align_dir = Path(align_dir) if align_dir else set_dir / SUBDIR
+    ids = subset_ids()
+    aligns = {u: align_dir / f"{u}.align" for u in ids}
+    phones = word_phones(w for u in ids for w in read_align(aligns[u]).text.split())
+    files = {}
+    for utt in ids:
+        files[f"{SUBDIR}/{utt}.align"] = aligns[utt].read_bytes()
+        segs = sentence_labels(aligns[utt], _duration(BUILTIN / "audio" / f"{utt}.flac"), phones)
+        files[f"{SUBDIR}/{utt}.csv"] = _csv_bytes(segs)
+    files[f"{SUBDIR}/NOTICE.md"] = NOTICE.encode("utf-8")
+    files[MANIFEST] = _manifest_bytes(set_dir, manifest_rows(set_dir, ids, aligns))
+    return files
+
+
+def differences(set_dir=SET_DIR, files=None) -> list[str]:
+    """The files (relative to the set) that differ from ``files`` (default: :func:`build`),
+    and any file in ``grid/`` the tool would not write."""
+    set_dir = Path(set_dir)
+    files = build(set_dir) if files is None else files
+    differ = [rel for rel, data in files.items()
+              if not (set_dir / rel).is_file() or (set_dir / rel).read_bytes() != data]
+    extra = [f"{SUBDIR}/{p.name}" for p in sorted((set_dir / SUBDIR).glob("*"))
+             if f"{SUBDIR}/{p.name}" not in files]
+    return differ + [f"{rel} (not made by the tool)" for rel in extra]
+
+
+# -- quality of the labels --------------------------------------------------------------------
+def _share(flags) -> str:
+    flags = np.asarray(flags, dtype=bool)
+    return f"{flags.mean():.1%} ({int(flags.sum())}/{len(flags)})" if len(flags) else "n/a"
+
+
+def measure(set_dir=SET_DIR) -> dict:
+    """Both label sets against the real lips and each other, pooled over the sentences.
+
+    Closed level per clip: :func:`analysis.face_eval.closure_threshold` of the clip's own
+    opening (:func:`face_model.layout.mouth_opening` of the glasses-aligned markers),
+    P10 + 0.10 × (P90 − P10). A segment *reaches* it when the opening is at or below it in a
+    frame overlapping the segment (:func:`analysis.speech_eval.segment_contact`); *at centre*
+    when the opening interpolated at the segment's centre is. Visemes per 30 fps frame
+    (frame k at k/30 s): agreement over all frames and over frames where either set has speech.
+    """
+    set_dir = Path(set_dir)
+    acc = {k: [] for k in ("grid_bil", "ps_bil", "grid_bil_c", "ps_bil_c", "grid_vow", "ps_vow",
+                           "vis_all", "vis_speech", "ph_all", "ph_speech")}
+    ids, levels, spans = subset_ids(), [], []
+    for utt in ids:
+        duration = _duration(BUILTIN / "audio" / f"{utt}.flac")
+        ours = read_labels(set_dir / SUBDIR / f"{utt}.csv", duration)
+        ps = read_phones(BUILTIN / "phones" / f"{utt}.csv", duration)
+        opening = mouth_opening(align_markers(np.load(BUILTIN / "markers" / f"{utt}.npy")))
+        thr = closure_threshold(opening)
+        levels.append(thr)
+        spans.append(np.percentile(opening, 90) - np.percentile(opening, 10))
+        for name, segs in (("grid", ours), ("ps", ps)):
+            bil = segment_contact(opening, FPS, segs, BILABIALS, thr)
+            acc[f"{name}_bil"] += list(bil.met)
+            acc[f"{name}_bil_c"] += list(bil.centre_opening <= thr)
+            acc[f"{name}_vow"] += list(segment_contact(opening, FPS, segs, VOWELS, thr).met)
+        times = np.arange(len(opening)) / FPS
+        a, b = phone_frames(ours, times), phone_frames(ps, times)
+        speech = (a != PHONE_INDEX["sil"]) | (b != PHONE_INDEX["sil"])
+        acc["vis_all"] += list(viseme_index(a) == viseme_index(b))
+        acc["vis_speech"] += list((viseme_index(a) == viseme_index(b))[speech])
+        acc["ph_all"] += list(a == b)
+        acc["ph_speech"] += list((a == b)[speech])
+    return {"sentences": len(ids), "frames": len(acc["vis_all"]),
+            "level_px": (float(np.median(levels)), float(np.min(levels)), float(np.max(levels))),
+            "p10_p90_px": float(np.median(spans)), **{k: _share(v) for k, v in acc.items()}}
+
+
+def print_measure(m: dict, out=sys.stdout) -> None:
+    lv = m["level_px"]
+    print(f"{m['sentences']} sentences, {m['frames']} frames; closed level per clip P10 + 0.10 x "
+          f"(P90 - P10): median {lv[0]:.2f} px (range {lv[1]:.2f}-{lv[2]:.2f}), median P90 - "
+          f"P10 {m['p10_p90_px']:.2f} px", file=out)
+    print("| | GRID words + espeak-ng | pocketsphinx alignment |\n|---|---|---|", file=out)
+    for label, key in (("/p b m/ segments reaching the closed level", "bil"),
+                       ("/p b m/ segments closed at their centre", "bil_c"),
+                       ("vowel segments reaching the closed level (control)", "vow")):
+        print(f"| {label} | {m['grid_' + key]} | {m['ps_' + key]} |", file=out)
+    print(f"| viseme agreement per frame, all frames | {m['vis_all']} |\n"
+          f"| viseme agreement, frames with speech in either | {m['vis_speech']} |\n"
+          f"| phone agreement, all frames | {m['ph_all']} |\n"
+          f"| phone agreement, frames with speech in either | {m['ph_speech']} |", file=out)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--set-dir", type=Path, default=SET_DIR)
+    p.add_argument("--align-dir", type=Path, default=None,
+                   help="folder of GRID s1 .align files (default: the copies in the set)")
+    p.add_argument("--check", action="store_true", help="compare with the shipped files")
+    p.add_argument("--measure", action="store_true", help="print the labels' quality figures")
+    args = p.parse_args(argv)
+    if args.measure:
+        print_measure(measure(args.set_dir))
+        return 0
+    files = build(args.set_dir, args.align_dir)
+    if args.check:
+        differ = differences(args.set_dir, files)
+        for rel in differ:
+            print(f"{args.set_dir / rel}: differs from what the tool makes", file=sys.stderr)
+        print(f"{len(files)} files checked, {len(differ)} differ")
+        return 1 if differ else 0
+    (args.set_dir / SUBDIR).mkdir(exist_ok=True)
+    for rel, data in files.items():
+        (args.set_dir / rel).write_bytes(data)
+    print(f"{len(files)} files written under {args.set_dir}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
