@@ -134,7 +134,7 @@ def test_make_mapper_passes_every_config_field():
         gate_covariance="full", min_class_frames=11, hidden_min=4, hidden_max=9,
         expression_model="bank", cascade_hidden=12, cmvn="meanvar", cmvn_warmup_frames=7,
         gate_front_end="recogniser", mlp_input="phones", phone_training="labels",
-        train=train)
+        recogniser="hama", train=train)
     fields = {f.name for f in dataclasses.fields(MappingConfig)}
     gated = estimator_parameters(GatedMLP)
     assert fields - gated == NOT_HYPER_PARAMETERS  # every other field is a hyper-parameter

@@ -232,7 +232,7 @@ def test_constructor_stores_its_arguments_verbatim():
                   gate_components=3, gate_covariance="full", min_class_frames=11, hidden_min=4,
                   hidden_max=9, expression_model="bank", cascade_hidden=12, cmvn="meanvar",
                   cmvn_warmup_frames=12, gate_front_end="recogniser", mlp_input="phones",
-                  phone_training="labels",
+                  phone_training="labels", recogniser="hama",
                   train=TrainSettings(max_epochs=7, patience=3), random_state=42)
     m = GatedMLP(**params)
     for name, value in params.items():

@@ -24,7 +24,7 @@ def test_the_project_grid_holds_the_issue_configurations():
                               "many-cmvn-warp-augment", "many-cmvn-warp-augment-recogniser",
                               "one-voice-recogniser", "one-voice-phones", "many-phones",
                               "many-augment-phones", "one-voice-phones-labels",
-                              "many-phones-labels"]
+                              "many-phones-labels", "one-voice-hama-labels"]
     assert model == "one-voice-phones"
     full = children["many-cmvn-warp-augment"].mapping
     assert full.cmvn == "meanvar" and full.vtlp_range == (0.9, 1.1) and full.augment.copies >= 1
@@ -32,8 +32,12 @@ def test_the_project_grid_holds_the_issue_configurations():
     assert (default.gate_front_end, default.mlp_input) == ("recogniser", "phones")
     assert children["many-phones"].synth == children["many-augment-phones"].synth
     assert children["many-phones-labels"].mapping.phone_training == "labels"
+    hama = children["one-voice-hama-labels"].mapping
+    assert (hama.recogniser, hama.gate_front_end, hama.mlp_input, hama.phone_training) == \
+        ("hama", "recogniser", "phones", "labels")
+    assert children["one-voice-phones"].mapping.recogniser == "pocketsphinx"
     for name in ("one-voice", "one-voice-recogniser", "one-voice-phones",
-                 "one-voice-phones-labels"):
+                 "one-voice-phones-labels", "one-voice-hama-labels"):
         assert children[name].synth == Config().synth  # the paper's single voice
     # no evaluation speaker is a training voice of the default model: a0009 stays unseen
     from data_synth.backends import voice_speaker
