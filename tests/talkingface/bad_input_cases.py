@@ -539,6 +539,8 @@ CASES = [
     ([*TRAIN, "--set", "mapping.context_back=-1"], ["mapping.context_back", "-1"]),
     ([*TRAIN, "--set", "mapping.n_classes=3"], ["mapping.n_classes", "3"]),
     ([*TRAIN, "--set", "mapping.gate_covariance=round"], ["mapping.gate_covariance", "round"]),
+    ([*TRAIN, "--set", "mapping.recogniser=whisper"],
+     ["mapping.recogniser", "whisper", "pocketsphinx", "hama"]),
     ([*TRAIN, "--set", "mapping.hidden_min=30", "--set", "mapping.hidden_max=20"],
      ["mapping.hidden_min", "mapping.hidden_max"]),
     ([*TRAIN, "--set", "mapping.visual_source=camera"], ["mapping.visual_source", "camera"]),
