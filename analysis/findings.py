@@ -128,7 +128,7 @@ def speech_finding(speech_dir: Path, default_model: str | None) -> str | None:
         return None
     model = f"voices-{default_model}" if default_model else "gated_mlp_utterance"
     mine = next((r for r in rows if r["model"] == model), None)
-    bar = next((r for r in rows if r["model"].startswith("pocketsphinx")), None)
+    bars = [r for r in rows if r["model"].startswith(("pocketsphinx", "hama"))]
     if mine is None:
         return None
     per_file = _read(speech_dir / "per_file.csv")
@@ -141,9 +141,10 @@ def speech_finding(speech_dir: Path, default_model: str | None) -> str | None:
             f"(<i>{escape(model)}</i>) labels visemes at {fig(mine, 'viseme_acc')}")
     if _num(mine.get("viseme_acc_stream_100ms")) != "–":
         text += f" ({fig(mine, 'viseme_acc_stream_100ms')} streaming at 100 ms)"
-    if bar is not None:
-        text += (f", against the recogniser's {fig(bar, 'viseme_acc')} "
-                 f"({fig(bar, 'viseme_acc_stream_100ms')} streaming at 100 ms)")
+    if bars:
+        text += ", against " + " and ".join(
+            f"{escape(bar['model'].split()[0])}'s {fig(bar, 'viseme_acc')} "
+            f"({fig(bar, 'viseme_acc_stream_100ms')} streaming at 100 ms)" for bar in bars)
     return text + (f"; it closes the lips on {fig(mine, 'bilabial_closed_frac')} of /p b m/ "
                    "segments " + _cite("speech_unseen-test") + ".")
 

@@ -185,6 +185,15 @@ def _check_voices_and_real_speech(run, table_rows, text):
     seen = {r["model"]: int(r["files"]) for r in scores if r["split"] == "seen"}
     assert seen["voices-many"] == 1 and seen["voices-one"] == 0
     assert any(m.startswith("pocketsphinx") for m in models)
+    assert any(m.startswith("hama") for m in models)
+    # the test part apart by where its labels came from, and the front ends' look-ahead curve
+    splits = {r["split"] for r in scores if r["model"].startswith("hama")}
+    assert {"unseen-test-independent", "unseen-test-aligned"} <= splits
+    with open(run / "speech_eval" / "lookahead.csv", newline="") as f:
+        curve = list(csv.DictReader(f))
+    assert {float(r["lookahead_ms"]) for r in curve} == {0, 33.3, 66.7, 100, 133.3, 166.7, 200}
+    assert (run / "speech_eval" / "lookahead.png").is_file()
+    assert "The front ends alone" in text and "labels independent of both recognisers" in text
     # animate, stream and the study use the voice-robust model by default
     tfmap, _ = find_model(None)
     assert tfmap.resolve() == run / "voices" / "many" / "gated_mlp_utterance.tfmap"
