@@ -25,7 +25,7 @@ def test_the_project_grid_holds_the_issue_configurations():
                               "one-voice-recogniser", "one-voice-phones", "many-phones",
                               "many-augment-phones", "one-voice-phones-labels",
                               "many-phones-labels", "one-voice-hama-labels"]
-    assert model == "one-voice-phones"
+    assert model == "one-voice-hama-labels"
     full = children["many-cmvn-warp-augment"].mapping
     assert full.cmvn == "meanvar" and full.vtlp_range == (0.9, 1.1) and full.augment.copies >= 1
     default = children[model].mapping
