@@ -227,8 +227,9 @@ def front_ends(rep, results: list, per_file: list, speech_dir: Path) -> None:
                    "GRID s1 sentences labelled from GRID's own word alignments with espeak-ng's "
                    "in-word phone durations (analysis/real_speech/README.md); aligned: "
                    "pocketsphinx's forced alignment of the transcript, which favours "
-                   "pocketsphinx. Streaming: hama decodes the last second every 3 frames, so a "
-                   "frame waits 100–167 ms at a 100-ms look-ahead. [a, b]: 95 % bootstrap "
+                   "pocketsphinx. Streaming at 100 ms: each frame is decided 100 ms after its "
+                   "instant; hama decodes the last second of audio every 3 frames, so its "
+                   "decision has heard 33–100 ms past the instant. [a, b]: 95 % bootstrap "
                    "interval over recordings.", key="speech_front_ends")
     fig = speech_dir / "lookahead.png"
     if fig.is_file():
