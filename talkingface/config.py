@@ -6,7 +6,8 @@ settings (:mod:`mapping.config`), ``study`` (:mod:`study.config`) — and this m
 that belong to the pipeline and the command line: ``corpus`` (a given corpus instead of the
 synthetic one), ``mlflow`` (where runs are logged), ``ablations`` (the grid
 ``replicate`` trains as child runs, and its seeds), ``cluster`` (where grid tasks run),
-``ceiling`` (the steps toward the ceiling) and ``voices`` (the grid of voice-robust models).
+``ceiling`` (the steps toward the ceiling) and ``voices`` (the grid of voice-robust models);
+``targets`` (:mod:`analysis.config`) holds the project's targets on real data, stated once.
 It composes, loads, validates and dumps them.
 
 ``configs/paper.yaml`` mirrors the defaults. A YAML file may set any subset of keys;
@@ -28,6 +29,7 @@ from pathlib import Path
 
 import yaml
 
+from analysis.config import TargetsConfig
 from data_synth.config import SynthConfig
 from face_model.config import TrackerConfig, UnitsConfig
 from groundwork.errors import ParameterError
@@ -156,6 +158,7 @@ class Config:
     cluster: ClusterConfig = field(default_factory=ClusterConfig)
     voices: VoicesConfig = field(default_factory=VoicesConfig)
     ceiling: CeilingConfig = field(default_factory=CeilingConfig)
+    targets: TargetsConfig = field(default_factory=TargetsConfig)
 
     def __post_init__(self):
         check_fields(self)

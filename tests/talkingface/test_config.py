@@ -207,6 +207,8 @@ BAD_VALUES = [
     ('corpus.source=" my corpus"', "' my corpus'"),
     ('corpus.source="a\\nb"', "'a\\nb'"),
     ('real_speaker.corpus=" grid"', "' grid'"),
+    ("targets.viseme_accuracy=1.5", "1.5"),
+    ("targets.frame_cost_p99_ms=0", "0.0"),
 ]
 
 

@@ -1,0 +1,61 @@
+"""The project's targets, owned by ``analysis`` (section ``targets`` of the run config).
+
+One table of targets, stated once before a run and quoted from here by every table that
+compares a figure with its target (the real-speech section, the real-speaker section, the
+first page). They are the bars the project set itself for real data; a figure short of its
+target is reported as short, never tuned toward it. ``talkingface.config`` composes this
+section; ``configs/paper.yaml`` mirrors it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+from groundwork.settings import check_fields, fraction, number
+
+
+@dataclass(frozen=True)
+class TargetsConfig:
+    """Targets on real data (unseen speakers unless a name says otherwise)."""
+
+    # speech set, the default model streaming at the look-ahead below: viseme frame accuracy
+    viseme_accuracy: float = fraction(0.80)
+    lookahead_ms: float = number(100.0, ge=0, le=1000)
+    # /p b m/ segments the phones say must close: fraction the predicted lips close
+    bilabial_closed: float = fraction(0.80)
+    # the centre opening of a /p b m/ segment at most this times the median vowel opening
+    bilabial_centre_rel_vowel: float = number(0.4, ge=0, le=10)
+    # speech set: r of the predicted opening with the generator's reference articulation
+    speech_r_reference: float = fraction(0.70)
+    # real face (held-out sentences), speech frames: lip r of the model trained on the speaker
+    face_speaker_r: float = fraction(0.85)
+    # real face: lip r of the synthetic-trained default (it has never seen the speaker)
+    face_synthetic_r: float = fraction(0.70)
+    # real face: fraction of the /p b m/ closures the synthetic-trained default closes
+    face_closures: float = fraction(0.80)
+    # a score at 16 kHz input within this of the same score at 22.05 kHz
+    rate_tolerance: float = number(0.02, ge=0, le=1)
+    # streaming front end: per-frame compute, 99th percentile (bench/bench_streaming.py)
+    frame_cost_p99_ms: float = number(3.0, gt=0, le=1000)
+
+    def __post_init__(self):
+        check_fields(self)
+
+    def rows(self) -> list[tuple[str, float, str]]:
+        """``(key, value, what it bounds)`` for the report's table of targets, in field order."""
+        return [(f.name, getattr(self, f.name), TARGET_TEXT[f.name]) for f in fields(self)]
+
+
+TARGET_TEXT = {
+    "viseme_accuracy": "viseme frame accuracy on unseen speakers, streaming, at least",
+    "lookahead_ms": "look-ahead of the streaming figures, ms",
+    "bilabial_closed": "/p b m/ segments closed by the predicted lips, at least",
+    "bilabial_centre_rel_vowel": "/p b m/ centre opening / median vowel opening, at most",
+    "speech_r_reference": "r with the reference articulation of the real phones, at least",
+    "face_speaker_r": "real face, speech frames: lip r of the speaker-trained model, at least",
+    "face_synthetic_r": "real face, speech frames: lip r of the synthetic-trained default, "
+                        "at least",
+    "face_closures": "real face: /p b m/ closures the synthetic-trained default closes, "
+                     "at least",
+    "rate_tolerance": "a score at 16 kHz input within this of its score at 22.05 kHz",
+    "frame_cost_p99_ms": "streaming front end: per-frame compute p99, ms, at most",
+}
