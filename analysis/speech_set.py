@@ -2,34 +2,40 @@
 and the converters from the sources' own phone labels to the 44 classes.
 
 The folder holds real recordings found in package archives (CMU ARCTIC ``slt`` and ``awb``, the
-pocketsphinx test recordings, praatio's "bobby"; 16 kHz mono PCM16 WAV) and 40 GRID speaker s1
+pocketsphinx test recordings, praatio's "bobby"; 16 kHz mono PCM16 WAV), 40 GRID speaker s1
 sentences whose audio is the built-in real corpus's FLAC (``face_model/real_faces/grid-s1``, read
-through a relative path), each with a phone file in the corpus format (``start_s, end_s, phone``;
-phones in the 44-class set of :mod:`face_model.phones`). Audio of another rate or format (any
-that soundfile reads) is resampled to :data:`SAMPLE_RATE` when loaded. ``manifest.csv`` has one
-row per recording:
+through a relative path) and spoken digits of the six FSDD speakers (8 kHz PCM16 WAV), each with
+a phone file in the corpus format (``start_s, end_s, phone``; phones in the 44-class set of
+:mod:`face_model.phones`). Audio of another rate or format (any that soundfile reads) is
+resampled to :data:`SAMPLE_RATE` when loaded (up or down); the file's own rate is kept as
+``SpeechItem.native_sr``. ``manifest.csv`` has one row per recording:
 
 =================  ==========================================================================
 ``id``             a short name (``slt_a0009``)
 ``wav``            the audio, relative to the set folder
 ``labels``         the phone file, relative to the set folder
-``speaker``        the speaker's own name in the set (``arctic_slt``, ``ps_male_1`` …)
-``speaker_source`` where the voice comes from; a training voice built from the same speaker
-                   (flite's ``slt`` is ARCTIC ``slt``) makes the recording *seen*
+``speaker``        the speaker id, lowercase ``<collection>-<speaker>`` (:data:`SPEAKER_ID`:
+                   ``arctic-slt``, ``grid-s1``, ``fsdd-jackson`` …), the scheme of
+                   :func:`data_synth.backends.voice_speakers`: a training voice built from the
+                   same speaker (flite's ``slt`` is ``arctic-slt``) makes the recording *seen*
 ``label_source``   ``hts`` (the HTS labels shipped with it), ``textgrid`` (its own TextGrid),
                    ``pocketsphinx-5.1.1 forced alignment`` (``tools/align_real_speech.py``) or
                    ``grid word alignment + espeak-ng in-word durations`` (GRID's own ``.align``
                    word times, phones inside a word timed by espeak-ng:
-                   ``tools/grid_speech_labels.py``); all but the aligner's are
-                   :data:`INDEPENDENT_SOURCES`
+                   ``tools/grid_speech_labels.py``) or ``fsdd word span + espeak-ng in-word
+                   durations`` (the FSDD file is the word: ``tools/fsdd_speech_labels.py``);
+                   all but the aligner's are :data:`INDEPENDENT_SOURCES`
 ``label_origin``   the original annotation file in the set (hts, textgrid, GRID), else empty
 ``part``           ``dev`` or ``test`` (optional; ``test`` when absent): the development speakers
-                   a configuration may be chosen on, and the test speakers it is reported on
+                   a configuration may be chosen on, and the test speakers it is reported on;
+                   a ``dev`` recording must have independent labels
 ``transcript``     the words spoken
 ``licence``        the licence notice of the recording (the full texts sit beside the files)
 =================  ==========================================================================
 
 ``README.md`` in the folder gives each file's package, version, path inside it and SHA-256.
+A manifest of the older layout, with a ``speaker_source`` column, is refused: that column is now
+``speaker``.
 """
 from __future__ import annotations
 
@@ -49,26 +55,30 @@ from groundwork.errors import CorpusError
 
 SET_DIR = Path(__file__).resolve().parent / "real_speech"
 MANIFEST = "manifest.csv"
-MANIFEST_COLUMNS = ("id", "wav", "labels", "speaker", "speaker_source", "label_source",
-                    "label_origin", "transcript", "licence")
+MANIFEST_COLUMNS = ("id", "wav", "labels", "speaker", "label_source", "label_origin",
+                    "transcript", "licence")
 ALIGNED = ALIGNER_NAME
 GRID_WORDS = "grid word alignment + espeak-ng in-word durations"
-LABEL_SOURCES = ("hts", "textgrid", ALIGNED, GRID_WORDS)
+FSDD_WORDS = "fsdd word span + espeak-ng in-word durations"
+LABEL_SOURCES = ("hts", "textgrid", ALIGNED, GRID_WORDS, FSDD_WORDS)
 # Labels made without either recogniser compared on the set (pocketsphinx, hama).
-INDEPENDENT_SOURCES = frozenset({"hts", "textgrid", GRID_WORDS})
+INDEPENDENT_SOURCES = frozenset({"hts", "textgrid", GRID_WORDS, FSDD_WORDS})
+# A speaker id: lowercase <collection>-<speaker> (arctic-slt, grid-s1, fsdd-jackson), or
+# ``espeak`` (synthetic voices with no real speaker).
+SPEAKER_ID = re.compile(r"^(?:espeak|[a-z][a-z0-9]*-[a-z0-9]+)$")
 PARTS = ("dev", "test")  # the optional ``part`` column
 SAMPLE_RATE = 16000
 
 
 @dataclass(frozen=True)
 class SpeechItem:
-    """One recording of the set, loaded and checked. ``audio`` float32 (n_samples,) at ``sr``."""
+    """One recording of the set, loaded and checked. ``audio`` float32 (n_samples,) at ``sr``
+    (always :data:`SAMPLE_RATE`); ``native_sr`` is the rate the file was recorded at (Hz)."""
 
     id: str
     wav: Path
     labels: Path
-    speaker: str
-    speaker_source: str
+    speaker: str  # the speaker id (SPEAKER_ID); seen when a training voice's source is it
     label_source: str
     label_origin: str
     transcript: str
@@ -77,6 +87,7 @@ class SpeechItem:
     audio: np.ndarray = field(repr=False)
     phones: tuple = field(repr=False)  # PhoneSegment, contiguous from 0 to the end of the audio
     part: str = "test"  # "dev" or "test"
+    native_sr: int = SAMPLE_RATE  # the file's own sample rate (Hz), before resampling
 
     @property
     def duration_s(self) -> float:
@@ -161,10 +172,23 @@ def read_labels(path, duration_s: float) -> tuple[PhoneSegment, ...]:
 
 def read_manifest(set_dir=SET_DIR) -> list[dict]:
     """The manifest's rows, with every column present and non-empty (``label_origin`` may be
-    empty), ids unique, and ``label_source`` one of :data:`LABEL_SOURCES`."""
+    empty), ids unique, ``speaker`` a :data:`SPEAKER_ID`, ``label_source`` one of
+    :data:`LABEL_SOURCES`, ``part`` one of :data:`PARTS`, and every ``dev`` row independently
+    labelled (:data:`INDEPENDENT_SOURCES`).
+
+    Raises
+    ------
+    CorpusError
+        Naming the file (and line): any of the above broken, or the old ``speaker_source``
+        column present.
+    """
     path = Path(set_dir) / MANIFEST
     rows = read_manifest_rows(path, MANIFEST_COLUMNS,
                               not_found=f"--set-dir must be a folder holding {MANIFEST}")
+    if rows and "speaker_source" in rows[0]:
+        raise CorpusError(f"{path}: has the old column speaker_source; the speaker id is now "
+                          "the column speaker (lowercase <collection>-<speaker>, e.g. "
+                          "arctic-slt): drop speaker_source and write its id in speaker")
     if not rows:
         raise CorpusError(f"{path}: no recordings listed")
     seen = set()
@@ -178,10 +202,19 @@ def read_manifest(set_dir=SET_DIR) -> list[dict]:
         if row["label_source"] not in LABEL_SOURCES:
             raise CorpusError(f"{path}, line {line}: label_source {row['label_source']!r}; "
                               f"allowed: {', '.join(LABEL_SOURCES)}")
+        if not SPEAKER_ID.match(row["speaker"]):
+            raise CorpusError(f"{path}, line {line}: speaker {row['speaker']!r}; allowed: a "
+                              "lowercase id <collection>-<speaker> (e.g. arctic-slt, grid-s1) "
+                              "or espeak")
         row["part"] = (row.get("part") or "test").strip()
         if row["part"] not in PARTS:
             raise CorpusError(f"{path}, line {line}: part {row['part']!r}; allowed: "
                               f"{', '.join(PARTS)} (or empty: test)")
+        if row["part"] == "dev" and row["label_source"] not in INDEPENDENT_SOURCES:
+            raise CorpusError(f"{path}, line {line}: dev recording {row['id']!r} has labels "
+                              f"from {row['label_source']!r}, a recogniser the set compares; "
+                              "a dev recording needs independent labels ("
+                              f"{', '.join(sorted(INDEPENDENT_SOURCES))}) or part test")
     return rows
 
 
@@ -190,16 +223,18 @@ def _load_item(set_dir: Path, row: dict) -> SpeechItem:
     if not wav.is_file():
         raise CorpusError(f"{wav}: audio file of {row['id']!r} not found")
     # WAV, FLAC, ... ; a file it cannot read, empty or not mono is an AudioFileError naming it
-    y, sr = read_wav(wav)
-    duration_s = len(y) / sr  # the labels are checked against the file's own length
-    if sr != SAMPLE_RATE:
+    y, native_sr = read_wav(wav)
+    duration_s = len(y) / native_sr  # the labels are checked against the file's own length
+    sr = native_sr
+    if sr != SAMPLE_RATE:  # up (8 kHz FSDD) or down (22,050 Hz GRID FLAC)
         y, sr = resample(y, sr_in=sr, sr_out=SAMPLE_RATE), SAMPLE_RATE
     phones = read_labels(set_dir / row["labels"], duration_s)
     return SpeechItem(id=row["id"], wav=wav, labels=set_dir / row["labels"],
-                      speaker=row["speaker"], speaker_source=row["speaker_source"],
+                      speaker=row["speaker"],
                       label_source=row["label_source"], label_origin=row["label_origin"] or "",
                       transcript=row["transcript"], licence=row["licence"], sr=sr,
-                      audio=np.asarray(y, dtype=np.float32), phones=phones, part=row["part"])
+                      audio=np.asarray(y, dtype=np.float32), phones=phones, part=row["part"],
+                      native_sr=int(native_sr))
 
 
 def load_speech_set(set_dir=SET_DIR, ids=None) -> list[SpeechItem]:

@@ -22,7 +22,9 @@ Two ways to choose speech:
   ===========  ==============================================  ===========  ===================
 
   All are resampled to 22050 Hz. :func:`voice_speakers` names the real speaker behind each, so
-  an evaluation can tell seen from unseen speakers.
+  an evaluation can tell seen from unseen speakers. Speaker ids are lowercase
+  ``<collection>-<speaker>`` (``arctic-slt``, ``festvox-kal``), the scheme of the real-speech set
+  (``analysis/real_speech/README.md``); ``espeak`` has no real speaker.
 """
 from __future__ import annotations
 
@@ -158,10 +160,10 @@ def voice_speakers() -> dict[str, str]:
     Returns
     -------
     dict
-        ``"engine:voice"`` → ``"arctic_slt"``, ``"arctic_awb"``, ``"arctic_rms"`` (CMU ARCTIC
-        speakers), ``"kal"`` or ``"ked"`` (the two US male diphone speakers), or ``"espeak"``
-        (formant synthesis, no speaker; one entry per accent; any ``+variant`` of an accent is
-        the same). Use :func:`voice_speaker` for any valid voice string.
+        ``"engine:voice"`` → ``"arctic-slt"``, ``"arctic-awb"``, ``"arctic-rms"`` (CMU ARCTIC
+        speakers), ``"festvox-kal"`` or ``"festvox-ked"`` (the two US male diphone speakers), or
+        ``"espeak"`` (formant synthesis, no speaker; one entry per accent; any ``+variant`` of
+        an accent is the same). Use :func:`voice_speaker` for any valid voice string.
     """
     out = {f"espeak:{a}": ESPEAK_SPEAKER for a in espeak.ESPEAK_ACCENTS}
     out.update({f"flite:{v.name}": v.source for v in FLITE_VOICES.values()})

@@ -84,12 +84,12 @@ class FestivalVoice:
 
 
 FESTIVAL_VOICES = {v.name: v for v in (
-    FestivalVoice("kal_diphone", "festvox-kallpc16k", 16000, "diphone", 105.0, 14.0, "kal",
+    FestivalVoice("kal_diphone", "festvox-kallpc16k", 16000, "diphone", 105.0, 14.0, "festvox-kal",
                   "KAL diphones (Kevin A. Lenzo, US male), residual-excited LPC"),
-    FestivalVoice("ked_diphone", "festvox-kdlpc16k", 16000, "diphone", 105.0, 15.0, "ked",
+    FestivalVoice("ked_diphone", "festvox-kdlpc16k", 16000, "diphone", 105.0, 15.0, "festvox-ked",
                   "KED diphones (Kurt, US male, recorded 1997), residual-excited LPC"),
     FestivalVoice("cmu_us_slt_arctic_hts", "festvox-us-slt-hts", 32000, "hts", None, None,
-                  "arctic_slt", "CMU ARCTIC slt (US female), HTS; no pitch control"),
+                  "arctic-slt", "CMU ARCTIC slt (US female), HTS; no pitch control"),
 )}
 DIPHONE_DURATION_STRETCH = 1.1  # the diphone voices' default Duration_Stretch
 

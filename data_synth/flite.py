@@ -76,15 +76,15 @@ class FliteVoice:
 
 
 FLITE_VOICES = {v.name: v for v in (
-    FliteVoice("kal", 8000, 1.1, 95.0, 11.0, "kal",
+    FliteVoice("kal", 8000, 1.1, 95.0, 11.0, "festvox-kal",
                "KAL diphones (Kevin A. Lenzo, US male), 8 kHz LPC diphone synthesis"),
-    FliteVoice("kal16", 16000, 1.1, 95.0, 11.0, "kal",
+    FliteVoice("kal16", 16000, 1.1, 95.0, 11.0, "festvox-kal",
                "KAL diphones (Kevin A. Lenzo, US male), 16 kHz LPC diphone synthesis"),
-    FliteVoice("awb", 16000, 1.0, 132.0, 25.0, "arctic_awb",
+    FliteVoice("awb", 16000, 1.0, 132.0, 25.0, "arctic-awb",
                "CMU ARCTIC awb (Scottish-accented English male), clustergen"),
-    FliteVoice("rms", 16000, 1.0, None, None, "arctic_rms",
+    FliteVoice("rms", 16000, 1.0, None, None, "arctic-rms",
                "CMU ARCTIC rms (US male), clustergen; no pitch control"),
-    FliteVoice("slt", 16000, 1.0, 172.0, 27.0, "arctic_slt",
+    FliteVoice("slt", 16000, 1.0, 172.0, 27.0, "arctic-slt",
                "CMU ARCTIC slt (US female), clustergen"),
 )}
 VOICE = "slt"  # the voice of ``backend: flite`` (and of FliteBackend())

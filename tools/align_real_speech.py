@@ -13,7 +13,9 @@ its ``label_source``:
   wheel; nothing is downloaded): words first, then phones in 10 ms frames; silences and noise
   are ``sil``; the ends are padded with silence to the length of the audio.
 
-``--check`` writes nothing and exits 1 when a regenerated file differs from the shipped one.
+The GRID and FSDD recordings are left to their own tools (``tools/grid_speech_labels.py``,
+``tools/fsdd_speech_labels.py``). ``--check`` writes nothing and exits 1 when a regenerated
+file differs from the shipped one.
 """
 from __future__ import annotations
 
@@ -25,8 +27,8 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from analysis.speech_set import (ALIGNED, GRID_WORDS, SET_DIR, hts_segments,  # noqa: E402
-                                 read_manifest, textgrid_segments, write_labels)
+from analysis.speech_set import (ALIGNED, FSDD_WORDS, GRID_WORDS, SET_DIR,  # noqa: E402
+                                 hts_segments, read_manifest, textgrid_segments, write_labels)
 from face_model.forced_align import align, aligner, to_pcm16  # noqa: E402
 from groundwork.audio import read_wav  # noqa: E402
 
@@ -47,9 +49,10 @@ def labels_for(row: dict, set_dir: Path, dec=None) -> list:
 def regenerate(set_dir=SET_DIR, ids=None, *, check: bool = False, out=sys.stdout) -> list:
     """Write (or with ``check`` compare) the phone files; returns the ids that differ."""
     set_dir = Path(set_dir)
-    # the GRID part has its own tool (tools/grid_speech_labels.py)
+    # the GRID and FSDD parts have their own tools (tools/grid_speech_labels.py,
+    # tools/fsdd_speech_labels.py)
     rows = [r for r in read_manifest(set_dir) if (ids is None or r["id"] in ids)
-            and r["label_source"] != GRID_WORDS]
+            and r["label_source"] not in (GRID_WORDS, FSDD_WORDS)]
     dec = aligner() if any(r["label_source"] == ALIGNED for r in rows) else None
     differ = []
     for row in rows:

@@ -16,7 +16,7 @@ Labels (``label_source`` :data:`analysis.speech_set.GRID_WORDS`), for each sente
   ends at 2.98 s, the corpus's audio at 89/30 = 2.967 s);
 * inside a word, its phones and their relative durations are espeak-ng's
   (:mod:`data_synth.espeak`, the default voice of :class:`data_synth.speech.SynthRequest`)
-  speaking the word alone (:func:`data_synth.speech.phone_segments`), scaled into GRID's span.
+  speaking the word alone (``tools/espeak_word_phones.py``), scaled into GRID's span.
   espeak's silence before and after the word is dropped (before a word-initial stop it is the
   closure, which after a pause is silent in the recording too, so GRID's word starts at the
   release); a phone espeak reports with no duration of its own (the final /l/ of the letter
@@ -27,7 +27,7 @@ An ``.align`` whose entries end more than :data:`COVER_TOLERANCE_S` before the a
 with a word running past the end of the audio, is refused naming the file.
 
 Written: ``grid/<id>.align`` (from ``--align-dir``, default: the copies already in the set),
-``grid/<id>.csv``, ``grid/NOTICE.md`` and the manifest's ``grid_s1`` rows (replaced; the other
+``grid/<id>.csv``, ``grid/NOTICE.md`` and the manifest's ``grid-s1`` rows (replaced; the other
 rows are kept as they are). ``--check`` writes nothing: it regenerates every file in memory and
 exits 1 naming each that differs. ``--measure`` prints the labels' quality figures (the
 README's): /p b m/ segments against the real lips' closed level, and viseme agreement per
@@ -46,29 +46,23 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:
-    sys.path.insert(0, str(REPO))
+for _p in (REPO, REPO / "tools"):
+    if str(_p) not in sys.path:
+        sys.path.insert(0, str(_p))
 
-from analysis.face_eval import closure_threshold  # noqa: E402
-from analysis.speech_eval import (VOWELS, phone_frames, segment_contact,  # noqa: E402
-                                  viseme_index)
 from analysis.speech_set import (GRID_WORDS, MANIFEST, SET_DIR, read_labels,  # noqa: E402
                                  write_labels)
-from data_synth.espeak import EspeakBackend  # noqa: E402
-from data_synth.speech import SynthRequest, phone_segments  # noqa: E402
-from face_model.alignment import align_markers  # noqa: E402
+from espeak_word_phones import scale_into, word_phones  # noqa: E402,F401 (word_phones: API)
 from face_model.corpus import PhoneSegment, read_phones  # noqa: E402
 from face_model.forced_align import tidy_segments  # noqa: E402
-from face_model.layout import mouth_opening  # noqa: E402
-from face_model.phones import BILABIALS, PHONE_INDEX  # noqa: E402
 from face_model.transcripts import read_align  # noqa: E402
 from groundwork.audio import read_wav  # noqa: E402
-from groundwork.errors import CorpusError, ParameterError  # noqa: E402
+from groundwork.errors import CorpusError  # noqa: E402
 
 BUILTIN = REPO / "face_model" / "real_faces" / "grid-s1"
 STEP = 5  # every 5th sentence of the built-in corpus, in sorted id order
 SUBDIR = "grid"
-SPEAKER = "grid_s1"
+SPEAKER = "grid-s1"  # the built-in real corpus's speaker id
 COVER_TOLERANCE_S = 0.04  # one GRID video frame (25 fps): how far short of the audio it may end
 FPS = 30
 LICENCE = ("GRID corpus (Cooke, Barker, Cunningham & Shao 2006), CC BY 4.0 "
@@ -101,43 +95,6 @@ def subset_ids(corpus_dir=BUILTIN) -> list[str]:
     return ids[::STEP]
 
 
-def _word_phones(word: str, result, backend) -> list[tuple[str, float]]:
-    """``[(phone, seconds)]`` of one word spoken alone, silence handled as the module says."""
-    segs = phone_segments(result, backend, text=word, lead_samples=0,
-                          total_samples=len(result.audio))
-    while segs and segs[0].phone == "sil":
-        segs = segs[1:]
-    while segs and segs[-1].phone == "sil":
-        segs = segs[:-1]
-    if not segs or any(s.phone == "sil" for s in segs):
-        raise ParameterError(f"espeak-ng spoke {word!r} as {[s.phone for s in segs]}; a word "
-                             "needs phones and no pause inside")
-    timed = [[s.phone, s.end_s - s.start_s] for s in segs]
-    spoken = [p for p in (backend.to_class(ph.mnemonic, text=word) for ph in result.phones)
-              if p != "sil"]
-    out, k = [], 0
-    for phone in spoken:  # the phones espeak names, some without a duration of their own
-        if k < len(timed) and timed[k][0] == phone:
-            out.append(timed[k])
-            k += 1
-        elif out:
-            out[-1][1] /= 2
-            out.append([phone, out[-1][1]])
-        else:
-            raise ParameterError(f"espeak-ng gave the first phone of {word!r} no duration")
-    assert k == len(timed), (word, spoken, timed)
-    return [(p, d) for p, d in out]
-
-
-def word_phones(words, *, workers: int | None = None) -> dict[str, list[tuple[str, float]]]:
-    """Each word's espeak-ng phones and durations (s), the word spoken alone, default voice."""
-    words = sorted(set(words))
-    backend = EspeakBackend()
-    results = backend.synthesize_many([SynthRequest(text=w) for w in words],
-                                      workers=workers or min(8, os.cpu_count() or 1))
-    return {w: _word_phones(w, r, backend) for w, r in zip(words, results)}
-
-
 def sentence_labels(align_path, duration_s: float, phones: dict) -> list[PhoneSegment]:
     """Contiguous phone segments over ``[0, duration_s]`` from GRID's words and ``phones``.
 
@@ -158,10 +115,7 @@ def sentence_labels(align_path, duration_s: float, phones: dict) -> list[PhoneSe
         if end > duration_s + 1e-9:
             raise CorpusError(f"{align_path}: the word {word!r} ends at {end:.3f} s, after "
                               f"the audio ({duration_s:.3f} s)")
-        parts = phones[word]
-        cum = np.concatenate([[0.0], np.cumsum([d for _, d in parts])])
-        bounds = start + (end - start) * cum / cum[-1]
-        segs += [(bounds[i], bounds[i + 1], p) for i, (p, _) in enumerate(parts)]
+        segs += scale_into(phones[word], start, end)
     out = tidy_segments(segs, duration_s)
     if sum(s.phone != "sil" for s in out) != len(segs):
         raise CorpusError(f"{align_path}: a phone shorter than 0.1 ms after scaling")
@@ -185,7 +139,7 @@ def manifest_rows(set_dir, ids, aligns: dict) -> list[dict]:
         wav = os.path.relpath(BUILTIN / "audio" / f"{utt}.flac", set_dir)
         rows.append({"id": f"grid_s1_{utt}", "wav": Path(wav).as_posix(),
                      "labels": f"{SUBDIR}/{utt}.csv", "speaker": SPEAKER,
-                     "speaker_source": SPEAKER, "label_source": GRID_WORDS,
+                     "label_source": GRID_WORDS,
                      "label_origin": f"{SUBDIR}/{utt}.align", "part": "test",
                      "transcript": read_align(aligns[utt]).text, "licence": LICENCE})
     return rows
@@ -195,11 +149,14 @@ def _manifest_bytes(set_dir: Path, grid_rows: list[dict]) -> bytes:
     with open(set_dir / MANIFEST, newline="", encoding="utf-8") as f:
         reader = csv.DictReader(f)
         columns = reader.fieldnames
-        rows = [r for r in reader if r["speaker_source"] != SPEAKER]
+        rows = list(reader)
+    ours = [i for i, r in enumerate(rows) if r["speaker"] == SPEAKER]
+    at = ours[0] if ours else len(rows)  # in place of the old rows, else at the end
+    rows = rows[:at] + grid_rows + [r for r in rows[at:] if r["speaker"] != SPEAKER]
     buf = io.StringIO()
     w = csv.DictWriter(buf, columns, lineterminator="\n")
     w.writeheader()
-    w.writerows(rows + grid_rows)
+    w.writerows(rows)
     return buf.getvalue().encode("utf-8")
 
 
@@ -248,6 +205,13 @@ def measure(set_dir=SET_DIR) -> dict:
     when the opening interpolated at the segment's centre is. Visemes per 30 fps frame
     (frame k at k/30 s): agreement over all frames and over frames where either set has speech.
     """
+    # the measurement's own imports: building and checking the labels need none of them
+    from analysis.face_eval import closure_threshold
+    from analysis.speech_eval import VOWELS, phone_frames, segment_contact, viseme_index
+    from face_model.alignment import align_markers
+    from face_model.layout import mouth_opening
+    from face_model.phones import BILABIALS, PHONE_INDEX
+
     set_dir = Path(set_dir)
     acc = {k: [] for k in ("grid_bil", "ps_bil", "grid_bil_c", "ps_bil_c", "grid_vow", "ps_vow",
                            "vis_all", "vis_speech", "ph_all", "ph_speech")}

@@ -37,7 +37,7 @@ from talkingface.stages.ceiling import PAPER_TEST_R, ceiling_figure
 TEXT_WIDTH_IN = 17 / 2.54
 LONG_SENTENCE = ("He turned sharply, and faced Gregson across the table, and then he said "
                  "nothing more for a long while.")  # a title wider than the page: wrapped
-LONG_TITLE = f"gated_mlp_utterance on slt_a0009 (arctic_slt, unseen): \"{LONG_SENTENCE}\""
+LONG_TITLE = f"gated_mlp_utterance on slt_a0009 (arctic-slt, unseen): \"{LONG_SENTENCE}\""
 PHONE_SEGMENTS = [(0.0, 0.2, "sil"), *[(0.2 + 0.07 * i, 0.27 + 0.07 * i, p)
                                        for i, p in enumerate(PHONES[:30])], (2.3, 2.5, "sil")]
 

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from analysis.speech_set import (GRID_WORDS, INDEPENDENT_SOURCES, SET_DIR, load_speech_set,
-                                 read_manifest)
+from analysis.speech_set import (ALIGNED, FSDD_WORDS, GRID_WORDS, INDEPENDENT_SOURCES, SET_DIR,
+                                 load_speech_set, read_manifest)
 from face_model.transcripts import read_align
 from groundwork.errors import CorpusError
 
@@ -69,12 +69,15 @@ def test_the_labels_keep_grids_word_boundaries_with_espeaks_phones(grid_items):
 
 def test_only_labels_made_without_a_recogniser_are_independent():
     items = load_speech_set()
-    assert INDEPENDENT_SOURCES == {"hts", "textgrid", GRID_WORDS}
+    assert INDEPENDENT_SOURCES == {"hts", "textgrid", GRID_WORDS, FSDD_WORDS}
+    assert ALIGNED not in INDEPENDENT_SOURCES
     for it in items:
-        assert it.independent == (it.label_source in ("hts", "textgrid", GRID_WORDS)), it.id
-    assert {it.id for it in items if it.independent and it.label_source != GRID_WORDS} == {
-        "slt_a0009", "praatio_bobby"}
-    assert sum(it.independent for it in items) == 42
+        assert it.independent == (it.label_source in ("hts", "textgrid", GRID_WORDS,
+                                                      FSDD_WORDS)), it.id
+    assert {it.id for it in items if it.independent
+            and it.label_source not in (GRID_WORDS, FSDD_WORDS)} == {"slt_a0009", "praatio_bobby"}
+    assert sum(it.label_source == GRID_WORDS for it in items) == 40
+    assert {it.speaker for it in items if it.label_source == GRID_WORDS} == {"grid-s1"}
 
 
 def test_a_word_alignment_that_stops_short_of_the_audio_is_refused(tmp_path):
@@ -92,9 +95,9 @@ def test_a_label_file_that_stops_short_of_the_flac_is_refused_naming_it(tmp_path
     flac = (SET_DIR / row["wav"]).resolve()
     labels = tmp_path / "short.csv"
     labels.write_text("start_s,end_s,phone\n0,1.5,sil\n")
-    head = "id,wav,labels,speaker,speaker_source,label_source,label_origin,transcript,licence\n"
+    head = "id,wav,labels,speaker,label_source,label_origin,transcript,licence\n"
     (tmp_path / "manifest.csv").write_text(
-        head + f"x,{flac},short.csv,s,s,{GRID_WORDS},,bin blue,CC BY 4.0\n")
+        head + f"x,{flac},short.csv,grid-s1,{GRID_WORDS},,bin blue,CC BY 4.0\n")
     with pytest.raises(CorpusError, match=r"short\.csv: the last phone ends at 1\.5000 s but "
                        r"the audio lasts 2\.9667 s"):
         load_speech_set(tmp_path)

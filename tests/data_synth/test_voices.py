@@ -185,7 +185,7 @@ def test_multi_voice_corpus(tmp_path):
         assert next(csv.reader(f))[-1] == "voice"
     info = json.loads((out / "corpus.json").read_text())
     assert {v["voice"]: v["source_speaker"] for v in info["voices"]} == {
-        "espeak:en-us+f3": "espeak", "festival:kal_diphone": "kal"}
+        "espeak:en-us+f3": "espeak", "festival:kal_diphone": "festvox-kal"}
     assert info["settings"]["voices"] == list(MULTI)
     assert all(u.sample_rate == SR and len(u.audio) == 735 * u.n_frames
                for u in corpus.utterances)
@@ -260,10 +260,11 @@ def test_missing_festival_voice_names_its_package(monkeypatch):
 
 def test_voice_speakers_name_the_real_speaker():
     speakers = voice_speakers()
-    assert speakers["flite:slt"] == speakers["festival:cmu_us_slt_arctic_hts"] == "arctic_slt"
-    assert speakers["flite:awb"] == "arctic_awb" and speakers["flite:rms"] == "arctic_rms"
-    assert speakers["flite:kal"] == speakers["festival:kal_diphone"] == "kal"
-    assert speakers["festival:ked_diphone"] == "ked" and speakers["espeak:en-us"] == "espeak"
-    assert set(speakers.values()) == {"arctic_slt", "arctic_awb", "arctic_rms", "kal", "ked",
-                                      "espeak"}
+    assert speakers["flite:slt"] == speakers["festival:cmu_us_slt_arctic_hts"] == "arctic-slt"
+    assert speakers["flite:awb"] == "arctic-awb" and speakers["flite:rms"] == "arctic-rms"
+    assert speakers["flite:kal"] == speakers["festival:kal_diphone"] == "festvox-kal"
+    assert speakers["festival:ked_diphone"] == "festvox-ked"
+    assert speakers["espeak:en-us"] == "espeak"
+    assert set(speakers.values()) == {"arctic-slt", "arctic-awb", "arctic-rms", "festvox-kal",
+                                      "festvox-ked", "espeak"}
     assert voice_speaker("espeak:en-gb-scotland+f3") == "espeak"

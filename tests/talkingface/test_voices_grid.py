@@ -43,7 +43,7 @@ def test_the_project_grid_holds_the_issue_configurations():
     from data_synth.backends import voice_speaker
 
     sources = {voice_speaker(v) for v in children[model].synth.voices}
-    assert "arctic_slt" not in sources
+    assert "arctic-slt" not in sources
 
 
 @pytest.mark.parametrize("model, extra, names", [
