@@ -21,8 +21,10 @@ import numpy as np
 from matplotlib.lines import Line2D
 
 from analysis import figures
+from analysis.config import TARGET_TEXT, TargetsConfig
 from analysis.report import escape
 from face_model.layout import LEFT_INNER_CORNER, LEFT_OUTER_CORNER, LOWER_INNER, default_layout
+from mapping.peers import OCULUS_TABLE, ULIPSYNC_TABLE, peer_versions
 
 STAGE = "real_speaker"
 METHOD = "gated_mlp"  # the paper's mapping, shown in the Tables I-II comparison
@@ -42,7 +44,11 @@ GRID_ATTRIBUTION = ("GRID corpus: M. Cooke, J. Barker, S. Cunningham, X. Shao (2
                     "recognition, JASA 120(5):2421–2424; Zenodo 3625687; CC BY 4.0")
 SCORE_ROWS = (("speaker_model", "speaker-trained model"),
               ("synthetic_model", "synthetic-trained default model"),
-              ("loudness", "loudness envelope (floor)"))
+              ("loudness", "loudness envelope (peer)"),
+              ("openfacefx-text", "openfacefx, transcript (peer)"),
+              ("openfacefx-energy", "openfacefx, loudness (peer)"),
+              ("pylipsync", "pylipsync (peer)"))
+PEER_ROWS = SCORE_ROWS[2:]
 
 
 def num(v) -> float:
@@ -187,31 +193,43 @@ def frame_strip_figure(strip_npz, path, *, width: float = 1.0) -> Path:
     return Path(path)
 
 
-def target_checks(summary: dict) -> list[dict]:
-    """The targets of ``summary["targets"]`` each checked against the face scores.
+def _pooled(summary: dict, key: str) -> dict:
+    return ((summary.get("face_scores") or {}).get(key) or {}).get("pooled") or {}
+
+
+def target_checks(summary: dict, targets: TargetsConfig = TargetsConfig()) -> list[dict]:
+    """The real-face targets of ``targets`` each checked against the stage's scores.
 
     Returns
     -------
     list of dict
-        ``model`` (a key of :data:`SCORE_ROWS`), ``what`` (``r`` or ``closures``), ``target``,
-        ``value`` (pooled r, or the fraction of real closures agreed; NaN when absent) and
-        ``verdict``: ``met`` (value ≥ target), ``not met``, or ``not measured``.
+        ``model`` (a key of :data:`SCORE_ROWS`), ``what`` (``r``, ``closures`` or ``rate``),
+        ``key`` (the field of :class:`analysis.config.TargetsConfig`), ``target``, ``value``
+        (speech-frame r; the share of /p b m/ segments closed; for ``rate`` the drop of the
+        speech-frame r from the corpus's rate to 16 kHz; NaN when absent) and ``verdict``:
+        ``met``, ``not met`` or ``not measured``.
     """
-    targets = summary.get("targets") or {}
-    scores = summary.get("face_scores") or {}
+    rates = summary.get("rates") or {}
+    native = str(summary.get("input_rate", ""))
     out = []
-    for key, model, what, field in (("speaker_r", "speaker_model", "r", "r_pooled"),
-                                    ("synthetic_r", "synthetic_model", "r", "r_pooled"),
-                                    ("synthetic_closures", "synthetic_model", "closures",
-                                     "closure_agreed_frac")):
-        target = num(targets.get(key))
-        if math.isnan(target):
-            continue
-        value = num(((scores.get(model) or {}).get("pooled") or {}).get(field))
-        verdict = ("not measured" if math.isnan(value) else
-                   "met" if value >= target else "not met")
-        out.append({"model": model, "what": what, "target": target, "value": value,
-                    "verdict": verdict})
+    for key, model, what, value in (
+            ("face_speaker_r", "speaker_model", "r",
+             _pooled(summary, "speaker_model").get("r_speech")),
+            ("face_synthetic_r", "synthetic_model", "r",
+             _pooled(summary, "synthetic_model").get("r_speech")),
+            ("face_closures", "synthetic_model", "closures",
+             _pooled(summary, "synthetic_model").get("closure_rate"))):
+        out.append({"model": model, "what": what, "key": key, "target": getattr(targets, key),
+                    "value": num(value)})
+    for model in ("speaker_model", "synthetic_model"):
+        a = num(((rates.get(native) or {}).get(model) or {}).get("r_speech"))
+        b = num(((rates.get("16000") or {}).get(model) or {}).get("r_speech"))
+        out.append({"model": model, "what": "rate", "key": "rate_tolerance",
+                    "target": targets.rate_tolerance, "value": a - b})
+    for c in out:
+        v = c["value"]
+        ok = v <= c["target"] if c["what"] == "rate" else v >= c["target"]
+        c["verdict"] = "not measured" if math.isnan(v) else "met" if ok else "not met"
     return out
 
 
@@ -225,24 +243,76 @@ def _models_text(models: dict) -> str:
 def _check_text(c: dict) -> str:
     if c["what"] == "r":
         return f"r ≥ {c['target']:.2f}: {c['verdict']}"
-    return f"closures ≥ {100 * c['target']:.0f} %: {c['verdict']}"
+    if c["what"] == "closures":
+        return f"closures ≥ {100 * c['target']:.0f} %: {c['verdict']}"
+    return f"drop ≤ {c['target']:.2f}: {c['verdict']}"
 
 
-def _face_rows(summary: dict) -> list[list]:
-    scores = summary.get("face_scores") or {}
-    checks = target_checks(summary)
+def _with_chance(v, chance, digits: int = 3, percent: bool = False) -> str:
+    f = (lambda x: pct(x, 0)) if percent else (lambda x: fmt(x, digits))
+    return "–" if math.isnan(num(v)) else f"{f(v)} ({f(chance)})"
+
+
+def _face_rows(summary: dict, targets: TargetsConfig) -> list[list]:
+    checks = target_checks(summary, targets)
     rows = []
     for key, label in SCORE_ROWS:
-        p = (scores.get(key) or {}).get("pooled") or {}
-        k, n = p.get("closures_agreed"), p.get("closure_events")
-        agreed = (f"{int(num(k))}/{int(num(n))} ({pct(p.get('closure_agreed_frac'), 0)})"
-                  if not (math.isnan(num(k)) or math.isnan(num(n))) else "–")
-        false = pct(p.get("false_closure_frac"), 1)
+        p = _pooled(summary, key)
+        k, n = num(p.get("closures_hit")), num(p.get("bilabial_segments"))
+        rate = _with_chance(p.get("closure_rate"), p.get("chance_closure_rate"), percent=True)
+        closed = "–" if math.isnan(k) or math.isnan(n) else f"{int(k)}/{int(n)} {rate}"
         lve = fmt(p.get("lve_px"), 2) if key == "speaker_model" else "–"
-        target = "; ".join(_check_text(c) for c in checks if c["model"] == key)
-        rows.append([label, fmt(p.get("r_pooled")), fmt(p.get("r_clip_median")), agreed,
-                     false, lve, target or ("floor" if key == "loudness" else "–")])
+        target = "; ".join(_check_text(c) for c in checks if c["model"] == key
+                           and c["what"] != "rate")
+        rows.append([label, _with_chance(p.get("r_speech"), p.get("chance_r_speech")),
+                     _with_chance(p.get("r_silence"), p.get("chance_r_silence")),
+                     fmt(p.get("r_clip_median")), closed,
+                     _with_chance(p.get("false_closure_rate"),
+                                  p.get("chance_false_closure_rate"), percent=True),
+                     lve, target or "–"])
     return rows
+
+
+def _rate_rows(summary: dict, targets: TargetsConfig) -> tuple[list, list]:
+    rates = summary.get("rates") or {}
+    order = sorted(rates, key=lambda r: -num(r))
+    checks = {c["model"]: c for c in target_checks(summary, targets) if c["what"] == "rate"}
+    rows = []
+    for key, label in SCORE_ROWS[:2]:
+        cells = [fmt(((rates.get(r) or {}).get(key) or {}).get("r_speech")) for r in order]
+        c = checks.get(key)
+        rows.append([label, *cells, fmt(c["value"]) if c else "–",
+                     _check_text(c) if c else "–"])
+    return rows, order
+
+
+def _peer_sentences(summary: dict) -> list[str]:
+    """Plain sentences where the default does not beat a peer (r, closures, false closures)."""
+    d = _pooled(summary, "synthetic_model")
+    out = []
+    for key, label in PEER_ROWS:
+        p = _pooled(summary, key)
+        name = label.replace(" (peer)", "")
+        for field, what, better in (("r_speech", "speech-frame r", 1),
+                                    ("closure_rate", "share of /p b m/ closed", 1),
+                                    ("false_closure_rate", "false-closure rate", -1)):
+            a, b = num(d.get(field)), num(p.get(field))
+            if math.isnan(a) or math.isnan(b) or better * (a - b) > 0:
+                continue
+            fig = (lambda x: fmt(x)) if field == "r_speech" else (lambda x: pct(x, 0))
+            if field == "false_closure_rate":
+                text = (f"its {what} ({fig(a)}) is above that of the {name} ({fig(b)})"
+                        if a > b else f"its {what} equals that of the {name} ({fig(a)})")
+            else:
+                gap = fmt(b - a) if field == "r_speech" else pct(b - a, 0)
+                text = (f"its {what} ({fig(a)}) is below the {name}'s ({fig(b)}) by {gap}"
+                        if b > a else f"its {what} equals the {name}'s ({fig(a)})")
+            out.append(text)
+    return out
+
+
+def _mapping_rows(table: dict) -> list[list]:
+    return [[escape(ch), f"{o:.2f}", escape(v)] for ch, (o, v) in table.items()]
 
 
 def _rows_by(rows: list, method: str = METHOD) -> dict:
@@ -295,10 +365,13 @@ def _corpus_paragraph(rep, summary: dict) -> None:
     rep.paragraph(
         f"The pipeline run again on a real speaker: {escape(c.get('speaker', '?'))}, "
         f"{escape(c.get('utterances', '?'))} utterances ({escape(c.get('frames', '?'))} frames "
-        f"at 30 fps) whose video became the 79 markers of the layout through MediaPipe face "
-        f"landmarks, aligned by the glasses markers; {escape(refused)} clips "
-        "were refused by the import. Motion Units were fitted and the mapping trained on this "
-        "corpus alone (a nested run), and scored on its held-out sentences. "
+        f"at {escape(c.get('fps', FPS))} fps) whose video became the 79 markers of the layout "
+        f"through MediaPipe face landmarks, aligned by the glasses markers; {escape(refused)} clips "
+        "were refused by the import. Motion Units and the neutral face were fitted on "
+        + ("the training sentences only" if num((summary.get("units") or {}).get("held_out")) > 0
+           else "the whole corpus, held-out sentences included")
+        + " and the mapping trained on the training sentences (a nested run), and scored "
+        "on the held-out sentences. "
         f"Source: {escape(c.get('source', 'not given'))}. "
         f"Licence: {escape(str(c.get('licence') or 'not given').rstrip('.'))}."
         + (f" {escape(GRID_ATTRIBUTION)}." if grid else ""))
@@ -328,7 +401,8 @@ def _figure(rep, draw, src: Path, out: Path, caption: str, what: str, key: str) 
     rep.figure(draw(src, out), caption, key=key)
 
 
-def real_speaker_section(rep, stage_dir, figs_dir) -> None:
+def real_speaker_section(rep, stage_dir, figs_dir,
+                         targets: TargetsConfig = TargetsConfig()) -> None:
     """Add the section "A real speaker (GRID s1)" from the ``real_speaker`` stage's folder.
 
     Parameters
@@ -339,12 +413,16 @@ def real_speaker_section(rep, stage_dir, figs_dir) -> None:
         The stage's folder: ``summary.json``, ``strip.npz``, ``units.npz`` (module docstring).
     figs_dir : path-like
         Where the two figures are drawn (``real_units.png``, ``real_strip.png``).
+    targets : analysis.config.TargetsConfig
+        The run's targets (``face_speaker_r``, ``face_synthetic_r``, ``face_closures``,
+        ``rate_tolerance`` are quoted and checked).
 
     Notes
     -----
     Keys for a findings page: section ``real_speaker``; tables ``real_tables`` (Tables I–II,
-    real vs synthetic vs the paper), ``real_lips`` and ``real_face_scores``; figures
-    ``real_units`` and ``real_strip``. Anything absent is said in a sentence.
+    real vs synthetic vs the paper), ``real_lips``, ``real_face_scores``, ``real_rates``,
+    ``real_peer_oculus`` and ``real_peer_ulipsync``; figures ``real_units`` and ``real_strip``.
+    Anything absent is said in a sentence.
     """
     stage_dir, figs_dir = Path(stage_dir), Path(figs_dir)
     rep.heading("A real speaker (GRID s1)", stage=STAGE, key="real_speaker")
@@ -358,6 +436,9 @@ def real_speaker_section(rep, stage_dir, figs_dir) -> None:
     if summary.get("note"):
         rep.paragraph(escape(summary["note"]))
     _units_paragraph(rep, summary)
+    if (stage_dir / "units.npz").is_file():
+        rep.paragraph("{label:real_units} draws the first utterance MUs on the speaker's "
+                      "neutral face.")
     _figure(rep, mu_figure, stage_dir / "units.npz", figs_dir / "real_units.png",
             f"The first {N_MUS_SHOWN} utterance MUs of the real speaker on the speaker's "
             "neutral face (aligned frame): each MU times a typical size of its MUP on "
@@ -365,6 +446,12 @@ def real_speaker_section(rep, stage_dir, figs_dir) -> None:
             "mesh of the layout; all arrows are lengthened by one factor (in the legend) and "
             "each title gives the largest true displacement.", "Motion Unit figure", "real_units")
     tables = _tables_rows(summary)
+    lips = _lip_rows(summary)
+    if tables or lips:
+        rep.paragraph(" ".join(t for t, ok in (
+            ("{label:real_tables} sets Tables I–II on the real speaker beside this run's "
+             "synthetic corpus and the paper.", tables),
+            ("{label:real_lips} gives the lip metrics on the testing set.", lips)) if ok))
     if tables:
         header = ["split", "part"]
         for m in ("R", "ν<sub>d</sub>", "ν<sub>d</sub>′", "MSE"):
@@ -377,7 +464,6 @@ def real_speaker_section(rep, stage_dir, figs_dir) -> None:
                        "of the sentences, none on both sides.", key="real_tables")
     else:
         rep.paragraph(f"No Tables I–II rows of {METHOD} in the stage's summary.")
-    lips = _lip_rows(summary)
     if lips:
         rep.table(f"Lips on the testing set: {METHOD}, real corpus vs synthetic corpus",
                   ["split", "LVE real (px)", "LVE synth. (px)", "R lips real",
@@ -388,30 +474,83 @@ def real_speaker_section(rep, stage_dir, figs_dir) -> None:
                        "lips meet in the estimate.", key="real_lips")
     else:
         rep.paragraph("No lip metrics (LVE, R lips, closure) in the stage's summary.")
-    scores = summary.get("face_scores") or {}
-    if scores:
-        pooled = next(((v or {}).get("pooled") or {} for v in scores.values() if v), {})
-        clips = pooled.get("clips", len(summary.get("test_utterances") or []))
-        rep.paragraph(
-            f"Scored on {escape(clips)} held-out sentences ({escape(pooled.get('frames', '?'))} "
-            "frames) "
-            "with analysis.face_eval: each model's inner-lip opening against the real one, "
-            "both normalised per speaker; pooled r over all frames, the median r per clip, the "
-            "real closures (runs of at least two frames at the speaker's closed level) the "
-            "prediction agrees with, and its false closures. The loudness envelope, which knows "
-            "no phones, is the floor.")
-        rep.table("Lips against the real face on the held-out sentences",
-                  ["model", "pooled r", "median r per clip", "closures agreed",
-                   "false closures", "LVE (px)", "target"], _face_rows(summary),
-                  note="Target: the project's aims for each model (summary.json), met when the "
-                       "pooled r (or the share of real closures agreed) shown reaches it. LVE "
-                       "only for the model trained on this speaker (aligned pixels). "
-                       + _models_text(summary.get("models") or {}),
-                  key="real_face_scores")
-    else:
-        rep.paragraph("No face scores in the stage's summary.")
+    _face_scores(rep, summary, targets, (stage_dir / "strip.npz").is_file())
     _figure(rep, frame_strip_figure, stage_dir / "strip.npz", figs_dir / "real_strip.png",
             "A held-out sentence: the lips (outer and inner contours) of the real face "
             "(black), the speaker-trained prediction (blue) and the synthetic-trained one "
-            "(red) at evenly spread frames, and the three normalised openings over time with "
-            "those frames marked.", "frame strip", "real_strip")
+            "(red) at evenly spread frames, and the three openings over time (z on the "
+            "sentence's speech frames) with those frames marked.", "frame strip", "real_strip")
+
+
+def _no_interval(p: dict) -> str:
+    text = str(p.get("interval_r_speech") or "not given")
+    return text.strip("()").replace("no interval: ", "")
+
+
+def _face_scores(rep, summary: dict, targets: TargetsConfig, has_strip: bool) -> None:
+    """The lip scores on the real face: models and peers, rates, the peers' tables."""
+    scores = summary.get("face_scores") or {}
+    if not scores:
+        rep.paragraph("No face scores in the stage's summary.")
+        return
+    p = next((_pooled(summary, k) for k, _ in SCORE_ROWS if _pooled(summary, k)), {})
+    rate = escape(summary.get("input_rate", "?"))
+    rule = next(((v or {}).get("rule") or {} for v in scores.values() if v), {})
+    speech = ("speech frames (phones other than silence)" if p.get("speech_known", True)
+              else "all valid frames (no phones: speech frames unknown)")
+    strip = " {label:real_strip} shows one held-out sentence." if has_strip else ""
+    rep.paragraph(
+        f"{{label:real_face_scores}} scores every model and peer on {escape(p.get('clips', '?'))} "
+        f"held-out sentences of {escape(p.get('speakers', '?'))} speaker "
+        f"({escape(p.get('speech_frames', '?'))} speech and "
+        f"{escape(p.get('silence_frames', '?'))} silence frames; "
+        f"{escape(p.get('excluded_frames', '?'))} frames without a detected face excluded), "
+        f"audio at {rate} Hz, with analysis.face_eval: r of the inner-lip opening, each clip "
+        f"z-scored on its own frames, over the {speech}, silence apart; a /p b m/ segment or "
+        f"a control (non-bilabial speech phone) segment counts as closed when, within "
+        f"{escape(rule.get('half_window_s', '?'))} s of its centre, the opening falls within "
+        f"{escape(rule.get('close_fraction', '?'))} of its speech-frame range above its "
+        f"speech-frame minimum (the same rule for the real lips: they close "
+        f"{pct(p.get('real_closed_rate'), 0)} of the /p b m/ segments and "
+        f"{pct(p.get('real_false_closure_rate'), 0)} of the controls). In brackets, chance: "
+        "the same prediction circularly shifted by a third and two thirds of its clip. "
+        f"No interval: {escape(_no_interval(p))}."
+        + strip)
+    sentences = _peer_sentences(summary)
+    if sentences:
+        rep.paragraph("The synthetic-trained default does not beat every peer: "
+                      + "; ".join(sentences) + ".")
+    rep.table(f"Lips against the real face on the held-out sentences, input {rate} Hz",
+              ["model", "r speech (chance)", "r silence (chance)", "median r per clip",
+               "/p b m/ closed (chance)", "false closures (chance)", "LVE (px)", "target"],
+              _face_rows(summary, targets),
+              note="Targets quoted from the run's targets: "
+                   + "; ".join(f"{k} {getattr(targets, k):g} ({escape(TARGET_TEXT[k])})"
+                               for k in ("face_speaker_r", "face_synthetic_r", "face_closures"))
+                   + ". LVE only for the model trained on this speaker (aligned pixels). "
+                   + _models_text(summary.get("models") or {}), key="real_face_scores")
+    rows, order = _rate_rows(summary, targets)
+    if len(order) > 1:
+        rep.paragraph(f"{{label:real_rates}} gives the two models' speech-frame r with the same "
+                      "audio resampled to each rate (the models hear it at that rate), and the "
+                      f"drop from {escape(order[0])} Hz to 16000 Hz against the target "
+                      f"rate_tolerance {targets.rate_tolerance:g}.")
+        rep.table("Speech-frame r by input rate",
+                  ["model", *[f"{escape(r)} Hz" for r in order], "drop to 16 kHz", "target"],
+                  rows, note=escape(TARGET_TEXT["rate_tolerance"]) + ".", key="real_rates")
+    peers = summary.get("peers") or {}
+    versions = peers.get("versions") or peer_versions()
+    rep.paragraph(
+        "The peers give no opening in pixels: each channel maps to an opening and a viseme by "
+        "one table fixed a priori (mapping.peers): {label:real_peer_oculus} for openfacefx "
+        f"{escape(versions.get('openfacefx') or 'not installed')}, {{label:real_peer_ulipsync}} "
+        f"for pylipsync {escape(versions.get('pylipsync') or 'not installed')}. openfacefx's "
+        f"transcript mode was given the "
+        f"{escape(peers.get('openfacefx_text_words', 'transcript'))}. The loudness envelope is "
+        "dB of the RMS in 40 ms windows.")
+    rep.table("openfacefx (Oculus-15 channels): opening and viseme of each channel",
+              ["channel", "opening", "viseme"], _mapping_rows(OCULUS_TABLE),
+              key="real_peer_oculus")
+    rep.table("pylipsync (uLipSync templates): opening and viseme of each channel",
+              ["channel", "opening", "viseme"], _mapping_rows(ULIPSYNC_TABLE),
+              key="real_peer_ulipsync")

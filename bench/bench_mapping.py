@@ -31,14 +31,15 @@ def main() -> None:
     train_times, infer_times = [], []
     for _ in range(args.repeat):
         t0 = time.perf_counter()
-        data = build_dataset(corpus, units, n_mfcc=m.n_mfcc, deltas=m.deltas)
+        data = build_dataset(corpus, units, n_mfcc=m.n_mfcc, deltas=m.deltas,
+                             mel_fmax_hz=m.mel_fmax_hz)
         masks = split_masks(data, "random_frames", train_fraction=m.train_fraction, seed=cfg.seed)
         mapper = make_mapper("gated_mlp", m, n_utterance=units.n_utterance,
                              random_state=cfg.seed).fit(data, masks)
         train_times.append(time.perf_counter() - t0)
         model = AudioMapping(mapper, sample_rate=corpus.utterances[0].sample_rate,
                              n_mfcc=m.n_mfcc, deltas=m.deltas, n_utterance=units.n_utterance,
-                             rest_mups=rest_mups(units))
+                             rest_mups=rest_mups(units), mel_fmax_hz=m.mel_fmax_hz)
         t0 = time.perf_counter()
         for u in corpus.utterances:
             model.predict_audio(u.audio, u.sample_rate, u.expression)

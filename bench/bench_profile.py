@@ -121,7 +121,8 @@ def main() -> None:
         corpus = load_corpus(Path(tmp) / "corpus")
         units, _ = fit_corpus_units(corpus)
         t0 = time.perf_counter()
-        data = build_dataset(corpus, units, n_mfcc=cfg.mapping.n_mfcc)
+        data = build_dataset(corpus, units, n_mfcc=cfg.mapping.n_mfcc,
+                             mel_fmax_hz=cfg.mapping.mel_fmax_hz)
         feature_s = time.perf_counter() - t0
     t0 = time.perf_counter()
     with record_fits() as fits:

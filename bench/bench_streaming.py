@@ -198,7 +198,7 @@ def main() -> None:
         context = (phones.context_back, phones.context_forward)
         data = build_dataset(corpus, units, recognise_context=(
             context if any(c.mlp_input == "phones" for c in configs.values()) else None),
-            window_align=cfg.mapping.window_align)
+            window_align=cfg.mapping.window_align, mel_fmax_hz=cfg.mapping.mel_fmax_hz)
         masks = split_masks(data, "utterance", seed=cfg.seed)
         sr = corpus.utterances[0].sample_rate
         anims = {}
@@ -208,7 +208,8 @@ def main() -> None:
             anims[mode] = FaceAnimator(AudioMapping(mapper, sample_rate=sr,
                                                     n_utterance=units.n_utterance,
                                                     rest_mups=rest_mups(units),
-                                                    window_align=mcfg.window_align), units)
+                                                    window_align=mcfg.window_align,
+                                                    mel_fmax_hz=mcfg.mel_fmax_hz), units)
         test = [u for u, m in zip(corpus.utterances, masks) if not m.any()][:20]
         costs = stream_costs(anims, test, args.repeat)
         anim = anims[next(iter(configs))]

@@ -105,7 +105,8 @@ class StreamFrame:
 class StreamingAnimator:
     """Chunked, causal animation with the mapping's look-ahead (see the module docstring).
 
-    Audio must arrive at the mapping's sample rate (resample beforehand). Frame models only
+    Audio must arrive at the mapping's sample rate (resample beforehand); its MFCC read the
+    mapping's band (``mel_fmax_hz``), as offline. Frame models only
     (the gated MLP and the frame baselines); features without deltas.
     """
 
@@ -175,7 +176,8 @@ class StreamingAnimator:
         with warnings.catch_warnings():  # short segments at the very start are expected
             warnings.filterwarnings("ignore", message="n_fft=.*too large", category=UserWarning)
             f = mfcc(self._samples(start, end), sr=self.sr, fps=self.fps,
-                     n_mfcc=self.animator.mapping.n_mfcc, n_frames=col + 1)[col]
+                     n_mfcc=self.animator.mapping.n_mfcc, n_frames=col + 1,
+                     mel_fmax_hz=self.animator.mapping.mel_fmax_hz)[col]
         return self.context.normalize(f[None], self._cmvn)[0]
 
     def _emit(self, k: int, n_total: int | None) -> StreamFrame:

@@ -3,7 +3,9 @@
 :class:`AudioMapping` holds the feature settings (sample rate, fps, MFCC count, deltas), a
 trained method (:class:`~mapping.gated_mlp.GatedMLP` or a baseline) and the silence rule. It accepts
 audio at any rate from 8 kHz to 192 kHz and resamples it to the training rate, so frame k is
-always centred at k / fps seconds and the mel filters are the ones the method was trained with.
+always centred at k / fps seconds and the mel filters are the ones the method was trained with
+(their upper edge, ``mel_fmax_hz``, included: a model whose edge is at or below 8 kHz reads
+the same band from 16 kHz audio as from its training audio).
 
 :meth:`AudioMapping.predict_audio` is the one audio → MUP entry point (the animator, the
 streaming animator's frames, ``talkingface animate`` and the MLflow pyfunc model all go through
@@ -30,7 +32,7 @@ from groundwork import modelfile
 from groundwork.audio import read_wav, resample
 from groundwork.errors import ParameterError
 from mapping.baselines import BASELINES, Baseline
-from mapping.features import audio_features, check_align, frame_rms_dbfs
+from mapping.features import audio_features, check_align, check_mel_fmax, frame_rms_dbfs
 from mapping.gated_mlp import GatedMLP
 from mapping.recogniser import fit_length, recognise_windows
 from mapping.state import ArrayGroup
@@ -58,9 +60,10 @@ class AudioMapping:
     mapper : fitted mapping method
     sample_rate : int
         The rate of the training audio (Hz).
-    fps, n_mfcc, deltas, window_align : the feature settings the method was trained with
-        (``window_align``: :func:`mapping.features.aligned`; a model saved before it existed
-        is "centre").
+    fps, n_mfcc, deltas, window_align, mel_fmax_hz : the feature settings the method was
+        trained with (``window_align``: :func:`mapping.features.aligned`; a model saved before
+        it existed is "centre"; ``mel_fmax_hz``: the mel filterbank's upper edge in Hz, 0 for
+        sr/2, :func:`mapping.features.check_mel_fmax`; a model saved before it existed is 0).
     rest_mups : array_like (n_utterance,)
         Utterance MUPs of the neutral face (:func:`rest_mups` of the Motion Units).
     silence_dbfs : float
@@ -71,7 +74,8 @@ class AudioMapping:
 
     def __init__(self, mapper, *, sample_rate: int, rest_mups, fps: int = 30, n_mfcc: int = 10,
                  deltas: bool = False, n_utterance: int = 7, silence_dbfs: float = -60.0,
-                 metadata: dict | None = None, window_align: str = "centre"):
+                 metadata: dict | None = None, window_align: str = "centre",
+                 mel_fmax_hz: float = 0.0):
         self.mapper = mapper
         self.sample_rate = int(sample_rate)
         self.fps = int(fps)
@@ -79,6 +83,8 @@ class AudioMapping:
         self.deltas = bool(deltas)
         check_align(window_align)
         self.window_align = window_align
+        check_mel_fmax(mel_fmax_hz, self.sample_rate)
+        self.mel_fmax_hz = float(mel_fmax_hz)
         self.n_utterance = int(n_utterance)
         self.rest_mups = np.asarray(rest_mups, dtype=np.float64)
         if self.rest_mups.shape != (self.n_utterance,):
@@ -115,7 +121,8 @@ class AudioMapping:
     def _features(self, y_m: np.ndarray) -> np.ndarray:
         """Raw per-frame features of audio already at the model's rate."""
         return audio_features(y_m, sr=self.sample_rate, fps=self.fps, n_mfcc=self.n_mfcc,
-                              deltas=self.deltas, align=self.window_align)
+                              deltas=self.deltas, align=self.window_align,
+                              mel_fmax_hz=self.mel_fmax_hz)
 
     @property
     def cmvn(self) -> str:
@@ -212,7 +219,7 @@ class AudioMapping:
         arrays = {f"{MAPPER}/{name}": np.asarray(a) for name, a in own.items()}
         record = {"sample_rate": self.sample_rate, "fps": self.fps,
                   "n_mfcc": self.n_mfcc, "deltas": self.deltas, "n_utterance": self.n_utterance,
-                  "window_align": self.window_align,
+                  "window_align": self.window_align, "mel_fmax_hz": self.mel_fmax_hz,
                   "rest_mups": self.rest_mups.tolist(), "silence_dbfs": self.silence_dbfs,
                   "method": getattr(self.mapper, "name", type(self.mapper).__name__),
                   "expressions": list(self.expressions), "metadata": self.metadata,
@@ -257,7 +264,8 @@ class AudioMapping:
                         n_mfcc=record["n_mfcc"], deltas=record["deltas"],
                         n_utterance=record["n_utterance"], rest_mups=record["rest_mups"],
                         silence_dbfs=record["silence_dbfs"], metadata=record["metadata"],
-                        window_align=record.get("window_align", "centre"))
+                        window_align=record.get("window_align", "centre"),
+                        mel_fmax_hz=record.get("mel_fmax_hz", 0.0))
             if list(model.expressions) != record["expressions"]:
                 raise ParameterError(f"the metadata lists expressions {record['expressions']} "
                                      f"but the method was trained on {list(model.expressions)}")

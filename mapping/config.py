@@ -29,6 +29,10 @@ are unchanged:
   phone-input MLPs learn the mouth of the labelled phones, and each training frame goes to the
   MLP of its labelled phone).
 
+The features' band (issue 37): ``mel_fmax_hz`` is the mel filterbank's upper edge in Hz (0:
+sr/2), saved with the model, so audio of any rate resampled to the model's rate is read in the
+band the model was trained on (:func:`mapping.features.check_mel_fmax`).
+
 The training set gains ``augment.copies`` copies of each training utterance (its training
 frames only; test utterances never), or one warped copy each when only the warp is on
 (``augment.copies`` 0 and ``vtlp_range`` not [1, 1]). Every copy is drawn from the seed, the
@@ -58,6 +62,7 @@ MLP_INPUT_NAMES = ("mfcc", "phones")  # mapping.gated_mlp.MLP_INPUTS
 WINDOW_ALIGN_NAMES = ("centre", "right")  # mapping.features.WINDOW_ALIGNS
 PHONE_TRAINING_NAMES = ("recognised", "labels")  # mapping.gated_mlp.PHONE_TRAINING
 RECOGNISER_NAMES = ("pocketsphinx", "hama")  # mapping.recogniser.RECOGNISERS
+MEL_FMAX_HZ = 4000.0  # the pick of tools/choose_feature_band.py (its --check keeps them equal)
 
 
 @dataclass(frozen=True)
@@ -137,6 +142,10 @@ class MappingConfig:
     # the analysis window centred on the frame instant (the paper; 12.5 ms of audio after it) or
     # ending there (no sample after the instant: the look-ahead is the only latency)
     window_align: str = choice(*WINDOW_ALIGN_NAMES)
+    # the mel filterbank's upper edge, Hz (0: sr/2, the paper's); chosen on development data by
+    # tools/choose_feature_band.py so a 16 kHz recording reads the band the model was trained on
+    # (issue 37); at most the training audio's Nyquist frequency (checked where features are made)
+    mel_fmax_hz: float = number(MEL_FMAX_HZ, ge=0)
     # speaker and channel normalisation (issue 12; see the module docstring)
     cmvn: str = choice(*CMVN_NAMES)
     cmvn_warmup_frames: int = integer(30, ge=1)

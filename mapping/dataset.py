@@ -24,7 +24,8 @@ from groundwork.cache import content_key
 from groundwork.errors import ParameterError
 from mapping.augment import augment, retime_labels, retime_targets, rir_bank
 from mapping.config import AugmentSettings
-from mapping.features import FEATURES_VERSION, audio_features, hop_samples
+from mapping.features import (FEATURES_VERSION, audio_features, check_mel_fmax,
+                               hop_samples)
 from mapping.recogniser import fit_length, recognise_windows, recogniser_name
 
 SPLITS = ("random_frames", "utterance")
@@ -45,6 +46,8 @@ class UttData:
     audio: np.ndarray | None = field(default=None, repr=False)  # (n_samples,) float
     sample_rate: int = 0  # Hz, of ``audio``
     fps: int = 30
+    # the mel filterbank's upper edge of ``features``, Hz (0: sr/2); training copies use it too
+    mel_fmax_hz: float = 0.0
     # the phones a recogniser heard: per frame its window of phone indices (the recogniser
     # gate's input, mapping.recogniser.recognise_windows; None: not needed)
     recognised: np.ndarray | None = field(default=None, repr=False)  # (n_frames, window)
@@ -70,8 +73,8 @@ class UttData:
 
 def build_dataset(corpus, units, *, n_mfcc: int = 10, deltas: bool = False,
                   alignment: str | None = None, recognise_context: tuple | None = None,
-                  window_align: str = "centre", progress: bool = False,
-                  cache=None) -> list[UttData]:
+                  window_align: str = "centre", mel_fmax_hz: float = 0.0,
+                  progress: bool = False, cache=None) -> list[UttData]:
     """Features, true MUPs and phone labels of every utterance of ``corpus``.
 
     The MUPs are the Motion Units' projection of the aligned deformations (the alignment model
@@ -80,17 +83,24 @@ def build_dataset(corpus, units, *, n_mfcc: int = 10, deltas: bool = False,
     future frames decided with ``forward`` frames of look-ahead
     (:func:`mapping.recogniser.recognise_windows`; the recogniser gate's input), fitted to the
     utterance's frames. ``window_align``: the MFCC window's alignment
-    (:func:`mapping.features.aligned`). ``cache``: a :class:`groundwork.cache.ArrayCache`
-    that keeps the features and the recognised phones of a corpus, by its content and the
-    settings, for every later call (a grid's tasks, later runs).
+    (:func:`mapping.features.aligned`). ``mel_fmax_hz``: the mel filterbank's upper edge, Hz
+    (0: sr/2; :func:`mapping.features.check_mel_fmax`), kept in each utterance. ``cache``: a
+    :class:`groundwork.cache.ArrayCache` that keeps the features and the recognised phones of
+    a corpus, by its content and the settings, for every later call (a grid's tasks, later
+    runs).
     """
     alignment = alignment or units.metadata_.get("alignment", "similarity")
-    defs = corpus_deformations(corpus, model=alignment)
-    feats = _per_utterance(corpus, cache, ("features", FEATURES_VERSION, n_mfcc, deltas,
-                                           window_align),
+    defs = corpus_deformations(corpus, model=alignment, neutrals=_fitted_neutrals(corpus, units))
+    for u in corpus.utterances[:1]:  # a bad edge is refused before any feature is made
+        check_mel_fmax(mel_fmax_hz, u.sample_rate)
+    what = ("features", FEATURES_VERSION, n_mfcc, deltas, window_align)
+    if mel_fmax_hz:  # sr/2 keeps the key of the features made before the setting existed
+        what += (float(mel_fmax_hz),)
+    feats = _per_utterance(corpus, cache, what,
                            lambda u: audio_features(u.audio, sr=u.sample_rate, fps=u.fps,
                                                     n_mfcc=n_mfcc, deltas=deltas,
-                                                    n_frames=u.n_frames, align=window_align))
+                                                    n_frames=u.n_frames, align=window_align,
+                                                    mel_fmax_hz=mel_fmax_hz))
     heard = {}
     if recognise_context is not None:
         heard = _per_utterance(
@@ -104,7 +114,8 @@ def build_dataset(corpus, units, *, n_mfcc: int = 10, deltas: bool = False,
         out.append(UttData(u.utt_id, u.speaker, u.expression, u.text, feats[u.utt_id],
                            units.transform(defs[u.utt_id], u.expression).astype(np.float32),
                            u.phone_per_frame(), audio=u.audio, sample_rate=u.sample_rate,
-                           fps=u.fps, recognised=heard.get(u.utt_id)))
+                           fps=u.fps, mel_fmax_hz=float(mel_fmax_hz),
+                           recognised=heard.get(u.utt_id)))
     return out
 
 
@@ -150,6 +161,20 @@ def utterance_key(utt_id: str) -> int:
     return zlib.crc32(utt_id.encode("utf-8"))
 
 
+def _fitted_neutrals(corpus, units) -> dict | None:
+    """The neutral faces the Motion Units were fitted with, when they were fitted on part of
+    ``corpus`` (held-out sentences: their ``held_out_utterances`` and ``neutrals`` metadata), so
+    the training targets of the mapping never read a held-out sentence either; None otherwise
+    (the corpus's own :func:`face_model.alignment.speaker_neutrals`)."""
+    meta = units.metadata_
+    held = set(meta.get("held_out_utterances") or ())
+    neutrals = meta.get("neutrals") or {}
+    ids = {u.utt_id for u in corpus.utterances}
+    if not held or not held <= ids or not {u.speaker for u in corpus.utterances} <= set(neutrals):
+        return None
+    return {k: np.asarray(v, dtype=np.float64) for k, v in neutrals.items()}
+
+
 def training_copies(data: list[UttData], masks: list, *, settings: AugmentSettings,
                     vtlp_range=(1.0, 1.0), n_mfcc: int = 10, deltas: bool = False,
                     seed: int = 0, recognise_context: tuple | None = None,
@@ -160,8 +185,9 @@ def training_copies(data: list[UttData], masks: list, *, settings: AugmentSettin
     from ``default_rng([seed, utterance_key(utt_id), c])``: first its VTLP warp α ~ U(vtlp_range)
     (the mel filterbank of its features), then, when ``settings.copies`` > 0, its audio
     (:func:`mapping.augment.augment`; babble from other training utterances, preferably of
-    other speakers). A tempo change re-times the copy's MUPs (linear interpolation), phone
-    labels and mask (nearest frame), so features and targets stay aligned. With
+    other speakers); its features read its utterance's band (``mel_fmax_hz``). A tempo change
+    re-times the copy's MUPs (linear interpolation), phone labels and mask (nearest frame), so
+    features and targets stay aligned. With
     ``recognise_context`` the recogniser hears each copy's audio too (the phone-input MLPs read
     it); otherwise a copy carries no recognised phones. Utterances without training frames
     (test utterances) are never copied.
@@ -193,7 +219,8 @@ def training_copies(data: list[UttData], masks: list, *, settings: AugmentSettin
             n = (d.n_frames if scale == 1.0
                  else int(np.ceil(len(y) / hop_samples(d.sample_rate, d.fps))))
             feats = audio_features(y, sr=d.sample_rate, fps=d.fps, n_mfcc=n_mfcc, deltas=deltas,
-                                   n_frames=n, vtlp_alpha=alpha, align=window_align)
+                                   n_frames=n, vtlp_alpha=alpha, align=window_align,
+                                   mel_fmax_hz=d.mel_fmax_hz)
             if scale == 1.0:
                 mups, phones, mask = d.mups, d.phones, np.asarray(masks[i])
             else:
@@ -226,11 +253,39 @@ def split_masks(data: list[UttData], split: str, *, train_fraction: float = 0.8,
         flat = np.zeros(total, bool)
         flat[rng.permutation(total)[:n_train]] = True
         return np.split(flat, np.cumsum(lengths)[:-1])
-    texts = sorted({d.text for d in data})
+    train_texts = training_sentences([d.text for d in data], train_fraction=train_fraction,
+                                     seed=seed)
+    return [np.full(d.n_frames, d.text in train_texts) for d in data]
+
+
+def training_sentences(texts, *, train_fraction: float = 0.8, seed: int = 0) -> frozenset:
+    """The training sentence texts of the ``utterance`` split: ``train_fraction`` of the
+    distinct ``texts`` (sorted), drawn by ``default_rng(seed).permutation`` — a pure function
+    of the texts and the seed, so the held-out sentences are known before anything is fitted
+    (:func:`held_out_utterances`; the run draws with ``seed + SPLIT_SEED_OFFSET``).
+
+    Raises
+    ------
+    ParameterError
+        ``train_fraction`` outside (0, 1), or too few distinct sentences for both sides.
+    """
+    if not 0 < train_fraction < 1:
+        raise ParameterError(f"train_fraction must be in (0, 1), got {train_fraction}")
+    texts = sorted(set(texts))
     n_train = int(round(train_fraction * len(texts)))
     if not 0 < n_train < len(texts):
         raise ParameterError(f"{len(texts)} distinct sentences cannot be split "
                              f"{train_fraction:.0%} / rest by sentence; need at least 2 on each "
                              "side's scale (use more sentences or the random_frames split)")
-    train_texts = set(np.array(texts)[rng.permutation(len(texts))[:n_train]])
-    return [np.full(d.n_frames, d.text in train_texts) for d in data]
+    rng = np.random.default_rng(seed)
+    return frozenset(np.array(texts)[rng.permutation(len(texts))[:n_train]].tolist())
+
+
+def held_out_utterances(utterances, *, train_fraction: float = 0.8, seed: int = 0) -> list:
+    """The ids of the ``utterance`` split's test utterances, in the given order, of items with
+    ``utt_id`` and ``text`` (corpus utterances or :class:`UttData`): those whose sentence is not
+    among :func:`training_sentences`."""
+    utterances = list(utterances)
+    train = training_sentences([u.text for u in utterances], train_fraction=train_fraction,
+                               seed=seed)
+    return [u.utt_id for u in utterances if u.text not in train]

@@ -5,7 +5,9 @@ samples. A rate without an integer hop is refused, and the caller resamples. HTK
 written down here and in :data:`MFCC_SETTINGS`:
 
 * analysis window: 25 ms Hamming, centred on the frame instant (signal edge-padded by reflection);
-* power spectrum → 26 triangular mel filters (HTK mel scale) from 0 Hz to sr/2;
+* power spectrum → 26 triangular mel filters (HTK mel scale) from 0 Hz to the upper edge
+  ``mel_fmax_hz`` (``mapping.mel_fmax_hz``; 0 means sr/2, the filterbank of every model saved
+  before the setting existed);
 * natural log with a floor of 1e-10 (digital silence stays finite);
 * DCT-II (orthonormal); c0 dropped, c1…c_n kept; sinusoidal lifter L = 22.
 
@@ -15,10 +17,17 @@ delays the signal by exactly that many samples (zeros in front), so frame k's MF
 level window end at sample k·hop: a frame reads no sample after its instant, and the mapping's
 look-ahead is its only latency (:func:`algorithmic_latency_s`).
 
+Band (issue 37): the upper edge decides which band the features read. A model trained with
+filters up to sr/2 = 11,025 Hz reads, from a 16 kHz recording resampled to its rate, empty
+bands above 8 kHz; with the edge at or below 8 kHz the features of a 22.05 kHz and a 16 kHz
+recording of the same speech nearly agree. The edge is chosen on development data by
+``python tools/choose_feature_band.py`` (its table is the evidence; no figure is typed here).
+
 Speaker warp for training (issue 12): ``vtlp_alpha`` ≠ 1 warps the mel filterbank by vocal-tract
 length perturbation (Jaitly & Hinton 2013, :func:`vtlp_warp`); α = 1 is exactly the filterbank
-above. Causal cepstral normalisation (:mod:`mapping.normalize`) is part of
-:class:`ContextFeatures`, before its standardisation.
+above. The warp keeps the filterbank's upper edge fixed (:func:`vtlp_warp`'s ``f_top``), so a
+warped filterbank reads no frequency above it either. Causal cepstral normalisation
+(:mod:`mapping.normalize`) is part of :class:`ContextFeatures`, before its standardisation.
 """
 from __future__ import annotations
 
@@ -33,8 +42,8 @@ from mapping.normalize import CepstralNormalizer, check_cmvn
 from mapping.state import ArrayGroup, nest
 
 MFCC_SETTINGS = {"window_s": 0.025, "window": "hamming", "n_mels": 26, "fmin": 0.0,
-                 "fmax": "sr/2", "mel_scale": "htk", "log_floor": 1e-10, "dct": "II, ortho",
-                 "c0": "dropped", "lifter": 22}
+                 "fmax": "mapping.mel_fmax_hz (0: sr/2)", "mel_scale": "htk",
+                 "log_floor": 1e-10, "dct": "II, ortho", "c0": "dropped", "lifter": 22}
 
 
 WINDOW_ALIGNS = ("centre", "right")
@@ -43,6 +52,38 @@ WINDOW_ALIGNS = ("centre", "right")
 # The version of the feature computation: cached features (mapping.dataset) are keyed by it and
 # librosa's version; raise it whenever a change here changes what audio_features returns.
 FEATURES_VERSION = f"1/librosa-{librosa.__version__}"
+MIN_MEL_FMAX_HZ = 1000.0  # below it the 26 filters narrow to single FFT bins or none
+
+
+def check_mel_fmax(mel_fmax_hz, sr: int) -> float:
+    """The filterbank's upper edge in Hz for rate ``sr``: ``mel_fmax_hz`` itself, or sr/2 for 0.
+
+    Parameters
+    ----------
+    mel_fmax_hz : float
+        ``mapping.mel_fmax_hz``: 0 (sr/2) or a frequency in [:data:`MIN_MEL_FMAX_HZ`, sr/2], Hz.
+    sr : int
+        Sample rate, in Hz.
+
+    Returns
+    -------
+    float
+        The upper edge, Hz.
+
+    Raises
+    ------
+    ParameterError
+        Naming ``mapping.mel_fmax_hz``, the value and the range allowed at ``sr``.
+    """
+    ok = (not isinstance(mel_fmax_hz, bool) and isinstance(mel_fmax_hz, (int, float, np.number))
+          and np.isfinite(mel_fmax_hz)
+          and (mel_fmax_hz == 0 or MIN_MEL_FMAX_HZ <= mel_fmax_hz <= sr / 2))
+    if not ok:
+        raise ParameterError(f"mapping.mel_fmax_hz must be 0 (sr/2) or from {MIN_MEL_FMAX_HZ:g} "
+                             f"to the Nyquist frequency {sr / 2:g} Hz of {sr} Hz audio, got "
+                             f"{mel_fmax_hz!r}")
+    return float(mel_fmax_hz) if mel_fmax_hz else sr / 2.0
+
 
 def window_future(sr: int) -> int:
     """Samples after the frame instant that a centred frame reads: the last non-zero sample of
@@ -115,8 +156,8 @@ def hop_samples(sr: int, fps: int = 30) -> int:
 
 
 def mfcc(y: np.ndarray, *, sr: int, fps: int = 30, n_mfcc: int = 10,
-         n_frames: int | None = None, vtlp_alpha: float = 1.0, align: str = "centre"
-         ) -> np.ndarray:
+         n_frames: int | None = None, vtlp_alpha: float = 1.0, align: str = "centre",
+         mel_fmax_hz: float = 0.0) -> np.ndarray:
     """MFCC per video frame.
 
     Parameters
@@ -137,6 +178,8 @@ def mfcc(y: np.ndarray, *, sr: int, fps: int = 30, n_mfcc: int = 10,
         1.0 (the default, and always at inference) is the unwarped filterbank.
     align : {"centre", "right"}
         The analysis window centred on the frame instant, or ending at it (:func:`aligned`).
+    mel_fmax_hz : float
+        Upper edge of the mel filterbank, Hz; 0 (the default) is sr/2 (:func:`check_mel_fmax`).
 
     Returns
     -------
@@ -150,6 +193,7 @@ def mfcc(y: np.ndarray, *, sr: int, fps: int = 30, n_mfcc: int = 10,
     if not 1 <= n_mfcc <= MFCC_SETTINGS["n_mels"] - 1:
         raise ParameterError(f"n_mfcc must be in 1..{MFCC_SETTINGS['n_mels'] - 1}, got {n_mfcc}")
     hop = hop_samples(sr, fps)
+    fmax = check_mel_fmax(mel_fmax_hz, sr)
     n_out = int(np.ceil(len(y) / hop)) if n_frames is None else int(n_frames)
     y = aligned(y, sr, align)
     win = seconds_to_samples(MFCC_SETTINGS["window_s"], sr)
@@ -157,7 +201,7 @@ def mfcc(y: np.ndarray, *, sr: int, fps: int = 30, n_mfcc: int = 10,
     power = np.abs(librosa.stft(y, n_fft=n_fft, hop_length=hop, win_length=win,
                                 window=MFCC_SETTINGS["window"], center=True,
                                 pad_mode="reflect")) ** 2
-    mel = _mel_filters(sr, n_fft, float(vtlp_alpha))
+    mel = _mel_filters(sr, n_fft, float(vtlp_alpha), fmax)
     logmel = np.log(np.maximum(mel @ power, MFCC_SETTINGS["log_floor"]))
     cep = librosa.feature.mfcc(S=logmel, n_mfcc=n_mfcc + 1, dct_type=2, norm="ortho",
                                lifter=MFCC_SETTINGS["lifter"])[1:]
@@ -168,48 +212,66 @@ def mfcc(y: np.ndarray, *, sr: int, fps: int = 30, n_mfcc: int = 10,
 
 
 VTLP_F_HI = 4800.0  # Hz: the warp's upper boundary frequency (Jaitly & Hinton 2013)
+VTLP_F_HI_RATIO = 4800.0 / 8000.0  # theirs to the top of their band (16 kHz audio: 8 kHz)
 VTLP_LIMITS = (0.8, 1.2)  # warp factors accepted (the warp stays monotone)
 
 
+def vtlp_f_hi(f_top: float) -> float:
+    """The warp's boundary frequency for a filterbank ending at ``f_top`` Hz: :data:`VTLP_F_HI`,
+    or Jaitly & Hinton's ratio (:data:`VTLP_F_HI_RATIO`) of ``f_top`` when that is lower, so the
+    boundary stays inside the band (4,800 Hz for any top from 8 kHz up, as before the setting)."""
+    return min(VTLP_F_HI, VTLP_F_HI_RATIO * float(f_top))
+
+
 @functools.lru_cache(maxsize=64)
-def _mel_filters(sr: int, n_fft: int, alpha: float = 1.0) -> np.ndarray:
-    """The 26 HTK-scale triangular filters (unnormalised), cached per rate, FFT size and VTLP
-    warp factor; ``alpha == 1`` is librosa's filterbank itself."""
+def _mel_filters(sr: int, n_fft: int, alpha: float = 1.0, fmax: float | None = None
+                 ) -> np.ndarray:
+    """The 26 HTK-scale triangular filters (unnormalised) from 0 Hz to ``fmax`` (default sr/2),
+    cached per rate, FFT size, VTLP warp factor and upper edge; ``alpha == 1`` is librosa's
+    filterbank itself."""
+    fmax = sr / 2.0 if fmax is None else float(fmax)
     if alpha == 1.0:
         mel = librosa.filters.mel(sr=sr, n_fft=n_fft, n_mels=MFCC_SETTINGS["n_mels"],
-                                  fmin=0.0, fmax=sr / 2, htk=True, norm=None)
+                                  fmin=0.0, fmax=fmax, htk=True, norm=None)
     else:
-        mel = warped_mel_filters(sr, n_fft, alpha)
+        mel = warped_mel_filters(sr, n_fft, alpha, fmax)
     mel.setflags(write=False)
     return mel
 
 
-def vtlp_warp(freqs: np.ndarray, alpha: float, sr: float, f_hi: float = VTLP_F_HI
-              ) -> np.ndarray:
+def vtlp_warp(freqs: np.ndarray, alpha: float, sr: float, f_hi: float = VTLP_F_HI,
+              f_top: float | None = None) -> np.ndarray:
     """Piecewise-linear VTLP warp of frequencies (Hz), Jaitly & Hinton (2013), Eq. in §2.
 
     f' = α·f up to f_b = f_hi·min(α, 1)/α, then the straight line from (f_b, α·f_b) to
-    (sr/2, sr/2): 0 ↦ 0 and sr/2 ↦ sr/2, monotone for α in :data:`VTLP_LIMITS`.
+    (f_top, f_top) (``f_top``: the filterbank's upper edge, default sr/2): 0 ↦ 0 and
+    f_top ↦ f_top, monotone for α in :data:`VTLP_LIMITS` while f_hi < f_top (:func:`vtlp_f_hi`
+    keeps it so); frequencies above f_top stay above it.
     """
     if not VTLP_LIMITS[0] <= alpha <= VTLP_LIMITS[1]:
         raise ParameterError(f"vtlp alpha must be in [{VTLP_LIMITS[0]}, {VTLP_LIMITS[1]}], "
                              f"got {alpha!r}")
     f = np.asarray(freqs, dtype=np.float64)
-    nyq = sr / 2.0
+    nyq = sr / 2.0 if f_top is None else float(f_top)
     scale = f_hi * min(alpha, 1.0)
     boundary = scale / alpha
     upper = nyq - (nyq - scale) / (nyq - boundary) * (nyq - f)
     return np.where(f <= boundary, alpha * f, upper)
 
 
-def warped_mel_filters(sr: int, n_fft: int, alpha: float) -> np.ndarray:
+def warped_mel_filters(sr: int, n_fft: int, alpha: float, fmax: float | None = None
+                       ) -> np.ndarray:
     """The filterbank of :func:`_mel_filters` with every FFT bin at its VTLP-warped frequency:
     filter i weights bin k by its triangle at W_α(f_k), i.e. the spectrum is warped before the
-    standard filters. librosa's own arithmetic (``librosa.filters.mel``, HTK scale, no norm),
-    so α = 1 gives its filters exactly. Shape (n_mels, 1 + n_fft // 2), float32."""
+    standard filters. The warp's fixed top is the filterbank's upper edge ``fmax`` (default
+    sr/2) and its boundary :func:`vtlp_f_hi` of it, so no bin above ``fmax`` is read.
+    librosa's own arithmetic (``librosa.filters.mel``, HTK scale, no norm), so α = 1 gives its
+    filters exactly. Shape (n_mels, 1 + n_fft // 2), float32."""
     n_mels = MFCC_SETTINGS["n_mels"]
-    fftfreqs = vtlp_warp(librosa.fft_frequencies(sr=sr, n_fft=n_fft), alpha, sr)
-    mel_f = librosa.mel_frequencies(n_mels + 2, fmin=0.0, fmax=sr / 2, htk=True)
+    top = sr / 2.0 if fmax is None else float(fmax)
+    fftfreqs = vtlp_warp(librosa.fft_frequencies(sr=sr, n_fft=n_fft), alpha, sr,
+                         f_hi=vtlp_f_hi(top), f_top=top)
+    mel_f = librosa.mel_frequencies(n_mels + 2, fmin=0.0, fmax=top, htk=True)
     fdiff = np.diff(mel_f)
     ramps = np.subtract.outer(mel_f, fftfreqs)
     weights = np.zeros((n_mels, len(fftfreqs)), dtype=np.float32)
@@ -281,15 +343,17 @@ class FeatureNormalizer:
 
 def audio_features(y: np.ndarray, *, sr: int, fps: int = 30, n_mfcc: int = 10,
                    deltas: bool = False, n_frames: int | None = None,
-                   vtlp_alpha: float = 1.0, align: str = "centre") -> np.ndarray:
+                   vtlp_alpha: float = 1.0, align: str = "centre", mel_fmax_hz: float = 0.0
+                   ) -> np.ndarray:
     """MFCC per frame, optionally followed by their first differences (librosa ``delta``,
     9-frame regression window, edges interpolated).
 
     Parameters
     ----------
-    y, sr, fps, n_mfcc, n_frames, vtlp_alpha, align
+    y, sr, fps, n_mfcc, n_frames, vtlp_alpha, align, mel_fmax_hz
         As for :func:`mfcc` (audio (n_samples,), Hz, frames per second, coefficients, frames,
-        the training-time speaker warp (1.0: none), the window's alignment).
+        the training-time speaker warp (1.0: none), the window's alignment, the filterbank's
+        upper edge in Hz (0: sr/2)).
     deltas : bool
         Append the first differences.
 
@@ -298,7 +362,7 @@ def audio_features(y: np.ndarray, *, sr: int, fps: int = 30, n_mfcc: int = 10,
     ndarray, shape (n_frames, n_mfcc · (1 + deltas)), float32, frame-major.
     """
     feats = mfcc(y, sr=sr, fps=fps, n_mfcc=n_mfcc, n_frames=n_frames, vtlp_alpha=vtlp_alpha,
-                 align=align)
+                 align=align, mel_fmax_hz=mel_fmax_hz)
     if not deltas:
         return feats
     width = min(9, len(feats) if len(feats) % 2 else len(feats) - 1)

@@ -45,31 +45,45 @@ def _model_corpus(tfmap: Path) -> Path | None:
 
 
 def cmd_evaluate_face(args) -> int:
+    """Score a model on real clips by the rules of :mod:`analysis.face_eval`: speech frames from
+    the corpus's phones, or, for videos, from each clip's transcript forced-aligned (a clip
+    without one is scored on all its valid frames, and the command says so)."""
     animator, tfmap = load_animator(args.model, args.runs_dir)
     src = Path(args.videos)
     if (src / "manifest.csv").is_file():
-        clips, refused = clips_from_corpus(src), []
+        clips, refused, unaligned = clips_from_corpus(src), [], []
     else:
-        clips, refused = clips_from_videos(src, speaker=args.speaker or default_speaker(src),
-                                           workers=args.workers)
+        clips, refused, unaligned = clips_from_videos(
+            src, speaker=args.speaker or default_speaker(src), workers=args.workers)
     training = _model_corpus(Path(tfmap))
     scores = score_model(animator, clips, training_corpus=training, progress=True)
     out = Path(args.out) if args.out else Path(tfmap).parent / "face_eval" / src.name
     out.mkdir(parents=True, exist_ok=True)
     write_scores_csv(scores, out / "per_clip.csv")
-    record = {"model": str(tfmap), "source": str(src), "refused": refused, **scores.to_dict()}
+    record = {"model": str(tfmap), "source": str(src), "refused": refused,
+              "no_speech_frames": unaligned, **scores.to_dict()}
     with atomic_file(out / "scores.json") as tmp:
         tmp.write_text(json.dumps(record, indent=1) + "\n")
-    opening_strip_figure(scores.tracks[0], out / f"opening_{scores.tracks[0].clip}.png",
-                         f"{scores.tracks[0].clip}: real vs predicted inner-lip opening")
+    first = scores.tracks[0]
+    opening_strip_figure(first, out / f"opening_{first.clip}.png",
+                         f"{first.clip}: real vs predicted inner-lip opening")
     p = scores.pooled
     for clip, reason in refused:
         print(f"refused {clip}: {reason}")
+    for clip, reason in unaligned:
+        print(f"no speech frames for {clip} ({reason}): all its valid frames scored")
+    part = "speech frames" if p["speech_known"] else "all valid frames (speech frames unknown)"
     lve = f"; LVE {p['lve_px']:.2f} px" if p.get("lve_clips") else ""
-    print(f"{p['clips']} clips, {p['frames']} frames: inner-lip opening r {p['r_pooled']:.3f} "
-          f"pooled (median per clip {p['r_clip_median']:.3f}); closures agreed "
-          f"{p['closures_agreed']}/{p['closure_events']} ({100 * p['closure_agreed_frac']:.0f} %)"
-          f"{lve}\nresults: {out / 'per_clip.csv'}, {out / 'scores.json'}")
+    closures = (f"; /p b m/ closed {p['closures_hit']}/{p['bilabial_segments']} "
+                f"({100 * p['closure_rate']:.0f} %, chance {100 * p['chance_closure_rate']:.0f} "
+                f"%), false closures {100 * p['false_closure_rate']:.0f} % (chance "
+                f"{100 * p['chance_false_closure_rate']:.0f} %)"
+                if p["bilabial_segments"] and p["control_segments"] else "")
+    print(f"{p['clips']} clips, {p['speakers']} speaker(s), {p['valid_frames']} valid frames "
+          f"({p['excluded_frames']} without a face excluded): inner-lip opening r "
+          f"{p['r_speech']:.3f} over {part} (chance {p['chance_r_speech']:.3f}; median per "
+          f"clip {p['r_clip_median']:.3f}; interval {p['interval_r_speech']}){closures}{lve}\n"
+          f"results: {out / 'per_clip.csv'}, {out / 'scores.json'}")
     return 0
 
 

@@ -14,7 +14,8 @@ from talkingface.paths import RunPaths
 from talkingface.stages.base import (Stage, prepare_run, read_done, run_order, run_stages,
                                      stale_stages)
 from talkingface.stages.applies import study_applies, switched_off, synthesised
-from talkingface.stages.foundation import fit_keyframes, fit_units, make_corpus, sentence_file
+from talkingface.stages.foundation import (fit_keyframes, fit_units, make_corpus, sentence_file,
+                                           units_inputs)
 from talkingface.stages.given_corpus import corpus_config, corpus_inputs
 from talkingface.stages.motion import (evaluate_tracker, make_tracked_corpus, render_held_out,
                                        uses_tracked_corpus)
@@ -49,7 +50,7 @@ def _grid_stage(grid: GridStage, run, *, config: tuple, speed_only: tuple,
 STAGES = {s.name: s for s in (
     Stage("corpus", make_corpus, config=corpus_config, speed_only=("synth.workers",),
           files=sentence_file, inputs=corpus_inputs),
-    Stage("units", fit_units, config=("units",), upstream=("corpus",)),
+    Stage("units", fit_units, config=("units",), upstream=("corpus",), inputs=units_inputs),
     Stage("keyframes", fit_keyframes, upstream=("corpus", "units")),
     Stage("tracking", evaluate_tracker, config=("seed", "tracker.n_utterances",
           "tracker.noise_levels", "tracker.init"), upstream=("corpus", "units"),

@@ -1,13 +1,19 @@
-"""A model scored against real faces (``talkingface evaluate-face`` and the report's real-speaker
-section): real clips from videos or from a corpus, the model's lips predicted from their audio,
-and the comparison of :mod:`analysis.face_eval`.
+"""Models and peers scored against real faces (``talkingface evaluate-face`` and the report's
+real-speaker section): real clips from videos or from a corpus, lips predicted from their audio,
+and the comparison of :mod:`analysis.face_eval` (its rules: speech frames, valid frames,
+closures on /p b m/, chance).
 
 Both sides are compared in the aligned frame (:func:`face_model.alignment.align_markers`: the
-glasses markers on the layout's): the real markers aligned, minus the speaker's neutral face;
-the prediction is the model's deformation (Eq. 2) from the audio. The speaker's neutral face is
-the training corpus's (:func:`face_model.alignment.speaker_neutrals`) when the model was trained
-on that speaker — then LVE is reported — else the median of the aligned first frames of the
-speaker's clips here.
+glasses markers on the layout's): the real markers aligned; the prediction is the speaker's
+neutral face plus the model's deformation (Eq. 2) from the audio. The neutral face is, for a
+speaker the model was trained on, the one its Motion Units were fitted with (``neutrals`` in
+their metadata: training sentences only) or else the training corpus's
+(:func:`face_model.alignment.speaker_neutrals`) — then LVE is reported; for any other speaker
+the median of the aligned first frames of its clips here. The prediction has exactly the clip's
+frames (the model's frames cut, or the last one repeated, to the clip's ``n_frames``).
+
+Input rate: with ``input_rate`` the clip's audio is resampled (:func:`groundwork.audio.resample`)
+to that rate and the model (or peer) hears it at that rate.
 """
 from __future__ import annotations
 
@@ -18,40 +24,76 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from analysis.face_eval import ClipTrack, FaceScores, score_clips
+from analysis.face_eval import ClipTrack, FaceScores, phone_segments, score_clips
 from face_model.alignment import align_markers, speaker_neutrals, unflatten
 from face_model.corpus import load_corpus
+from face_model.forced_align import align_audio
 from face_model.landmarks import extract_landmarks
+from face_model.layout import mouth_opening
+from face_model.transcripts import find_transcript
+from face_model.video_corpus import FPS as VIDEO_FPS
 from face_model.video_corpus import ClipRefused, FromVideoSettings, clip_data, find_videos
-from groundwork.errors import CorpusError
+from groundwork.audio import resample
+from groundwork.errors import CorpusError, TalkingFaceError
+from mapping.peers import peer_track
+from mapping.recogniser import fit_length
 
 
 @dataclass(frozen=True)
 class RealClip:
-    """One real clip: mono audio and the 79 markers (image pixels) at 30 fps."""
+    """One real clip: mono audio, the 79 markers (image pixels) at ``fps``, its phone labels
+    (None: unknown), per frame whether a face was detected (``valid``), and its transcript."""
 
     clip: str
     speaker: str
     audio: np.ndarray
     sample_rate: int
     markers: np.ndarray
+    fps: float
+    phones: tuple | None = None
+    valid: np.ndarray | None = None
+    text: str = ""
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.markers)
+
+
+def _valid(quality, n: int) -> np.ndarray | None:
+    """Frames whose face was detected: not interpolated (the quality file's 2nd column)."""
+    return None if quality is None else np.asarray(quality)[:n, 1] == 0
 
 
 def clips_from_corpus(corpus_dir, utt_ids=None) -> list[RealClip]:
     """The utterances of a corpus folder (all, or ``utt_ids`` in corpus order)."""
     corpus = load_corpus(corpus_dir)
     keep = None if utt_ids is None else set(utt_ids)
-    return [RealClip(u.utt_id, u.speaker, u.audio, u.sample_rate, u.markers)
+    return [RealClip(u.utt_id, u.speaker, u.audio, u.sample_rate, u.markers, float(u.fps),
+                     phone_segments(u.phones), _valid(u.quality, u.n_frames), u.text)
             for u in corpus.utterances if keep is None or u.utt_id in keep]
 
 
+def _phones_of(video: Path, y: np.ndarray, sr: int) -> tuple[tuple | None, str, str]:
+    """``(phones, text, why)``: the clip's transcript (:func:`face_model.transcripts.
+    find_transcript`) forced-aligned; None and the reason when there is none or it fails."""
+    try:
+        t = find_transcript(video)
+        if t is None:
+            return None, "", "no transcript beside it"
+        return phone_segments(align_audio(y, sr, t.text, source=str(video))), t.text, ""
+    except TalkingFaceError as exc:
+        return None, "", str(exc)
+
+
 def clips_from_videos(src, *, speaker: str, workers: int = 2, progress: bool = True,
-                      settings: FromVideoSettings | None = None) -> tuple[list, list]:
-    """``(clips, refused)``: the videos of ``src`` through the landmark worker (clips whose
-    face is missed too often are refused with the reason, as the import does)."""
+                      settings: FromVideoSettings | None = None) -> tuple[list, list, list]:
+    """``(clips, refused, unaligned)``: the videos of ``src`` through the landmark worker
+    (clips whose face is missed too often are refused with the reason, as the import does);
+    each clip's transcript, when one is found beside it, forced-aligned to give its phones
+    (``unaligned``: ``(clip, why)`` of the clips without phones, hence without speech frames)."""
     settings = (settings or FromVideoSettings()).check()
     videos = find_videos(src)
-    clips, refused = [], []
+    clips, refused, unaligned = [], [], []
     with tempfile.TemporaryDirectory(prefix="talkingface-face-") as tmp:
         tmp = Path(tmp)
         jobs = [(v, tmp / f"{i:05d}-{v.stem}.npz") for i, v in enumerate(videos)]
@@ -68,48 +110,119 @@ def clips_from_videos(src, *, speaker: str, workers: int = 2, progress: bool = T
             except ClipRefused as exc:
                 refused.append((v.stem, str(exc)))
                 continue
-            clips.append(RealClip(v.stem, speaker, c.audio, c.sample_rate, c.markers))
+            phones, text, why = _phones_of(v, c.audio, c.sample_rate)
+            if phones is None:
+                unaligned.append((v.stem, why))
+            clips.append(RealClip(v.stem, speaker, c.audio, c.sample_rate, c.markers,
+                                  float(VIDEO_FPS),
+                                  phones, ~np.asarray(c.interpolated, bool), text))
     if not clips:
         first = refused[0][1] if refused else f"{src}: no clip could be read"
         raise CorpusError(first + (f" (and {len(refused) - 1} more clips refused)"
                                    if len(refused) > 1 else ""))
-    return clips, refused
+    return clips, refused, unaligned
 
 
-def _neutrals(clips: list, aligned: dict) -> dict:
+def at_rate(c: RealClip, input_rate: int | None) -> tuple[np.ndarray, int]:
+    """The clip's audio at ``input_rate`` Hz (as is when None or equal)."""
+    if input_rate is None or int(input_rate) == c.sample_rate:
+        return c.audio, c.sample_rate
+    return resample(c.audio, sr_in=c.sample_rate, sr_out=int(input_rate)), int(input_rate)
+
+
+def _first_frame_neutrals(clips: list, aligned: dict) -> dict:
     firsts: dict = {}
     for c in clips:
         firsts.setdefault(c.speaker, []).append(aligned[c.clip][0])
     return {spk: np.median(np.stack(f), axis=0) for spk, f in firsts.items()}
 
 
-def score_model(animator, clips: list, *, training_corpus=None, progress: bool = False
-                ) -> FaceScores:
+def model_neutrals(animator, clips: list, aligned: dict, training_corpus=None
+                   ) -> tuple[dict, set]:
+    """``(neutral per speaker, speakers the model was trained on)`` (module docstring)."""
+    neutrals = _first_frame_neutrals(clips, aligned)
+    if training_corpus is None:
+        return neutrals, set()
+    if not hasattr(training_corpus, "utterances"):
+        training_corpus = load_corpus(training_corpus)
+    trained = {c.speaker for c in clips} & {u.speaker for u in training_corpus.utterances}
+    fitted = animator.units.metadata_.get("neutrals")
+    if fitted:
+        own = {k: np.asarray(v, np.float64) for k, v in fitted.items()}
+    else:
+        own = speaker_neutrals(training_corpus,
+                               model=animator.units.metadata_.get("alignment", "similarity"))
+    neutrals.update({k: v for k, v in own.items() if k in trained})
+    return neutrals, trained
+
+
+def predicted_markers(animator, c: RealClip, neutral: np.ndarray, input_rate=None
+                      ) -> np.ndarray:
+    """The model's markers (n_frames, 79, 2) for clip ``c`` on ``neutral``: exactly the clip's
+    frames."""
+    y, sr = at_rate(c, input_rate)
+    mups = fit_length(animator.mups(y, sr), c.n_frames)
+    return neutral[None] + unflatten(animator.units.inverse_transform(mups, "neutral"))
+
+
+def score_model(animator, clips: list, *, training_corpus=None, input_rate=None,
+                progress: bool = False) -> FaceScores:
     """Score ``animator`` (:class:`mapping.animator.FaceAnimator`) on real ``clips``.
 
     ``training_corpus`` (a loaded corpus or its folder), when given, names the speakers the
-    model was trained on: their neutral face is the training corpus's and their LVE is scored.
+    model was trained on: their neutral face is the model's (module docstring) and their LVE is
+    scored. ``input_rate``: the audio's rate the model hears (Hz; None: the clip's own).
     """
-    if training_corpus is not None and not hasattr(training_corpus, "utterances"):
-        training_corpus = load_corpus(training_corpus)
     alignment = animator.units.metadata_.get("alignment", "similarity")
     aligned = {c.clip: align_markers(c.markers, model=alignment) for c in clips}
-    neutrals = _neutrals(clips, aligned)
-    trained = set()
-    if training_corpus is not None:
-        seen = {u.speaker for u in training_corpus.utterances}
-        trained = {c.speaker for c in clips} & seen
-        if trained:
-            neutrals.update({k: v for k, v in
-                             speaker_neutrals(training_corpus, model=alignment).items()
-                             if k in trained})
+    neutrals, trained = model_neutrals(animator, clips, aligned, training_corpus)
     tracks = []
     for c in tqdm(clips, desc="scoring", unit="clip", disable=not progress, leave=False):
-        mups = animator.mups(c.audio, c.sample_rate)
-        d_pred = unflatten(animator.units.inverse_transform(mups, "neutral"))
-        real = aligned[c.clip]
-        n = min(len(real), len(d_pred))
-        neutral = neutrals[c.speaker]
-        tracks.append(ClipTrack.from_markers(c.clip, c.speaker, real[:n], neutral[None]
-                                             + d_pred[:n], fps=30, lve=c.speaker in trained))
+        pred = predicted_markers(animator, c, neutrals[c.speaker], input_rate)
+        tracks.append(ClipTrack.from_markers(c.clip, c.speaker, aligned[c.clip], pred, c.fps,
+                                             phones=c.phones, valid=c.valid,
+                                             lve=c.speaker in trained))
+    return score_clips(tracks)
+
+
+def speech_span(c: RealClip) -> tuple[int, int] | None:
+    """``(first, stop)`` frames from the first to the last non-silence phone (None: no phones
+    or no speech)."""
+    if not c.phones:
+        return None
+    speech = [(s, e) for s, e, ph in c.phones if ph != "sil"]
+    if not speech:
+        return None
+    a = int(np.ceil(speech[0][0] * c.fps - 1e-9))
+    b = min(c.n_frames, int(np.ceil(speech[-1][1] * c.fps - 1e-9)))
+    return (a, b) if b > a else None
+
+
+def peer_opening(peer: str, c: RealClip, input_rate=None) -> np.ndarray:
+    """One peer's opening for clip ``c`` (n_frames,). ``openfacefx-text`` is given the
+    transcript only, spread by its own segmentation over the speech span (:func:`speech_span`:
+    the audio of those frames; closed, 0, outside it): the corpus keeps no word times."""
+    y, sr = at_rate(c, input_rate)
+    if peer != "openfacefx-text":
+        return peer_track(peer, y, sr, n_frames=c.n_frames, fps=c.fps).opening
+    out = np.zeros(c.n_frames)
+    span = speech_span(c)
+    if span is None or not c.text:
+        return out
+    a, b = span
+    part = y[int(round(a * sr / c.fps)):int(round(b * sr / c.fps))]
+    out[a:b] = peer_track(peer, part, sr, n_frames=b - a, fps=c.fps,
+                          transcript=c.text).opening
+    return out
+
+
+def score_peer(peer: str, clips: list, *, input_rate=None, progress: bool = False
+               ) -> FaceScores:
+    """Score a peer (:data:`mapping.peers.PEERS`) on real ``clips``: its opening against the
+    real aligned inner-lip opening, by the same rules."""
+    tracks = []
+    for c in tqdm(clips, desc=peer, unit="clip", disable=not progress, leave=False):
+        real = mouth_opening(align_markers(c.markers))
+        tracks.append(ClipTrack(c.clip, c.speaker, real, peer_opening(peer, c, input_rate),
+                                c.fps, c.phones, c.valid))
     return score_clips(tracks)

@@ -16,8 +16,8 @@ import numpy as np
 
 from analysis.corpus_report import summarize_units
 from data_synth.generate import synthesize_corpus
-from face_model.alignment import corpus_deformations, unflatten
-from face_model.corpus import corpus_hash, load_corpus
+from face_model.alignment import corpus_deformations, speaker_neutrals, unflatten
+from face_model.corpus import Corpus, corpus_hash, load_corpus
 from face_model.keyframes import EXPRESSION_KEYFRAMES, KEYFRAMES, KeyframeModel
 from face_model.layout import default_layout
 from face_model.motion_units import MotionUnits, fit_corpus_units
@@ -28,6 +28,7 @@ from talkingface.paths import RunPaths
 from talkingface.stages.applies import expression_note, given
 from talkingface.stages.base import write_csv
 from talkingface.stages.given_corpus import take_given_corpus
+from talkingface.stages.training import utterance_test_ids
 
 def make_corpus(paths: RunPaths, cfg) -> dict:
     """The run's corpus: the given one (``corpus.source``) validated and linked in, or the
@@ -49,21 +50,40 @@ def sentence_file(paths: RunPaths, cfg) -> list:
     return [Path(cfg.synth.text_file)]
 
 
-def fit_units_folder(corpus_dir: Path, out_dir: Path, cfg) -> dict:
+def fit_units_folder(corpus_dir: Path, out_dir: Path, cfg, *, held_out=()) -> dict:
     """Fit the Motion Units on a corpus folder; write ``motion_units.npz`` and
     ``variance.csv`` into ``out_dir``. Used by the stage and by ``talkingface units``.
 
-    Expression MUs are fitted for the expressions the corpus holds (none for a corpus of
-    neutral speech only); the result's ``expressions`` lists them, and its ``note``
+    ``held_out``: utterance ids left out of the fit — the units *and* the speakers' neutral
+    faces (:func:`face_model.alignment.speaker_neutrals`) come from the other utterances only;
+    the ids and the neutral faces used are kept in the units' metadata (``held_out_utterances``,
+    ``neutrals``: speaker → (79, 2) list, aligned pixels). Expression MUs are fitted for the
+    expressions the corpus holds (none for a corpus of neutral speech only); the result's
+    ``expressions`` lists them, and its ``note``
     (:func:`talkingface.stages.applies.expression_note`) says what is skipped without smile or
     sad."""
     corpus = load_corpus(corpus_dir)
+    held = set(held_out)
+    unknown = held - {u.utt_id for u in corpus.utterances}
+    if unknown:
+        raise ParameterError(f"held-out utterances {sorted(unknown)[:3]} are not in the corpus "
+                             f"at {corpus_dir}")
+    fitted = Corpus(corpus.root, corpus.info,
+                    [u for u in corpus.utterances if u.utt_id not in held])
+    if not fitted.utterances:
+        raise ParameterError(f"{corpus_dir}: every utterance is held out; none left to fit")
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    units, _ = fit_corpus_units(corpus, n_utterance=cfg.units.n_utterance,
+    # the fit's deformations are taken from these same neutral faces (speaker_neutrals of the
+    # utterances fitted: face_model.motion_units.fit_corpus_units)
+    neutrals = speaker_neutrals(fitted, model=cfg.units.alignment)
+    meta = {"corpus_hash": corpus_hash(corpus_dir)}
+    if held:
+        meta.update({"held_out_utterances": sorted(held),
+                     "neutrals": {k: v.tolist() for k, v in neutrals.items()}})
+    units, _ = fit_corpus_units(fitted, n_utterance=cfg.units.n_utterance,
                                 n_expression=cfg.units.n_expression,
-                                alignment=cfg.units.alignment,
-                                metadata={"corpus_hash": corpus_hash(corpus_dir)})
+                                alignment=cfg.units.alignment, metadata=meta)
     seconds = time.perf_counter() - t0
     with atomic_file(out_dir / "motion_units.npz") as tmp:
         units.save(tmp)
@@ -74,16 +94,39 @@ def fit_units_folder(corpus_dir: Path, out_dir: Path, cfg) -> dict:
             n = units.n_utterance if k == "neutral" else units.n_expression
             f.write(f"{k},{n},{v:.6f},{summary['paper'][k]}\n")
     record = {"fit_seconds": seconds, "summary": summary,
-              "expressions": list(units.expressions_)}
+              "expressions": list(units.expressions_), "held_out": len(held),
+              "fitted_utterances": len(fitted.utterances)}
     note = expression_note(u.expression for u in corpus.utterances)
     if note:
         record["note"] = note
     return record
 
 
+def units_held_out(corpus_dir: Path, cfg) -> list:
+    """The utterances the run's Motion Units must not see: on a given corpus (real data,
+    ``corpus.source`` set) the held-out sentences of the mapping's ``utterance`` split
+    (:func:`talkingface.stages.training.utterance_test_ids`, the same the mapping stage holds
+    out), so no score on them comes from units or a neutral face fitted on them. On the
+    synthetic corpus none: its units are fitted on the whole corpus, as the paper's Table I
+    (MU variance over the whole corpus) is, and its tables compare with that."""
+    if not given(cfg):
+        return []
+    return utterance_test_ids(load_corpus(corpus_dir), cfg)
+
+
+def units_inputs(paths: RunPaths, cfg) -> dict:
+    """What the units stage's key needs beyond its ``units`` section: on a given corpus, the
+    split that decides its held-out sentences (the seed and ``mapping.train_fraction``)."""
+    if not given(cfg):
+        return {}
+    return {"units_split": {"seed": cfg.seed, "train_fraction": cfg.mapping.train_fraction}}
+
+
 def fit_units(paths: RunPaths, cfg) -> dict:
-    """The Motion Units of the run's corpus."""
-    return fit_units_folder(paths.corpus, paths.units, cfg)
+    """The Motion Units of the run's corpus (on a given corpus, its training sentences only:
+    :func:`units_held_out`)."""
+    return fit_units_folder(paths.corpus, paths.units, cfg,
+                            held_out=units_held_out(paths.corpus, cfg))
 
 
 def fit_keyframes(paths: RunPaths, cfg) -> dict:

@@ -3,15 +3,25 @@
 ``real_speaker.corpus``.
 
 A nested run in ``runs/<name>/real/`` (the same stages, the same settings, the corpus given:
-:mod:`talkingface.stages.given_corpus`) fits the Motion Units and trains the mapping with its
-baselines on the real corpus — Tables I–II on both splits and the lip metrics. Then, on the
-nested run's held-out sentences (the utterance split's test part), three predictions of the inner
-lips are scored against the real lips (:mod:`talkingface.stages.face_scoring`,
-:mod:`analysis.face_eval`): the mapping trained on this speaker, the outer run's default model
-(trained on synthetic voices and faces only: it has never seen this speaker), and the loudness
-envelope (dB in 40 ms windows) as the floor any audio-driven mouth should beat. The stage folder
-holds ``summary.json``, per-clip CSVs, ``strip.npz`` and ``units.npz`` for the report's section
-(:mod:`analysis.real_face_report`).
+:mod:`talkingface.stages.given_corpus`) fits the Motion Units and the neutral face on the
+training sentences of the utterance split (:func:`talkingface.stages.foundation.units_held_out`)
+and trains the mapping with its baselines on the real corpus — Tables I–II on both splits and
+the lip metrics. Then, on the nested run's held-out sentences, the inner lips are scored against
+the real lips by the rules of :mod:`analysis.face_eval` (speech frames, silence apart, closures
+on /p b m/, chance, no-face frames excluded; :mod:`talkingface.stages.face_scoring`): the mapping
+trained on this speaker, the outer run's default model (trained on synthetic voices and faces
+only: it has never seen this speaker), and every peer of :mod:`mapping.peers` (the loudness
+envelope, ``openfacefx`` in transcript and loudness modes, ``pylipsync``). Every score is made
+from the corpus's audio at its own rate and from the same audio resampled to each rate of
+:data:`EXTRA_RATES` (the models and peers hear it at that rate).
+
+``openfacefx-text`` gets the transcript only (the manifest's ``text``), spread over the speech
+span (first to last non-silence phone): the corpus keeps phone times but no word times (its
+phones come from forced alignment; the source's ``.align`` word times are read only when the
+corpus is built), and splitting the phones into words would need the aligner's dictionary.
+
+The stage folder holds ``summary.json``, per-clip CSVs ``per_clip_<name>_<rate>.csv``,
+``strip.npz`` and ``units.npz`` for the report's section (:mod:`analysis.real_face_report`).
 """
 from __future__ import annotations
 
@@ -19,29 +29,37 @@ import csv
 import dataclasses
 import hashlib
 import json
+import time
 from pathlib import Path
 
 import numpy as np
 
 import face_model
-from analysis.face_eval import ClipTrack, score_clips, write_scores_csv
-from face_model.alignment import align_markers, speaker_neutrals, unflatten
+from analysis.face_eval import ClipTrack, normalised, write_scores_csv
+from face_model.alignment import align_markers
 from face_model.corpus import load_corpus
-from face_model.layout import mouth_opening
 from face_model.motion_units import MotionUnits
 from groundwork.atomic import atomic_file
-from groundwork.errors import ParameterError
+from groundwork.errors import CorpusError, ParameterError
 from mapping.animator import FaceAnimator
 from mapping.checkpoint import AudioMapping
+from mapping.peers import PEERS, peer_versions
 from talkingface.paths import RunPaths
 from talkingface.stages.base import read_done
-from talkingface.stages.face_scoring import RealClip, clips_from_corpus, score_model
+from talkingface.stages.face_scoring import (RealClip, clips_from_corpus, model_neutrals,
+                                             predicted_markers, score_model, score_peer)
 from talkingface.stages.models import find_model
+from talkingface.stages.training import utterance_test_ids
 
 BUILTIN = Path(face_model.__file__).resolve().parent / "real_faces" / "grid-s1"
 PAPER_VARIANCE = 0.9756
-TARGETS = {"speaker_r": 0.85, "synthetic_r": 0.7, "synthetic_closures": 0.8}
 NESTED = "real"  # runs/<name>/real: the nested run
+MODELS = ("speaker_model", "synthetic_model")
+# 2: speech frames, closures on /p b m/, chance, peers, input rates, units on training sentences
+SCORING_VERSION = 2
+EXTRA_RATES = (16000, 8000)  # Hz: the same audio resampled, beside the corpus's own rate
+WORD_TIMES = ("transcript over the speech span (first to last non-silence phone): the corpus "
+              "keeps no word times")
 
 
 def real_corpus(cfg) -> Path | None:
@@ -59,7 +77,8 @@ def real_speaker_applies(cfg) -> bool:
 
 
 def real_inputs(paths, cfg) -> dict:
-    """The real corpus's content joins the stage's key (its manifest's hash)."""
+    """The real corpus's content (its manifest's hash) and the scoring rules' version
+    (:data:`SCORING_VERSION`) join the stage's key."""
     src = real_corpus(cfg)
     if src is None:
         return {}
@@ -67,7 +86,8 @@ def real_inputs(paths, cfg) -> dict:
     if not manifest.is_file():
         raise ParameterError(f"real_speaker.corpus {src}: no manifest.csv (a corpus folder is "
                              "needed, e.g. one made by `talkingface corpus from-video`)")
-    return {"real_corpus": hashlib.sha256(manifest.read_bytes()).hexdigest()}
+    return {"real_corpus": hashlib.sha256(manifest.read_bytes()).hexdigest(),
+            "scoring": SCORING_VERSION}
 
 
 def _rows(path: Path) -> list[dict]:
@@ -83,51 +103,42 @@ def _variance(units_dir: Path) -> float | None:
     return MotionUnits.load(mu).variance_explained()["neutral"] if mu.is_file() else None
 
 
-def loudness_opening(y: np.ndarray, sr: int, n: int, window_s: float = 0.04) -> np.ndarray:
-    """The loudness envelope (dB of the RMS in ``window_s`` windows centred on each 30 fps
-    frame) as a stand-in opening: the floor an audio-driven mouth should beat."""
-    half = int(round(window_s * sr / 2))
-    centres = (np.arange(n) * sr / 30).astype(int)
-    out = np.empty(n)
-    for k, c in enumerate(centres):
-        seg = y[max(0, c - half):c + half]
-        out[k] = 10 * np.log10(np.mean(seg.astype(np.float64) ** 2) + 1e-10) if len(seg) else -100
-    return out
-
-
-def _loudness_scores(clips: list):
-    tracks = []
-    for c in clips:
-        real = mouth_opening(align_markers(c.markers))
-        tracks.append(ClipTrack(c.clip, c.speaker, real, loudness_opening(c.audio,
-                                                                          c.sample_rate,
-                                                                          len(real))))
-    return score_clips(tracks)
-
-
 def _animator(tfmap: Path, units: Path) -> FaceAnimator:
     return FaceAnimator(AudioMapping.load(tfmap), MotionUnits.load(units))
 
 
-def _strip(path: Path, clip: RealClip, models: dict, neutral: np.ndarray, scores: dict) -> None:
-    """The data of the report's frame strip: one held-out sentence, real and predicted."""
+def _strip(path: Path, clip: RealClip, models: dict, neutrals: dict) -> None:
+    """The data of the report's frame strip: one held-out sentence, real and predicted, the
+    openings z-scored on its speech frames (:func:`analysis.face_eval.normalised`)."""
     real = align_markers(clip.markers)
-    arrays = {"clip": np.str_(clip.clip), "real": real, "neutral": neutral}
-    n = len(real)
+    arrays = {"clip": np.str_(clip.clip), "real": real, "fps": np.float64(clip.fps),
+              "neutral": neutrals["speaker_model"]}
     for name, animator in models.items():
-        mups = animator.mups(clip.audio, clip.sample_rate)
-        pred = neutral[None] + unflatten(animator.units.inverse_transform(mups, "neutral"))
-        n = min(n, len(pred))
-        arrays[name] = pred
-    for k in ("real", *models):
-        arrays[k] = arrays[k][:n]
-        track = next((t for t in scores.get(k, scores["speaker"]).tracks if t.clip == clip.clip),
-                     None)
-        z = mouth_opening(arrays[k])
-        arrays[f"{k}_opening"] = (z - z.mean()) / (z.std() + 1e-12) if track is None else (
-            track.real[:n] if k == "real" else track.predicted[:n])
+        key = name.replace("_model", "")
+        pred = predicted_markers(animator, clip, neutrals[name])
+        track = ClipTrack.from_markers(
+            clip.clip, clip.speaker, real, pred, clip.fps, phones=clip.phones,
+            valid=clip.valid, lve=False)
+        z_real, z_pred = normalised(track)
+        arrays[key], arrays[f"{key}_opening"], arrays["real_opening"] = pred, z_pred, z_real
     with atomic_file(path) as tmp:
         np.savez(tmp, **arrays)
+
+
+def _score_all(clips, speaker, synthetic, corpus, rate, out: Path) -> dict:
+    """Every model and peer on ``clips`` with the audio at ``rate`` (None: the corpus's)."""
+    label = rate or clips[0].sample_rate
+    scores = {"speaker_model": score_model(speaker, clips, training_corpus=corpus,
+                                           input_rate=rate),
+              "synthetic_model": score_model(synthetic, clips, input_rate=rate)}
+    scores.update({p: score_peer(p, clips, input_rate=rate) for p in PEERS})
+    out_dict = {}
+    for name, s in scores.items():
+        write_scores_csv(s, out / f"per_clip_{name}_{label}.csv", extra={"input_rate": label})
+        d = s.to_dict()
+        d["pooled"]["input_rate"] = label
+        out_dict[name] = d
+    return out_dict
 
 
 def evaluate_real_speaker(paths: RunPaths, cfg, runner) -> dict:
@@ -138,52 +149,74 @@ def evaluate_real_speaker(paths: RunPaths, cfg, runner) -> dict:
     sub_cfg = dataclasses.replace(cfg, corpus=dataclasses.replace(cfg.corpus,
                                                                   source=str(src.resolve())))
     runner(["units", "mapping"], nested, sub_cfg)
+    t0 = time.perf_counter()
     mapping_done = read_done(nested.mapping) or {}
     test_ids = mapping_done.get("test_utterances") or []
     if isinstance(test_ids, str):
         test_ids = json.loads(test_ids.replace("'", '"'))
     corpus = load_corpus(nested.corpus)
+    expected = utterance_test_ids(corpus, sub_cfg)
+    if list(test_ids) != expected:
+        raise CorpusError(f"{nested.mapping}: the mapping held out {len(test_ids)} utterances, "
+                          f"the split of the units stage {len(expected)}; they must be the same")
+    units_path = nested.units / "motion_units.npz"
+    held = set(MotionUnits.load(units_path).metadata_.get("held_out_utterances") or [])
+    leaked = sorted(set(test_ids) - held)
     clips = clips_from_corpus(nested.corpus, test_ids)
     speaker_tfmap = nested.mapping / mapping_done["models"]["utterance"]
-    speaker = _animator(speaker_tfmap, nested.units / "motion_units.npz")
+    speaker = _animator(speaker_tfmap, units_path)
     synth_tfmap, synth_units = find_model(str(paths.root), paths.root.parent)
     synthetic = _animator(synth_tfmap, synth_units)
-    scores = {"speaker": score_model(speaker, clips, training_corpus=corpus),
-              "synthetic": score_model(synthetic, clips),
-              "loudness": _loudness_scores(clips)}
-    for name, s in scores.items():
-        write_scores_csv(s, out / f"per_clip_{name}.csv")
-    neutral = speaker_neutrals(corpus)[clips[0].speaker]
-    median_clip = sorted(scores["speaker"].clips, key=lambda r: r.r)[len(clips) // 2].clip
+    native = clips[0].sample_rate
+    rates = {native: _score_all(clips, speaker, synthetic, corpus, None, out)}
+    for r in EXTRA_RATES:
+        rates[r] = _score_all(clips, speaker, synthetic, corpus, r, out)
+    aligned = {c.clip: align_markers(c.markers) for c in clips}
+    neutrals = {"speaker_model": model_neutrals(speaker, clips, aligned, corpus)[0],
+                "synthetic_model": model_neutrals(synthetic, clips, aligned)[0]}
+    spk = clips[0].speaker
+    by_r = sorted(rates[native]["speaker_model"]["clips"],
+                  key=lambda row: (row["r_speech"] is None, row["r_speech"] or 0.0))
+    median_clip = by_r[len(by_r) // 2]["clip"]
     strip_clip = next(c for c in clips if c.clip == median_clip)
-    _strip(out / "strip.npz", strip_clip, {"speaker": speaker, "synthetic": synthetic}, neutral,
-           scores)
+    _strip(out / "strip.npz", strip_clip, {"speaker_model": speaker,
+                                            "synthetic_model": synthetic},
+           {k: v[spk] for k, v in neutrals.items()})
     units = speaker.units
     with atomic_file(out / "units.npz") as tmp:
         np.savez(tmp, components=units.components_,
-                 scale=2 * np.sqrt(units.variance_[:units.n_utterance]), neutral=neutral)
+                 scale=2 * np.sqrt(units.variance_[:units.n_utterance]),
+                 neutral=neutrals["speaker_model"][spk])
     info = corpus.info
+    units_done = read_done(nested.units) or {}
     summary = {
-        "corpus": {"source": info.get("source", str(src)), "speaker": clips[0].speaker,
-                   "utterances": len(corpus), "frames": corpus.n_frames,
-                   "refused": info.get("refused", 0), "licence": info.get("licence", "")},
+        "corpus": {"source": info.get("source", str(src)), "speaker": spk,
+                   "utterances": len(corpus), "frames": corpus.n_frames, "fps": clips[0].fps,
+                   "sample_rate": native, "refused": info.get("refused", 0),
+                   "licence": info.get("licence", "")},
         "units": {"n_utterance": units.n_utterance, "variance_explained":
                   _variance(nested.units), "synthetic": _variance(paths.units),
-                  "paper": PAPER_VARIANCE},
+                  "paper": PAPER_VARIANCE,
+                  "fitted_utterances": units_done.get("fitted_utterances"),
+                  "held_out": len(held), "test_sentences_in_fit": len(leaked)},
         "tables": {"real": _rows(nested.mapping / "tables.csv"),
                    "synthetic": _rows(paths.mapping / "tables.csv")},
         "test_utterances": test_ids,
-        "face_scores": {"speaker_model": scores["speaker"].to_dict(),
-                        "synthetic_model": scores["synthetic"].to_dict(),
-                        "loudness": scores["loudness"].to_dict()},
+        "input_rate": native,
+        "face_scores": rates[native],
+        "rates": {str(r): {k: v["pooled"] for k, v in d.items()} for r, d in rates.items()},
+        "peers": {"names": list(PEERS), "versions": peer_versions(),
+                  "openfacefx_text_words": WORD_TIMES},
         "models": {"speaker_model": str(speaker_tfmap), "synthetic_model": str(synth_tfmap)},
-        "targets": TARGETS,
-        "note": (mapping_done.get("note") or read_done(nested.units) or {}).get("note", "")
-        if isinstance(mapping_done.get("note"), dict) else str(mapping_done.get("note", "")),
+        "scoring_seconds": time.perf_counter() - t0,
+        "note": str(mapping_done.get("note", "")),
     }
     with atomic_file(out / "summary.json") as tmp:
         tmp.write_text(json.dumps(summary, indent=1, default=float) + "\n")
-    p = {k: v.pooled for k, v in scores.items()}
-    return {"speaker_r": p["speaker"]["r_pooled"], "synthetic_r": p["synthetic"]["r_pooled"],
-            "synthetic_closures": p["synthetic"]["closure_agreed_frac"],
-            "loudness_r": p["loudness"]["r_pooled"], "test_clips": len(clips)}
+    p = {k: v["pooled"] for k, v in rates[native].items()}
+    nan = float("nan")
+    return {"speaker_r": p["speaker_model"]["r_speech"],
+            "synthetic_r": p["synthetic_model"]["r_speech"],
+            "synthetic_closures": p["synthetic_model"]["closure_rate"],
+            "loudness_r": p["loudness"]["r_speech"] if "loudness" in p else nan,
+            "test_clips": len(clips), "scoring_seconds": summary["scoring_seconds"]}

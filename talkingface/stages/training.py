@@ -27,8 +27,8 @@ from face_model.corpus import corpus_hash, load_corpus
 from face_model.motion_units import MotionUnits
 from groundwork.cache import ArrayCache
 from mapping.checkpoint import AudioMapping, rest_mups
-from mapping.dataset import build_dataset
-from mapping.experiment import recognise_context, run_experiment
+from mapping.dataset import build_dataset, held_out_utterances
+from mapping.experiment import SPLIT_SEED_OFFSET, recognise_context, run_experiment
 from talkingface.config import to_dict
 from talkingface.executor import map_tasks
 from talkingface.paths import RunPaths
@@ -73,7 +73,7 @@ def train_and_evaluate(corpus_dir: Path, units_path: Path, out_dir: Path, cfg, *
     t0 = time.perf_counter()
     data = build_dataset(corpus, units, n_mfcc=m.n_mfcc, deltas=m.deltas,
                          recognise_context=recognise_context(m), window_align=m.window_align,
-                         progress=progress, cache=None if cache is None else ArrayCache(cache))
+                         mel_fmax_hz=m.mel_fmax_hz, progress=progress, cache=None if cache is None else ArrayCache(cache))
     feature_seconds = time.perf_counter() - t0
     trained = run_experiment(data, m, n_utterance=units.n_utterance, seed=cfg.seed,
                              methods=methods, splits=splits, progress=progress, map_fn=map_fn)
@@ -95,7 +95,7 @@ def train_and_evaluate(corpus_dir: Path, units_path: Path, out_dir: Path, cfg, *
             AudioMapping(r.trained.mapper, sample_rate=first.sample_rate, fps=first.fps,
                          n_mfcc=m.n_mfcc, deltas=m.deltas, n_utterance=units.n_utterance,
                          rest_mups=rest_mups(units), metadata={**meta, "split": r.split},
-                         window_align=m.window_align).save(path)
+                         window_align=m.window_align, mel_fmax_hz=m.mel_fmax_hz).save(path)
             models[r.split] = str(path.name)
     (out_dir / "gate.json").write_text(json.dumps(gate, indent=1))
     traj = (mup_trajectories(_trajectory_items(data, results, m.method, units.n_utterance),
@@ -115,6 +115,16 @@ def train_and_evaluate(corpus_dir: Path, units_path: Path, out_dir: Path, cfg, *
     if note:  # no expression cascade for an expression the corpus does not hold
         record["note"] = note
     return record
+
+
+def utterance_test_ids(corpus, cfg) -> list:
+    """The ids of the ``utterance`` split's test utterances of ``corpus`` (a loaded corpus)
+    under ``cfg``: the split :func:`mapping.experiment.run_experiment` draws (seed
+    ``cfg.seed + SPLIT_SEED_OFFSET``, ``mapping.train_fraction``), known before anything is
+    fitted — the units stage leaves them out on a given corpus
+    (:func:`talkingface.stages.foundation.units_held_out`)."""
+    return held_out_utterances(corpus.utterances, train_fraction=cfg.mapping.train_fraction,
+                               seed=cfg.seed + SPLIT_SEED_OFFSET)
 
 
 def network_costs(fits) -> dict:

@@ -97,10 +97,11 @@ def train_voices(paths: RunPaths, cfg) -> dict:
         if not tfmap.is_file():
             raise ParameterError(f"{VOICES.what} child {name!r} trained no utterance-split "
                                  "model; keep 'utterance' in its mapping.splits")
-        key = (m.n_mfcc, m.deltas, recognise_context(m), m.window_align)
+        key = (m.n_mfcc, m.deltas, recognise_context(m), m.window_align, m.mel_fmax_hz)
         if key not in own:
             data = build_dataset(own_corpus, units, n_mfcc=m.n_mfcc, deltas=m.deltas,
                                  recognise_context=key[2], window_align=m.window_align,
+                                 mel_fmax_hz=m.mel_fmax_hz,
                                  cache=ArrayCache(paths.cache))
             own[key] = (data, split_masks(
                 data, "utterance", train_fraction=cfg.mapping.train_fraction,

@@ -9,6 +9,7 @@ from pypdf import PdfReader
 
 from analysis.real_face_report import (frame_strip_figure, mu_figure, real_speaker_section,
                                        strip_frames, target_checks)
+from analysis.config import TargetsConfig
 from analysis.report import Report
 from face_model.layout import default_layout, mouth_opening
 
@@ -26,14 +27,21 @@ def _row(split, part, R, method="gated_mlp", **lips):
     return row
 
 
-def _scores(r, median, agreed, events, false, predicted, lve=None):
-    return {"rule": {}, "speakers": [], "clips": [],
-            "pooled": {"clips": 3, "speakers": 1, "frames": 270, "r_pooled": r,
-                       "r_clip_mean": median, "r_clip_median": median,
-                       "closure_events": events, "closures_agreed": agreed,
-                       "closure_agreed_frac": agreed / events, "predicted_closure_events":
-                       predicted, "false_closures": false, "false_closure_frac":
-                       false / predicted, "lve_px": lve, "lve_clips": 3 if lve else 0}}
+def _scores(r, median, hit, segments, false, lve=None, silence=0.2, chance=0.01):
+    return {"rule": {"half_window_s": 0.1, "close_fraction": 0.2}, "clips": [],
+            "pooled": {"clips": 3, "speakers": 1, "frames": 270, "speech_frames": 150,
+                       "silence_frames": 120, "excluded_frames": 0, "speech_known": True,
+                       "r_speech": r, "chance_r_speech": chance, "r_silence": silence,
+                       "chance_r_silence": -0.02, "r_clip_mean": median,
+                       "r_clip_median": median, "bilabial_segments": segments,
+                       "closures_hit": hit, "closure_rate": hit / segments,
+                       "chance_closure_rate": 0.3, "real_closed_rate": 1.0,
+                       "real_false_closure_rate": 0.05, "control_segments": 100,
+                       "false_closures": false, "false_closure_rate": false / 100,
+                       "chance_false_closure_rate": 0.4, "lve_px": lve,
+                       "lve_clips": 3 if lve else 0,
+                       "interval_r_speech": "(no interval: 1 speaker; an interval needs at "
+                                            "least 3)"}}
 
 
 def _summary(speaker_r=0.912, synthetic_r=0.654) -> dict:
@@ -53,12 +61,23 @@ def _summary(speaker_r=0.912, synthetic_r=0.654) -> dict:
                   "paper": 0.9756},
         "tables": tables,
         "test_utterances": ["bbaf2n", "bbaf3s", "bbal6n"],
-        "face_scores": {"speaker_model": _scores(speaker_r, 0.901, 17, 20, 2, 19, lve=3.77),
-                        "synthetic_model": _scores(synthetic_r, 0.612, 13, 20, 5, 18),
-                        "loudness": _scores(0.301, 0.287, 6, 20, 9, 15)},
+        "input_rate": 22050,
+        "face_scores": {"speaker_model": _scores(speaker_r, 0.901, 17, 20, 2, lve=3.77),
+                        "synthetic_model": _scores(synthetic_r, 0.612, 13, 20, 5),
+                        "loudness": _scores(0.701, 0.287, 6, 20, 9),
+                        "openfacefx-text": _scores(0.211, 0.2, 16, 20, 3),
+                        "openfacefx-energy": _scores(0.305, 0.3, 12, 20, 12),
+                        "pylipsync": _scores(0.266, 0.25, 19, 20, 90)},
+        "rates": {"22050": {"speaker_model": {"r_speech": speaker_r},
+                            "synthetic_model": {"r_speech": synthetic_r}},
+                  "16000": {"speaker_model": {"r_speech": 0.905},
+                            "synthetic_model": {"r_speech": 0.601}},
+                  "8000": {"speaker_model": {"r_speech": 0.812},
+                           "synthetic_model": {"r_speech": 0.433}}},
+        "peers": {"versions": {"openfacefx": "0.24.0", "pylipsync": "0.2.1"},
+                  "openfacefx_text_words": "transcript over the speech span"},
         "models": {"speaker_model": "real/mapping/gated_mlp_utterance.tfmap",
                    "synthetic_model": "/x/runs/r1/voices-many-cmvn/mapping/gated_mlp_utterance.tfmap"},
-        "targets": {"speaker_r": 0.85, "synthetic_r": 0.7, "synthetic_closures": 0.8},
         "note": "The corpus holds neutral speech only: no expression MUs or cascades.",
     }
 
@@ -109,24 +128,45 @@ def test_the_section_prints_the_summarys_numbers(stage, tmp_path):
               "91.23 %", "98.11 %", "97.56 %", "neutral speech only",
               "0.871", "0.862", "0.858", "0.843", "0.951", "0.968", "0.980",  # Tables I-II
               "4.56", "3.21", "0.777", "0.944", "0.71 of 21", "0.88 of 40",  # lips
-              "0.912", "0.654", "0.301", "0.901", "0.612", "0.287",  # pooled / median r
-              "17/20 (85 %)", "13/20 (65 %)", "10.5 %", "3.77",  # closures, false, LVE
-              "voices-many-cmvn/mapping/gated_mlp_utterance.tfmap", "3 held-out sentences", "270 frames"):
+              "0.912 (0.010)", "0.654 (0.010)", "0.701 (0.010)", "0.901", "0.612",
+              "17/20 85 % (30 %)", "13/20 65 % (30 %)", "2 % (40 %)", "3.77",
+              "voices-many-cmvn/mapping/gated_mlp_utterance.tfmap", "on 3 held-out sentences",
+              "1 speaker; an interval needs at least 3", "audio at 22050 Hz",
+              "input 22050 Hz", "22050 Hz", "16000 Hz", "8000 Hz", "0.905", "0.433",
+              "openfacefx 0.24.0", "pylipsync 0.2.1", "transcript over the speech span",
+              "PP", "silence", "face_speaker_r 0.85"):
         assert s in text, s
     assert "0.500" not in text  # another method's row is not in the gated MLP's table
     assert len(list((tmp_path / "figs").glob("*.png"))) == 2
 
 
+def test_the_default_below_a_peer_is_said_plainly(stage, tmp_path):
+    text = _build(stage, tmp_path)
+    assert ("its speech-frame r (0.654) is below the loudness envelope's (0.701) by 0.047"
+            in text)
+    assert "share of /p b m/ closed (65 %) is below the openfacefx, transcript's (80 %)" in text
+    assert "false-closure rate (5 %) is above that of the openfacefx, transcript (3 %)" in text
+    assert "below the pylipsync" not in text.split("speech-frame r (0.654)")[1][:40]
+
+
+def test_every_table_and_figure_is_cited(stage, tmp_path):
+    rep = Report("T")
+    real_speaker_section(rep, stage, tmp_path / "figs")
+    rep.build(tmp_path / "r.pdf")
+    assert rep.uncited() == []
+
+
 def test_targets_met_and_not_met_are_computed(stage, tmp_path):
     text = _build(stage, tmp_path)
     speaker = _row_text(text, "speaker-trained model", "synthetic-trained default")
-    synthetic = _row_text(text, "synthetic-trained default", "loudness envelope (floor)")
+    synthetic = _row_text(text, "synthetic-trained default", "loudness envelope (peer)")
     assert re.search(r"r ≥ 0\.85: met", speaker) and "not met" not in speaker
     assert "r ≥ 0.70: not met" in synthetic and "closures ≥ 80 %: not met" in synthetic
-    (stage / "summary.json").write_text(json.dumps(_summary(speaker_r=0.80, synthetic_r=0.75)))
+    s = _summary(speaker_r=0.80, synthetic_r=0.75)
+    (stage / "summary.json").write_text(json.dumps(s))
     text = _build(stage, tmp_path)
     speaker = _row_text(text, "speaker-trained model", "synthetic-trained default")
-    synthetic = _row_text(text, "synthetic-trained default", "loudness envelope (floor)")
+    synthetic = _row_text(text, "synthetic-trained default", "loudness envelope (peer)")
     assert "r ≥ 0.85: not met" in speaker
     assert "r ≥ 0.70: met" in synthetic
 
@@ -135,9 +175,15 @@ def test_target_checks_compare_with_the_targets():
     s = _summary(speaker_r=0.85, synthetic_r=None)
     checks = {(c["model"], c["what"]): c["verdict"] for c in target_checks(s)}
     assert checks == {("speaker_model", "r"): "met", ("synthetic_model", "r"): "not measured",
-                      ("synthetic_model", "closures"): "not met"}
-    s["targets"] = {}
-    assert target_checks(s) == []
+                      ("synthetic_model", "closures"): "not met",
+                      ("speaker_model", "rate"): "met",  # 0.85 at 22.05 kHz, 0.905 at 16
+                      ("synthetic_model", "rate"): "not measured"}
+    s = _summary()
+    rate = {c["model"]: c for c in target_checks(s, TargetsConfig(rate_tolerance=0.01))
+            if c["what"] == "rate"}
+    assert rate["speaker_model"]["value"] == pytest.approx(0.912 - 0.905)
+    assert rate["speaker_model"]["verdict"] == "met"
+    assert rate["synthetic_model"]["verdict"] == "not met"  # 0.654 - 0.601 > 0.01
 
 
 def test_missing_files_and_values_are_said_in_a_sentence(stage, tmp_path):
@@ -149,7 +195,7 @@ def test_missing_files_and_values_are_said_in_a_sentence(stage, tmp_path):
     text = _build(stage, tmp_path)
     assert "No frame strip: the stage left no strip.npz." in text
     assert "absent from the summary for this run's synthetic corpus" in text
-    synthetic = _row_text(text, "synthetic-trained default", "loudness envelope (floor)")
+    synthetic = _row_text(text, "synthetic-trained default", "loudness envelope (peer)")
     assert "not measured" in synthetic
     assert not (tmp_path / "figs" / "real_strip.png").exists()
 

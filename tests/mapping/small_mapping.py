@@ -21,14 +21,14 @@ def train_small(corpus, *, method: str = "gated_mlp", split: str = "utterance",
                                train=dataclasses.replace(cfg.mapping.train, max_epochs=epochs))
     units, _ = fit_corpus_units(corpus)
     data = build_dataset(corpus, units, recognise_context=recognise_context(mcfg),
-                         window_align=mcfg.window_align)
+                         window_align=mcfg.window_align, mel_fmax_hz=mcfg.mel_fmax_hz)
     masks = split_masks(data, split, seed=cfg.seed)
     copies = augmented_copies(data, masks, mcfg, seed=cfg.seed)
     result = train_method(method, data, masks, mcfg, n_utterance=units.n_utterance,
                           split=split, seed=cfg.seed, copies=copies)
     mapping = AudioMapping(result.mapper, sample_rate=corpus.utterances[0].sample_rate,
                            n_utterance=units.n_utterance, rest_mups=rest_mups(units),
-                           window_align=mcfg.window_align)
+                           window_align=mcfg.window_align, mel_fmax_hz=mcfg.mel_fmax_hz)
     return SimpleNamespace(mapping=mapping, units=units, data=data, masks=masks, copies=copies,
                            result=result)
 

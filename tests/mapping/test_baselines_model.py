@@ -116,7 +116,7 @@ def test_make_mapper():
 # source).
 NOT_HYPER_PARAMETERS = {"method", "baselines", "splits", "train_fraction", "n_mfcc", "deltas",
                         "visual_source", "vtlp_range", "augment", "window_align",
-                        "workers"}  # where the methods train: the speed only
+                        "mel_fmax_hz", "workers"}  # where the methods train: the speed only
 
 
 def estimator_parameters(cls) -> set:

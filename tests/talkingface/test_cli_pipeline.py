@@ -78,7 +78,7 @@ def test_replicate_writes_runs_report_and_mlflow(workdir, capsys):
     assert real["corpus"]["utterances"] == 196 and real["test_utterances"]
     assert (run / "real" / "mapping" / "tables.csv").is_file()
     assert "A real speaker (GRID s1)" in text and "Cooke" in text
-    speaker_r = real["face_scores"]["speaker_model"]["pooled"]["r_pooled"]
+    speaker_r = real["face_scores"]["speaker_model"]["pooled"]["r_speech"]
     assert f"{speaker_r:.3f}" in text
     summary = json.loads((run / "report" / "summary.json").read_text())
     ours = f"{100 * summary['units']['explained']['neutral']:.2f} %"
