@@ -195,18 +195,25 @@ def _share(flags) -> str:
     return f"{flags.mean():.1%} ({int(flags.sum())}/{len(flags)})" if len(flags) else "n/a"
 
 
+def closed_level(opening) -> float:
+    """The closed level of one clip's real lips, P10 + 0.10 × (P90 − P10) of its openings: the
+    lowest decile is the closed floor of running speech, a tenth of the ordinary range the
+    margin for landmark jitter (a measurement of the labels, fixed before they were compared)."""
+    p10, p90 = np.percentile(np.asarray(opening, dtype=np.float64), [10, 90])
+    return float(p10 + 0.10 * (p90 - p10))
+
+
 def measure(set_dir=SET_DIR) -> dict:
     """Both label sets against the real lips and each other, pooled over the sentences.
 
-    Closed level per clip: :func:`analysis.face_eval.closure_threshold` of the clip's own
-    opening (:func:`face_model.layout.mouth_opening` of the glasses-aligned markers),
+    Closed level per clip: :func:`closed_level` of the clip's own opening
+    (:func:`face_model.layout.mouth_opening` of the glasses-aligned markers),
     P10 + 0.10 × (P90 − P10). A segment *reaches* it when the opening is at or below it in a
     frame overlapping the segment (:func:`analysis.speech_eval.segment_contact`); *at centre*
     when the opening interpolated at the segment's centre is. Visemes per 30 fps frame
     (frame k at k/30 s): agreement over all frames and over frames where either set has speech.
     """
     # the measurement's own imports: building and checking the labels need none of them
-    from analysis.face_eval import closure_threshold
     from analysis.speech_eval import VOWELS, phone_frames, segment_contact, viseme_index
     from face_model.alignment import align_markers
     from face_model.layout import mouth_opening
@@ -221,7 +228,7 @@ def measure(set_dir=SET_DIR) -> dict:
         ours = read_labels(set_dir / SUBDIR / f"{utt}.csv", duration)
         ps = read_phones(BUILTIN / "phones" / f"{utt}.csv", duration)
         opening = mouth_opening(align_markers(np.load(BUILTIN / "markers" / f"{utt}.npy")))
-        thr = closure_threshold(opening)
+        thr = closed_level(opening)
         levels.append(thr)
         spans.append(np.percentile(opening, 90) - np.percentile(opening, 10))
         for name, segs in (("grid", ours), ("ps", ps)):
