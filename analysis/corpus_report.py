@@ -192,18 +192,28 @@ def corpus_section(report, corpus_summary: dict, figs: dict, *, given: dict | No
     if scope:
         report.paragraph(f"<b>{escape(scope)}</b>")
     if switched_off:
+        report.paragraph("{label:switched_off} lists the stages this corpus switches off, and "
+                         "why.")
         report.table("Stages this corpus switches off", ["stage", "why"],
                      [[k, escape(v)] for k, v in switched_off.items()], key="switched_off")
     rows = [[e, v["utterances"], v["frames"], f"{v['seconds']:.1f}"]
             for e, v in s["per_expression"].items()]
     rows.append(["total", s["n_utterances"], s["n_frames"],
                  f"{sum(v['seconds'] for v in s['per_expression'].values()):.1f}"])
-    report.table("Corpus summary", ["expression", "utterances", "frames", "seconds"], rows)
-    report.figure(figs["phones"], "Frames per phone class (log scale), all 44 classes.")
+    report.paragraph("{label:corpus_summary} counts the utterances, frames and seconds per "
+                     "expression; {label:corpus_phones} the frames of each phone class; "
+                     "{label:corpus_layout} shows the marker layout and {label:corpus_lips} the "
+                     "inner-lip aperture of one sentence per expression.")
+    report.table("Corpus summary", ["expression", "utterances", "frames", "seconds"], rows,
+                 key="corpus_summary")
+    report.figure(figs["phones"], "Frames per phone class (log scale), all 44 classes.",
+                  key="corpus_phones")
     report.figure(figs["layout"], "The marker layout and mesh in the style of the paper's Fig. 2: "
-                  "22 forehead, 24 cheek and 30 lip markers, and 3 on the glasses.", width=0.85)
+                  "22 forehead, 24 cheek and 30 lip markers, and 3 on the glasses.", width=0.85,
+                  key="corpus_layout")
     report.figure(figs["trajectories"], "Inner-lip aperture of one sentence in each expression, "
-                  "after alignment by the glasses, with the phones under it (grey: silence).")
+                  "after alignment by the glasses, with the phones under it (grey: silence).",
+                  key="corpus_lips")
 
 
 def units_section(report, units_summary: dict, figs: dict, *, note: str | None = None) -> None:
@@ -214,7 +224,11 @@ def units_section(report, units_summary: dict, figs: dict, *, note: str | None =
     report.paragraph(
         "Deformations are aligned marker positions minus the speaker's neutral face. Utterance "
         f"MUs: PCA of the neutral deformations (A0 = {s['n_utterance']}). Expression MUs: PCA of "
-        f"the residual beyond the utterance MUs, per expression (A<sub>k</sub> = {s['n_expression']}).")
+        f"the residual beyond the utterance MUs, per expression (A<sub>k</sub> = {s['n_expression']}). "
+        "{label:mu_variance} sets the variance they explain beside the paper's, "
+        "{label:mu_variance_fig} draws it; {label:utterance_mus} shows the utterance MUs"
+        + (" and {label:expression_mus} the expression MUs." if "expression_mus" in figs
+           else "."))
     noise = s["noise_share"]
     rows = [["Utterance MUs (neutral speech)", s["n_utterance"], _pct(s["explained"]["neutral"]),
              _pct(s["paper"]["neutral"]), _pct(noise["neutral"])]]
@@ -228,13 +242,16 @@ def units_section(report, units_summary: dict, figs: dict, *, note: str | None =
                       "2 expression MUs capture at least 98.13 % of the residual. Noise floor: "
                       "the share of the variance in a flat tail of the spectrum (median eigenvalue "
                       "beyond axis 20 times the number of axes), which no few MUs can explain. "
-                      "The expression residuals are small, so marker noise weighs more in them.")
+                      "The expression residuals are small, so marker noise weighs more in them.",
+                 key="mu_variance")
     if note:
         report.paragraph(escape(note))
     report.figure(figs["variance"], "Cumulative variance explained; circles: the number kept; "
-                  "stars: the paper's values.", width=0.75)
+                  "stars: the paper's values.", width=0.75, key="mu_variance_fig")
     report.figure(figs["utterance_mus"], "The utterance MUs as displacement arrows on the "
-                  "neutral face: each MU times one standard deviation of its MUP (common scale).")
+                  "neutral face: each MU times one standard deviation of its MUP (common scale).",
+                  key="utterance_mus")
     if "expression_mus" in figs:
         report.figure(figs["expression_mus"], "Expression MUs: the residual mean m<sub>k0</sub> and the "
-                      "principal axes (times one standard deviation), per expression.", width=0.8)
+                      "principal axes (times one standard deviation), per expression.", width=0.8,
+                      key="expression_mus")

@@ -10,14 +10,18 @@ computed that the cited tables do not show.
 from __future__ import annotations
 
 import csv
+import json
 import math
 from pathlib import Path
 
-from analysis.grid_summary import best, fmt, fmt_p, grid_summary, read_replicates
+from analysis import real_face_report as face
+from analysis import speech_report as speech
+from analysis.config import TargetsConfig
+from analysis.grid_summary import (best, delta_cell, fmt, fmt_level, fmt_p, grid_summary,
+                                   read_replicates)
 from analysis.mapping_report import _f, ci_cell, lookahead_rows_for_report
 from analysis.metrics import PAPER_TABLES
 from analysis.report import escape
-from analysis.speech_report import _num, _with_interval, file_intervals
 
 KEEP = 0.95  # the share of R the look-ahead finding asks the mapping to keep
 
@@ -74,8 +78,8 @@ def ablation_finding(ab_dir: Path) -> str | None:
                    "no difference": "not significantly different after Holm's correction",
                    "not tested": "not tested (one seed)"}[top["verdict"]]
         text += (f"The best is <i>{escape(top['setting'])}</i>: {fmt(top['R'])} ± "
-                 f"{fmt(top['R_ci95'])}, Δ {fmt(top['delta'], sign=True)} ± "
-                 f"{fmt(top['delta_ci95'])}, p (Holm) {fmt_p(top['p_holm'])} — {verdict}. ")
+                 f"{fmt(top['R_ci95'])}, Δ {delta_cell(top)} (Holm-adjusted interval, "
+                 f"{fmt_level(top['ci_level'])}), p (Holm) {fmt_p(top['p_holm'])} — {verdict}. ")
     worse = sum(r["verdict"] == "worse" for r in summary if r["split"] == split)
     better = sum(r["verdict"] == "better" for r in summary if r["split"] == split)
     return (text + f"{better} setting{'s' * (better != 1)} differ{'s' * (better == 1)} for "
@@ -120,33 +124,97 @@ def ceiling_finding(ceiling_dir: Path) -> str | None:
             + "; ".join(parts) + f"; the paper {_f(paper)} " + _cite("ceiling") + ".")
 
 
-def speech_finding(speech_dir: Path, default_model: str | None) -> str | None:
-    """The default model on the unseen test speakers against the recogniser."""
-    rows = [r for r in _read(speech_dir / "results.csv")
-            if r["split"] == "unseen-test" and r.get("files") not in ("", "0")]
+def _stream_key(rows: list[dict], targets: TargetsConfig) -> str | None:
+    """The streaming viseme column at the targets' look-ahead, else the first one the rows
+    have (the one the speech section shows)."""
+    keys = [k for k in (rows[0] if rows else {}) if k.startswith("viseme_acc_stream_")]
+    want = f"viseme_acc_stream_{targets.lookahead_ms:g}ms"
+    return want if want in keys else (keys[0] if keys else None)
+
+
+def speech_finding(speech_dir: Path, default_model: str | None,
+                   targets: TargetsConfig | None = None) -> str | None:
+    """The default model on the unseen test speakers, streaming, against the recognisers
+    streaming at the same look-ahead and against the target: each figure as the section's
+    table prints it (:func:`analysis.speech_report._cell`: the value, its speaker-level
+    interval, the chance baseline), with the speakers and recordings behind it."""
+    targets = targets or TargetsConfig()
+    rows = [r for r in speech._rows(speech_dir / "results.csv")
+            if r["split"] == "unseen-test" and r.get("files") not in ("", "0", None)
+            and str(r.get("input_rate") or "native") == "native"]
     if not rows:
         return None
     model = f"voices-{default_model}" if default_model else "gated_mlp_utterance"
     mine = next((r for r in rows if r["model"] == model), None)
-    bars = [r for r in rows if r["model"].startswith(("pocketsphinx", "hama"))]
-    if mine is None:
+    key = _stream_key(rows, targets)
+    if mine is None or key is None:
         return None
-    per_file = _read(speech_dir / "per_file.csv")
-
-    def fig(row, key):
-        ci = file_intervals(per_file, row["model"], "unseen-test").get(key)
-        return _with_interval(row.get(key), ci)
-
-    text = (f"<b>Real speech.</b> On the unseen test speakers the default model "
-            f"(<i>{escape(model)}</i>) labels visemes at {fig(mine, 'viseme_acc')}")
-    if _num(mine.get("viseme_acc_stream_100ms")) != "–":
-        text += f" ({fig(mine, 'viseme_acc_stream_100ms')} streaming at 100 ms)"
+    ms = key.rsplit("_", 1)[-1].replace("ms", " ms")
+    bars = [r for r in rows if r["model"].startswith(speech.RECOGNISERS)]
+    value = speech._num(mine.get(key))
+    text = (f"<b>Real speech.</b> On the unseen test speakers ({mine.get('speakers') or 0} "
+            f"speakers, {mine.get('files') or 0} recordings) the default model "
+            f"(<i>{escape(model)}</i>) streaming at {ms} labels visemes at "
+            f"{speech._cell(mine, key, chance=False)}")
+    if value != "–":
+        met = float(mine[key]) >= targets.viseme_accuracy
+        text += (f": {'at or above' if met else 'below'} the target of "
+                 f"{targets.viseme_accuracy:g} {_cite('targets')}")
     if bars:
-        text += ", against " + " and ".join(
-            f"{escape(bar['model'].split()[0])}'s {fig(bar, 'viseme_acc')} "
-            f"({fig(bar, 'viseme_acc_stream_100ms')} streaming at 100 ms)" for bar in bars)
-    return text + (f"; it closes the lips on {fig(mine, 'bilabial_closed_frac')} of /p b m/ "
-                   "segments " + _cite("speech_unseen-test") + ".")
+        text += "; the recognisers streaming at the same look-ahead reach " + " and ".join(
+            f"{escape(b['model'].split()[0])} {speech._cell(b, key, chance=False)}"
+            for b in bars)
+    return text + (f"; it closes the lips on {speech._cell(mine, 'bilabial_closed_frac')} of "
+                   "/p b m/ segments (in brackets: chance) " + _cite("speech_unseen-test")
+                   + ".")
+
+
+def real_speaker_finding(real_dir: Path, targets: TargetsConfig | None = None) -> str | None:
+    """The synthetic-trained default on the real speaker's held-out sentences: speech-frame lip
+    r and /p b m/ closures, each with its chance in brackets, against the targets, the
+    loudness envelope and the peers — saying plainly whether the default beats each, and where
+    it does not, by how much (its cell beside theirs). Every figure is a cell of the section's
+    table (:func:`analysis.real_face_report._face_rows`), character for character."""
+    targets = targets or TargetsConfig()
+    try:
+        summary = json.loads((Path(real_dir) / "summary.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    cells = {key: row for (key, _), row in zip(face.SCORE_ROWS, face._face_rows(summary, targets))}
+    r = {key: face.num(face._pooled(summary, key).get("r_speech")) for key, _ in face.SCORE_ROWS}
+    mine = cells.get("synthetic_model")
+    if mine is None or math.isnan(r["synthetic_model"]):
+        return None
+    p = face._pooled(summary, "synthetic_model")
+    checks = {c["key"]: c["verdict"] for c in face.target_checks(summary, targets)}
+    spk = (summary.get("corpus") or {}).get("speaker", "the speaker")
+    speakers = p.get("speakers", "?")
+    no_interval = "no interval" in str(p.get("interval_r_speech") or "no interval")
+    text = (f"<b>A real face.</b> On {escape(p.get('clips', '?'))} held-out sentences of "
+            f"{escape(spk)} ({escape(speakers)} speaker{'s' * (speakers != 1)}"
+            f"{': no interval' if no_interval else ''}) the default model, trained on synthetic "
+            f"speech and faces only, moves the lips with r {mine[1]} on speech frames (in "
+            f"brackets: chance; target {targets.face_synthetic_r:g}: "
+            f"{checks.get('face_synthetic_r', 'not measured')}) and closes {mine[4]} of the "
+            f"/p b m/ segments (target {100 * targets.face_closures:.0f} %: "
+            f"{checks.get('face_closures', 'not measured')}) {_cite('targets')}")
+    peers = [(key, label.replace(" (peer)", "")) for key, label in face.PEER_ROWS
+             if not math.isnan(r.get(key, math.nan))]
+    beaten = [label for key, label in peers if r["synthetic_model"] > r[key]]
+    behind = [(key, label) for key, label in peers if r["synthetic_model"] <= r[key]]
+    if peers and not behind:
+        text += "; in r it beats the loudness envelope and every peer: " + ", ".join(
+            f"{escape(label)} {cells[key][1]}" for key, label in peers)
+    elif behind:
+        text += ("; in r it does <b>not</b> beat " + ", ".join(
+            f"the {escape(label)} ({cells[key][1]} against its {mine[1]})"
+            for key, label in behind)
+            + (f"; it beats: {'; '.join(escape(x) for x in beaten)}" if beaten else ""))
+    if not math.isnan(r.get("speaker_model", math.nan)):
+        text += (f"; the model trained on this speaker reaches r "
+                 f"{cells['speaker_model'][1]} (target {targets.face_speaker_r:g}: "
+                 f"{checks.get('face_speaker_r', 'not measured')})")
+    return text + " " + _cite("real_face_scores") + "."
 
 
 def study_finding(study: dict | None) -> str | None:
@@ -169,15 +237,20 @@ def study_finding(study: dict | None) -> str | None:
 
 def findings(*, mapping: dict | None, method: str, ab_dir: Path, ceiling_dir: Path,
              speech_dir: Path, default_model: str | None, study: dict | None,
-             has: set) -> list[str]:
+             has: set, targets: TargetsConfig | None = None,
+             real_dir: Path | None = None) -> list[str]:
     """The findings of a run whose report has the parts ``has`` (the keys its sections
-    registered), in the order of the paper's questions."""
+    registered), in the order of the paper's questions; ``targets``: the run's
+    :class:`~analysis.config.TargetsConfig`; ``real_dir``: the real_speaker stage's folder."""
     items = [
         table_ii_finding(mapping or {}, method) if "table_ii" in has else None,
         ablation_finding(ab_dir) if {"ablations", "forest"} <= has else None,
         lookahead_finding(ab_dir, method) if "lookahead" in has else None,
         ceiling_finding(ceiling_dir) if "ceiling" in has else None,
-        speech_finding(speech_dir, default_model) if "speech_unseen-test" in has else None,
+        speech_finding(speech_dir, default_model, targets)
+        if {"speech_unseen-test", "targets"} <= has else None,
+        real_speaker_finding(real_dir, targets)
+        if real_dir is not None and {"real_face_scores", "targets"} <= has else None,
         study_finding(study) if "models" in has else None,
     ]
     return [i for i in items if i and not (isinstance(i, float) and math.isnan(i))]

@@ -9,7 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.grid_summary import TABLE_HEADER, best, grid_summary, read_replicates, table_rows
+from analysis.grid_summary import (HOLM_NOTE, TABLE_HEADER, best, grid_summary, read_replicates,
+                                   table_rows)
 from analysis.metrics import PAPER_TABLES
 from analysis.report import escape
 
@@ -128,7 +129,9 @@ def lookahead_section(report, ab: list[dict], figure: Path, split: str = "uttera
         "is read), beside the paper's setting (3 frames, window centred: 112.5 ms). The rows "
         "with a centred window and no frame of look-ahead read only the 12.5 ms of the window "
         "past the instant. The GRU is unidirectional: its only look-ahead is its stacked future "
-        "context. One MLflow child run per row and seed, in the ablation parent run.")
+        "context. One MLflow child run per row and seed, in the ablation parent run. "
+        "{label:lookahead} gives the figures" + (", {label:lookahead_fig} draws them."
+                                                 if figure.is_file() else "."))
     report.table(f"Look-ahead: test figures against algorithmic latency ({split} split)",
                  ["setting", "method", "look-ahead (frames)", "window", "latency (ms)", "R",
                   "MSE", "LVE (px)", "/p b m/ closed"],
@@ -167,7 +170,9 @@ def ceiling_section(report, ceiling_dir: Path) -> None:
         "learns from the MUPs the MU-constrained tracker recovers from rendered video of the "
         "run's corpus (mapping.visual_source: tracked), as the paper's MUPs came from its "
         "tracker, and is scored against those tracked MUPs, as the paper's was. "
-        "The defaults are never changed toward the paper's value; these runs explain the gap.")
+        "The defaults are never changed toward the paper's value; these runs explain the gap. "
+        "{label:ceiling} gives every step" + (", {label:ceiling_fig} draws them."
+                                             if (ceiling_dir / "ceiling.png").is_file() else "."))
     report.table("The ceiling decomposition: mean test figures per step",
                  ["step", "changes", "R (utterance)", "R (frame split)", "MSE (utterance)",
                   "LVE (px)", "/p b m/ closed"],
@@ -256,8 +261,10 @@ def mapping_section(report, summary: dict, mapping_dir: Path, ablations_csv: Pat
     _ranking_tables(report, summary["ranking"])
     traj = mapping_dir / summary["trajectories"]
     if traj.is_file():
+        report.paragraph("{label:trajectories} sets the predicted MUPs of a test sentence "
+                         "against the true ones, per expression.")
         report.figure(traj, "Predicted vs true MUPs of a test sentence per expression: the first "
-                      "three utterance MUPs and the first expression MUP.")
+                      "three utterance MUPs and the first expression MUP.", key="trajectories")
     if ablations_csv is not None:
         with open(ablations_csv, newline="", encoding="utf-8-sig") as f:
             ab = list(csv.DictReader(f))
@@ -293,13 +300,17 @@ def _paper_tables(report, rows: list[dict], method: str) -> None:
     (when the summary has its metrics)."""
     header = ["split", "expression", "R", "R paper", "ν<sub>d</sub>", "ν<sub>d</sub> paper",
               "ν<sub>d</sub>′", "ν<sub>d</sub>′ paper", "MSE", "MSE paper"]
+    lip_rows = lip_table_rows(rows, method)
+    report.paragraph("{label:table_i} and {label:table_ii} set our figures beside the paper's "
+                     "Tables I (training set) and II (testing set)"
+                     + ("; {label:lips_face} adds the lips and the face regions beside Table II."
+                        if lip_rows else "."))
     for part in ("train", "test"):
         report.table(f"{_TABLE_NAME[part]}: {method} on the {_PART_NAME[part]}, ours vs the "
                      "paper's", header, paper_table_rows(rows, method, part),
                      note="Paper: Hong, Wen &amp; Huang (2002), Tables I and II (their split "
                           "draws frames at random).",
                      key="table_ii" if part == "test" else "table_i")
-    lip_rows = lip_table_rows(rows, method)
     if lip_rows:
         report.table(f"Lips and face beside Table II: {method} on the testing set",
                      ["split", "expression", "LVE (px)", "FDD (px)", "R lips", "R cheeks",
@@ -310,7 +321,7 @@ def _paper_tables(report, rows: list[dict], method: str) -> None:
                           "(CodeTalker); positive means too still. R per region: Eq. 6 on that "
                           "region's normalised coordinates. /p b m/ closed: the fraction of "
                           "bilabial segments whose inner lips meet in the estimate (the truth's "
-                          "own fraction beside it).")
+                          "own fraction beside it).", key="lips_face")
 
 
 def _gate_paragraphs(report, gate: dict, cfg: dict, mapping_dir: Path) -> None:
@@ -325,13 +336,18 @@ def _gate_paragraphs(report, gate: dict, cfg: dict, mapping_dir: Path) -> None:
             f"class: {merges}.")
     conf = mapping_dir / "confusion_utterance.png"
     if conf.is_file():
+        report.paragraph("{label:gate_confusion} shows which classes the gate confuses.")
         report.figure(conf, "The gate's confusion on the neutral test frames of the utterance "
                       "split (rows: the frame's phone class; merged classes have empty rows).",
-                      width=0.8)
+                      width=0.8, key="gate_confusion")
 
 
 def _ranking_tables(report, ranking: dict) -> None:
     """Every method ranked by mean test R, one table per split."""
+    if ranking:
+        report.paragraph("Every method of the run ranked by its mean test R: "
+                         + ", ".join(f"{{label:ranking_{split}}} ({split} split)"
+                                     for split in ranking) + ".")
     for split, rk in ranking.items():
         report.table(f"Methods ranked by mean test R ({split} split)",
                      ["rank", "method", "related work", "R", "MSE", "LVE (px)", "R lips",
@@ -363,7 +379,8 @@ def ablation_section(report, ab: list[dict], ab_dir: Path, forest: Path | None) 
     report.paragraph(
         f"Every setting of configs/ablations.yaml trained with {summary[0]['seeds']} seeds and "
         f"compared with <b>{escape(reference)}</b> seed by seed (paired t-test of test R on the "
-        f"{split} split, Holm-corrected over the {len(methods) - 1} comparisons). The best "
+        f"{split} split, Holm-corrected over the {len(methods) - 1} comparisons; "
+        "{label:ablations}). The best "
         f"setting is <b>{escape(top['setting'])}</b>"
         + ("." if top["verdict"] == "reference" else
            f" ({top['verdict']} than the reference)." if top["verdict"] in ("better", "worse")
@@ -373,9 +390,14 @@ def ablation_section(report, ab: list[dict], ab_dir: Path, forest: Path | None) 
                  [[row[0], methods.get(row[0], ""), *row[1:]]
                   for row in table_rows(summary, split)], key="ablations",
                  note=seeds_note(ab, split) + " Verdict: better or worse when the "
-                 "Holm-corrected p is below 0.05. Every setting and seed is an MLflow child run "
-                 "of the ablation parent run, whose description holds this table.")
+                 "Holm-corrected p is below 0.05. " + HOLM_NOTE + " Every setting and seed is "
+                 "an MLflow child run of the ablation parent run, whose description holds this "
+                 "table.")
     if forest is not None and forest.is_file():
-        report.figure(forest, "The ablations' differences from the reference with their 95 % "
-                      "intervals over paired seeds; filled: significant after Holm's "
-                      "correction.", key="forest")
+        report.paragraph("The forest plot ({label:forest}) draws each difference with the "
+                         "Holm-adjusted interval of the table: grey when it contains 0, "
+                         "coloured when it does not.")
+        report.figure(forest, "The ablations' differences from the reference with their "
+                      "Holm-adjusted intervals over paired seeds (the table's; level in its CI "
+                      "level column); filled: significant after Holm's correction.",
+                      key="forest")

@@ -197,7 +197,10 @@ def perception_section(report, summary: dict, out_dir: Path) -> None:
         f"{n} {who}: {seqs['SR']} saw the synthetic face first in the bimodal blocks (SR), "
         f"{seqs['RS']} the real face first (RS). Each cell below is our count and, in "
         "parentheses, the paper's count of its 20 subjects. S: synthetic face; R: real face. "
-        "Data: " + escape(summary["study_dir"]) + "." + incomplete_sentence(summary))
+        "Data: " + escape(summary["study_dir"]) + "." + incomplete_sentence(summary)
+        + " Tables III–VII are " + ", ".join(f"{{label:tally_{k}}}" for k in
+                                             ("III", "IV", "V", "VI", "VII"))
+        + "; {label:tallies} draws them as proportions.")
     for k in ("III", "IV", "V", "VI", "VII"):
         t = summary["tallies"][k]
         tally = Tally(k, TITLES[k], tuple(t["rows"]),
@@ -205,10 +208,12 @@ def perception_section(report, summary: dict, out_dir: Path) -> None:
                       np.array(t["counts"]))
         header, rows = tally_rows(tally, PAPER_TALLIES[k])
         report.table(TITLES[k] + " — ours (paper)", header, rows,
-                     note="Paper: Hong, Wen &amp; Huang (2002), Table " + k + ".")
+                     note="Paper: Hong, Wen &amp; Huang (2002), Table " + k + ".",
+                     key=f"tally_{k}")
     report.figure(out_dir / summary["figure"], "Tallies as proportions with Wilson 95 % "
                   "intervals: visual-only (Table III) and bimodal with audio tracks 1–3 "
-                  "(Tables V–VII); each expression for the synthetic (S) and real (R) face.")
+                  "(Tables V–VII); each expression for the synthetic (S) and real (R) face.",
+                  key="tallies")
     if "stats" in summary:
         stats_section(report, summary["stats"])
     if "models" in summary:

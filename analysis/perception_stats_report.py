@@ -22,7 +22,8 @@ def stats_section(report, s: dict) -> None:
         "mid-p McNemar on face-consistent vs not, Stuart-Maxwell on the four responses (where "
         "any category has discordant pairs), and the exact paired permutation test of the mean "
         "difference. A chi-square on the tallies would treat the two columns as independent "
-        "groups, which they are not.")
+        "groups, which they are not. {label:paired_cells} gives each cell's tests, "
+        "{label:hit_rates} the unbiased hit rates of the visual-only block.")
     rows = []
     for c in s["paired_cells"]:
         cell = c["expression"] if c["block"] == "visual" else f"{c['expression']} + {c['audio']}"
@@ -33,7 +34,7 @@ def stats_section(report, s: dict) -> None:
                  ["block", "cell", "S", "R", "b/c", "McNemar", "mid-p", "Stuart-Maxwell",
                   "permutation"], rows,
                  note="b: consistent with S only; c: with R only. n/a: the test is undefined "
-                      "(no discordant pairs).")
+                      "(no discordant pairs).", key="paired_cells")
     a = s["audio_vs_chance"]
     report.paragraph("Audio only against chance (" + f"{a[0]['chance']:.3f}, one of three "
                      "emotions; not sure counts as incorrect): " + "; ".join(
@@ -70,7 +71,7 @@ def stats_section(report, s: dict) -> None:
             rows.append([face, h["stimulus"], f"{h['hit_rate']:.2f}", f"{h['hu']:.2f}",
                          f"{h['chance']:.2f}"])
     report.table("Unbiased hit rates Hu (Wagner 1993), visual only", ["face", "expression",
-                 "hit rate", "Hu", "chance"], rows)
+                 "hit rate", "Hu", "chance"], rows, key="hit_rates")
 
 
 def fit_figure(models: dict, path: Path, *, width: float = 0.8) -> Path:
@@ -100,7 +101,9 @@ def models_section(report, m: dict, out_dir: Path) -> None:
     report.paragraph(
         f"Both models fitted per face by multinomial maximum likelihood with an L2 prior on the "
         f"logits (lambda {m['lam']}); {m['notes']}. Cross-validation leaves one participant out "
-        "at a time.")
+        "at a time. {label:models} compares the fits"
+        + (", {label:model_fit} sets them against the observed proportions."
+           if all("observed" in m["faces"][f] for f in ("synthetic", "real")) else "."))
     rows = []
     for face in ("synthetic", "real"):
         f = m["faces"][face]
@@ -127,7 +130,7 @@ def models_section(report, m: dict, out_dir: Path) -> None:
     if all("observed" in m["faces"][f] for f in ("synthetic", "real")):
         report.figure(fit_figure(m, Path(out_dir) / "model_fit.png"), "Bimodal response "
                       "proportions: observed against the fitted FLMP and WTAV, per face.",
-                      width=0.8)
+                      width=0.8, key="model_fit")
     p = m.get("power")
     if p and "error" in p:
         report.paragraph(f"Planning: the power simulation could not run on these data "

@@ -8,6 +8,12 @@ cells — is reportlab paragraph markup, so a caller passes data through :func:`
 ``<``, ``>``) and writes a literal ampersand as ``&amp;``. reportlab draws the string of a table
 cell as it is, without parsing it, so :meth:`Report.table` turns the entities of headers and
 cells back into characters; tags (``<b>``) are not supported there.
+
+Every table and figure is cited in the text: a paragraph, caption or note cites a keyed table,
+figure or section with ``{label:KEY}`` (its label, "Table 4") or ``{page:KEY}`` (its page),
+filled in when the report is laid out, so a citation may come before what it cites.
+:meth:`Report.uncited` lists the tables and figures no text cites (the report stage writes them to
+``report/uncited.txt``).
 """
 from __future__ import annotations
 
@@ -120,14 +126,47 @@ class _Anchor(Flowable):
         self.refs.found.setdefault(self.key, self.canv.getPageNumber())
 
 
-class _Findings(Flowable):
-    """The findings page: paragraphs whose ``{page:KEY}`` references are filled in from the
-    last layout pass. An indexing flowable: ``multiBuild`` lays the document out again until
-    every cited page is where the previous pass found it."""
+class _Text(Flowable):
+    """A paragraph whose ``{label:KEY}`` and ``{page:KEY}`` are filled in when it is laid out
+    (every label is known by then; pages from the last layout pass)."""
 
-    def __init__(self, refs: _Refs, items: list):
+    def __init__(self, refs: _Refs, text: str, style):
         super().__init__()
-        self.refs, self.items, self._ok = refs, items, False
+        self.refs, self.text, self.style = refs, text, style
+
+    def _paragraph(self) -> Paragraph:
+        return Paragraph(self.refs.fill(self.text), self.style)
+
+    def wrap(self, aw, ah):
+        self._p = self._paragraph()
+        return self._p.wrap(aw, ah)
+
+    def split(self, aw, ah):
+        return self._paragraph().split(aw, ah)
+
+    def getSpaceBefore(self):
+        return self.style.spaceBefore
+
+    def getSpaceAfter(self):
+        return self.style.spaceAfter
+
+    def draw(self):
+        self._p.drawOn(self.canv, 0, 0)
+
+
+class _PageIndex(Flowable):
+    """Takes no room; an indexing flowable: ``multiBuild`` lays the document out again until
+    every page a ``{page:KEY}`` cites is where the previous pass found it."""
+
+    def __init__(self, refs: _Refs):
+        super().__init__()
+        self.refs, self._ok = refs, False
+
+    def wrap(self, aw, ah):
+        return 0, 0
+
+    def draw(self):
+        pass
 
     def isIndexing(self):
         return True
@@ -141,6 +180,15 @@ class _Findings(Flowable):
     def afterBuild(self):
         self._ok = self.refs.found == self.refs.pages
         self.refs.pages = dict(self.refs.found)
+
+
+class _Findings(Flowable):
+    """The findings page: paragraphs whose ``{page:KEY}`` references are filled in from the
+    last layout pass (:class:`_PageIndex`)."""
+
+    def __init__(self, refs: _Refs, items: list):
+        super().__init__()
+        self.refs, self.items = refs, items
 
     def _table(self) -> Table:
         rows = [[Paragraph(self.refs.fill(t), _STYLES["BodyText"])] for t in self.items]
@@ -177,6 +225,13 @@ class Report:
         self.counts = {"section": 0, "subsection": 0, "Table": 0, "Figure": 0}
         self._stage = None
         self._findings: list | None = None
+        self._texts: list[str] = []  # every text that may cite (paragraphs, captions, notes)
+        self._parts: list[tuple] = []  # (label, key or None) of every table and figure
+
+    def _text(self, text: str, style) -> _Text:
+        """``text`` as a paragraph whose citations are filled in at layout."""
+        self._texts.append(text)
+        return _Text(self.refs, text, style)
 
     def _anchor(self, key: str | None) -> list:
         return [_Anchor(self.refs, key)] if key else []
@@ -204,13 +259,16 @@ class Report:
         return number
 
     def paragraph(self, text: str) -> None:
-        self.story.append(Paragraph(text, _STYLES["BodyText"]))
+        """A paragraph of body text; it may cite parts with ``{label:KEY}``/``{page:KEY}``,
+        added before or after it."""
+        self.story.append(self._text(text, _STYLES["BodyText"]))
 
     def _caption(self, kind: str, caption: str, stage: str | None, key: str | None) -> str:
         self.counts[kind] += 1
         label = f"{kind} {self.counts[kind]}"
         if key:
             self.refs.labels[key] = label
+        self._parts.append((label, key))
         stage = stage or self._stage
         made = f" <font size=7 color='#555555'>[stage: {stage}]</font>" if stage else ""
         return f"<b>{label}.</b> {caption}{made}"
@@ -231,9 +289,9 @@ class Report:
         if col_widths is None and (markup or t.wrap(_WIDTH, A4[1])[0] > _WIDTH):
             t = self._fit(data, [header, *rows])
         caption = self._caption("Table", caption, stage, key)
-        parts = self._anchor(key) + [Paragraph(caption, _STYLES["BodyText"]), t]
+        parts = self._anchor(key) + [self._text(caption, _STYLES["BodyText"]), t]
         if note:
-            parts.append(Paragraph(f"<font size=7.5>{note}</font>", _STYLES["BodyText"]))
+            parts.append(self._text(f"<font size=7.5>{note}</font>", _STYLES["BodyText"]))
         parts.append(Spacer(1, 0.3 * cm))
         self.story.append(KeepTogether(parts))
         return caption.split(".</b>")[0][3:]
@@ -299,7 +357,7 @@ class Report:
         img = Image(str(path), width=draw_w, height=draw_w * h / w)
         caption = self._caption("Figure", caption, stage, key)
         self.story.append(KeepTogether(self._anchor(key) + [
-            img, Paragraph(f"<font size=8>{caption}</font>", _STYLES["BodyText"]),
+            img, self._text(f"<font size=8>{caption}</font>", _STYLES["BodyText"]),
             Spacer(1, 0.3 * cm)]))
         return caption.split(".</b>")[0][3:]
 
@@ -309,10 +367,27 @@ class Report:
         Set it once every cited part has been added."""
         for t in items:
             self.refs.fill(t)  # an unknown key is an error now, not a "?" in the PDF
+        self._findings_text = list(items)
         self._findings = [Paragraph(title, _STYLES["Heading1"]), _Findings(self.refs, items),
                           PageBreak()]
 
+    def cited(self) -> set:
+        """The keys some text of the report cites (``{label:KEY}`` or ``{page:KEY}``)."""
+        texts = self._texts + getattr(self, "_findings_text", [])
+        return {key for t in texts for _, key in _REF.findall(t)}
+
+    def uncited(self) -> list[str]:
+        """The tables and figures no text cites, as ``"Table 4 (key)"`` (``(no key)``: it
+        cannot be cited), in report order; empty when every one is cited."""
+        cited = self.cited()
+        return [f"{label} ({key or 'no key'})" for label, key in self._parts
+                if key is None or key not in cited]
+
     def build(self, path) -> Path:
+        """Write the PDF to ``path``; every citation must name a part the report has (a
+        ``KeyError`` names the one it lacks)."""
+        for t in self._texts:
+            self.refs.fill(t)
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         with atomic_file(path) as tmp:  # an interrupted build never leaves a short PDF
@@ -330,5 +405,7 @@ class Report:
             canvas.drawRightString(A4[0] - 2 * cm, 1.1 * cm, f"{self.title} — page {doc_.page}")
             canvas.restoreState()
 
-        story = self.head + (self._findings or []) + self.story
+        texts = self._texts + getattr(self, "_findings_text", [])
+        index = [_PageIndex(self.refs)] if any("{page:" in t for t in texts) else []
+        story = index + self.head + (self._findings or []) + self.story
         doc.multiBuild(list(story), onFirstPage=footer, onLaterPages=footer)

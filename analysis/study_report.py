@@ -22,8 +22,11 @@ def study_section(report, stimuli_dir: Path, study_dir: Path | None) -> None:
         f"{info['n_stimuli']} stimuli with SHA-256 checksums in the manifest.")
     sheet = stimuli_dir / "contact_sheet.png"
     if sheet.is_file():
+        report.paragraph("{label:contact_sheet} shows the middle frame of each visual-only "
+                         "stimulus.")
         report.figure(sheet, "The middle frame of each visual-only stimulus (\"It is normal.\"), "
-                      "synthetic and real face, neutral, smile and sad.", width=0.75)
+                      "synthetic and real face, neutral, smile and sad.", width=0.75,
+                      key="contact_sheet")
     if study_dir is None or not (study_dir / "allocation.csv").is_file():
         return
     with open(study_dir / "allocation.csv", newline="", encoding="utf-8-sig") as f:
@@ -32,8 +35,10 @@ def study_section(report, stimuli_dir: Path, study_dir: Path | None) -> None:
     rows = [[seq, sum(s["sequence"] == seq for s in slots),
              sum(s["sequence"] == seq for s in done)] for seq in ("SR", "RS")]
     simulated = (study_dir / "simulated.json").is_file()
+    report.paragraph("{label:allocation} gives the bimodal order of each slot and how many "
+                     "sessions were completed.")
     report.table("Allocation: bimodal order per slot (SR: synthetic face first)",
                  ["sequence", "slots", "complete sessions"], rows,
                  note="Permuted blocks of four from the run seed, written before any session. "
                       + ("Participants are simulated FLMP observers (study/simulate.py)."
-                         if simulated else "Participants are people."))
+                         if simulated else "Participants are people."), key="allocation")

@@ -18,7 +18,7 @@ from analysis.study_report import study_section
 from face_model.corpus import load_corpus
 from face_model.motion_units import MotionUnits
 from talkingface.config import dump_config, flatten
-from talkingface.provenance import git_commit
+from talkingface.provenance import git_commit, versions
 from talkingface.paths import STAGE_FOLDERS, RunPaths
 from talkingface.stages.applies import expression_note, given, switched_off
 from talkingface.stages.base import read_done
@@ -26,12 +26,18 @@ from talkingface.stages.voices import read_results
 
 
 def build_report(paths: RunPaths, cfg) -> dict:
-    """Summaries and figures from the run's stage folders, then ``reports/<name>.pdf``."""
+    """Summaries and figures from the run's stage folders, then ``reports/<name>.pdf``.
+
+    Also writes ``report/versions.json`` (:func:`talkingface.provenance.versions`, taken as the
+    stage runs) and ``report/uncited.txt`` (the tables and figures no text cites,
+    :meth:`analysis.report.Report.uncited`); the returned record holds both."""
+    made_with = versions()  # what made the numbers, as the stage runs
     corpus = load_corpus(paths.corpus)
     units = MotionUnits.load(paths.units_model)
     summary = {"corpus": summarize_corpus(corpus), "units": read_done(paths.units)["summary"]}
     dump_config(cfg, paths.report_dir / "config.yaml")
     (paths.report_dir / "summary.json").write_text(json.dumps(summary, indent=1))
+    (paths.report_dir / "versions.json").write_text(json.dumps(made_with, indent=1))
     figs = make_figures(corpus, units, summary, paths.report_dir)
     scope = corpus_scope(paths, cfg, corpus)
     rep = Report(f"talkingface replication: {paths.name}",
@@ -49,9 +55,11 @@ def build_report(paths: RunPaths, cfg) -> dict:
         ceiling_section(rep, paths.stage("ceiling"))
     voices = read_done(paths.stage("voices"))
     default_model = (voices or {}).get("model")
+    targets_section(rep, cfg.targets)
     speech_section(rep, paths.stage("speech_eval"), read_results(paths),
                    table_ii_R=_table_ii_R(mapping, cfg.mapping.method),
-                   default_model=default_model, given_corpus=scope["given"] is not None)
+                   default_model=default_model, given_corpus=scope["given"] is not None,
+                   targets=cfg.targets)
     if read_done(paths.keyframes):
         motion_section(rep, paths.keyframes, paths.render, paths.tracking)
     if (paths.stimuli / "stimuli.json").is_file():
@@ -60,16 +68,20 @@ def build_report(paths: RunPaths, cfg) -> dict:
     if study is not None:
         perception_section(rep, study, paths.analysis)
     if (paths.stage("real_speaker") / "summary.json").is_file():
-        real_speaker_section(rep, paths.stage("real_speaker"), paths.report_dir)
-    methods_section(rep, cfg, corpus.info, study=study)
+        real_speaker_section(rep, paths.stage("real_speaker"), paths.report_dir,
+                             targets=cfg.targets)
+    methods_section(rep, cfg, corpus.info, study=study, made_with=made_with)
     items = findings(mapping=mapping, method=cfg.mapping.method, ab_dir=paths.ablations,
                      ceiling_dir=paths.stage("ceiling"), speech_dir=paths.stage("speech_eval"),
-                     default_model=default_model, study=study, has=set(rep.refs.labels))
+                     default_model=default_model, study=study, has=set(rep.refs.labels),
+                     targets=cfg.targets, real_dir=paths.stage("real_speaker"))
     if scope["finding"]:
         items.append(scope["finding"])
     rep.findings(items)
     pdf = rep.build(paths.pdf)
-    record = {"pdf": str(pdf)}
+    uncited = rep.uncited()
+    (paths.report_dir / "uncited.txt").write_text("".join(f"{u}\n" for u in uncited))
+    record = {"pdf": str(pdf), "versions": made_with, "uncited": uncited}
     if scope["note"]:
         record["note"] = scope["note"]
     if scope["switched_off"]:
@@ -115,6 +127,21 @@ def _forest(paths: RunPaths):
                                                     f"{reference}")
 
 
+def targets_section(rep, targets) -> None:
+    """The project's targets on real data, as the run's config states them (``targets``:
+    :class:`analysis.config.TargetsConfig`): the one table every section that compares a
+    figure with a target quotes."""
+    rep.heading("Targets on real data", stage="report", key="targets_section")
+    rep.paragraph("The targets the real-data sections below measure the models against are "
+                  "stated once, in the run's config (section <i>targets</i>), and listed in "
+                  "{label:targets}. They were set before the test data were read; they are "
+                  "measured and reported, never tuned toward.")
+    rep.table("Targets on real data (the run's config, section targets)",
+              ["key", "target", "what it bounds"],
+              [[escape(k), f"{v:g}", escape(text)] for k, v, text in targets.rows()],
+              key="targets")
+
+
 def _table_ii_R(mapping: dict | None, method: str) -> float | None:
     """The run's mapping's mean test R on the utterance split (Table II), if trained."""
     for x in ((mapping or {}).get("ranking") or {}).get("utterance", []):
@@ -123,22 +150,39 @@ def _table_ii_R(mapping: dict | None, method: str) -> float | None:
     return None
 
 
-def methods_section(rep, cfg, corpus_info: dict, *, study: dict | None = None) -> None:
+def methods_section(rep, cfg, corpus_info: dict, *, study: dict | None = None,
+                    made_with: list | None = None) -> None:
+    """Settings and versions: the commit and seed, the versions of every package and program
+    that made a number (``made_with``: :func:`talkingface.provenance.versions` as the report
+    stage ran; taken now when None) and the resolved configuration."""
     rep.heading("Settings and versions", stage="report")
     rep.paragraph(f"Source commit {git_commit()}; run seed {cfg.seed}. Every table and figure "
-                  "above was computed by the pipeline from this run's folders.")
+                  "above was computed by the pipeline from this run's folders; "
+                  "{label:versions} lists the packages and programs that made them and "
+                  "{label:config} the settings they ran under.")
     if study is not None:
         who = "simulated (FLMP observers)" if study["simulated"] else (
             "real people" if not study["any_simulated"] else "partly simulated")
         rep.paragraph(f"Perception study: {study['participants']} participants, {who}; study "
                       f"seed {cfg.seed} (allocation list and trial orders), Monte Carlo, "
                       f"bootstrap and power simulations seeded with {cfg.seed}.")
-    versions = corpus_info.get("versions", {})
-    rep.table("Package versions", ["package", "version"], sorted(versions.items()))
+    made_with = versions() if made_with is None else made_with
+    now = {name: v for name, v, _ in made_with}
+    synth = corpus_info.get("versions", {})
+    differ = [f"{escape(k)} {escape(v)}" for k, v in sorted(synth.items())
+              if now.get(k if k != "python" else "Python", v) != v]
+    rep.table("Packages and programs that made the numbers (versions as the report stage ran)",
+              ["package or program", "version", "what it made"],
+              [[escape(n), escape(v), escape(what)] for n, v, what in made_with], key="versions",
+              note="Also in report/versions.json. "
+                   + ("The corpus was synthesised with " + ", ".join(differ) + " (corpus.json)."
+                      if differ else "The corpus's own record (corpus.json) agrees."
+                      if synth else ""))
     unused = ("synth.",) if given(cfg) else ()  # a given corpus is not synthesised
     flat = [[k, json.dumps(v)] for k, v in flatten(cfg).items()
             if "." in k and not k.startswith(unused)]
     rep.table("Resolved configuration", ["key", "value"], flat, col_widths=[200, 250],
+              key="config",
               note="The synth settings are left out: the corpus is given (corpus.source), not "
                    "synthesised." if unused else "")
 

@@ -1,5 +1,6 @@
 """The grid summary: its figures are results.csv's (summarise_replicates), its difference
-intervals the paired t-intervals, its verdicts follow the Holm-corrected test."""
+intervals the paired t-intervals, its verdicts follow the Holm-corrected test, and the intervals
+it draws and prints are Holm-adjusted: each excludes 0 exactly when its verdict says differs."""
 import math
 
 import numpy as np
@@ -8,8 +9,13 @@ from PIL import Image
 from scipy import stats
 
 from analysis.figures import DPI, TEXT_WIDTH_IN
-from analysis.grid_summary import (best, fmt, forest_figure, grid_summary, read_replicates,
-                                   summary_markdown, table_rows, write_summary)
+from hypothesis import given
+from hypothesis import strategies as st
+from statsmodels.stats.multitest import multipletests
+
+from analysis.grid_summary import (best, delta_cell, fmt, forest_figure, grid_summary,
+                                   holm_levels, read_replicates, summary_markdown, table_rows,
+                                   write_summary)
 from analysis.replicates import summarise_replicates
 from talkingface.stages.base import write_csv
 
@@ -63,7 +69,7 @@ def test_summary_equals_results_and_paired_intervals(tmp_path):
     assert best(summary, "utterance")["setting"] == "tdnn"
     out = write_summary(summary, tmp_path / "summary.csv")
     assert out.read_text().splitlines()[0] == \
-        "split,setting,seeds,R,R_ci95,delta,delta_ci95,p_holm,verdict"
+        "split,setting,seeds,R,R_ci95,delta,delta_ci95,p_holm,verdict,delta_ci_holm,ci_level"
 
 
 def test_markdown_states_the_best_with_the_tables_figures():
@@ -73,12 +79,12 @@ def test_markdown_states_the_best_with_the_tables_figures():
     assert f"best: `{top['setting']}`: R {fmt(top['R'])} ± {fmt(top['R_ci95'])}" in text
     assert "**significantly better**" in text
     assert text.startswith(f"**Best (utterance split): `{top['setting']}`** — Δ R "
-                           f"{fmt(top['delta'], sign=True)} ± {fmt(top['delta_ci95'])} vs `paper`")
+                           f"{fmt(top['delta'], sign=True)} ± {fmt(top['delta_ci_holm'])} (")
     assert "significantly worse: `classes-1`" in text
     rows = table_rows(summary, "utterance")
     for row in rows:  # every printed row is in the description's table
         assert "| " + " | ".join(row) + " |" in text
-    assert rows[0][3] == "–" and rows[0][5] == "reference"
+    assert rows[0][3] == "–" and rows[0][6] == "reference"
 
 
 def test_forest_figure_at_text_width(tmp_path):
@@ -93,3 +99,59 @@ def test_unreplicated_grid_is_not_tested():
     summary = grid_summary(reps, reference="paper")
     assert {r["verdict"] for r in summary[1:]} == {"not tested"}
     assert all(math.isnan(r["R_ci95"]) for r in summary)
+
+
+def _near_boundary_reps() -> list[dict]:
+    """Three seeds of a reference and eight settings whose paired differences have t
+    statistics spread around the Holm thresholds of 8 comparisons: raw p from about 0.001 to
+    0.2, several between α/8 and α, so the unadjusted interval and Holm's verdict disagree
+    for some of them."""
+    rows = []
+    base = {2002: 0.60, 3002: 0.62, 4002: 0.61}
+    spread = np.array([-1.0, 0.0, 1.0])  # the differences: mean ± this × sd
+    for i, (mean, sd) in enumerate([(0.05, 0.001), (0.04, 0.002), (0.03, 0.003),
+                                    (0.025, 0.004), (-0.02, 0.0035), (0.02, 0.006),
+                                    (0.01, 0.006), (-0.005, 0.01), (0.0, 0.0)]):
+        name = "paper" if i == 8 else f"s{i}"
+        for k, (seed, v) in enumerate(base.items()):
+            d = 0.0 if name == "paper" else mean + sd * spread[k]
+            rows.append({"setting": name, "seed": seed, "replicate": k,
+                         "utterance_R": v + d})
+    return rows
+
+
+def _drawn_excludes_zero(r) -> bool:
+    lo, hi = r["delta"] - r["delta_ci_holm"], r["delta"] + r["delta_ci_holm"]
+    return lo > 0 or hi < 0
+
+
+def test_the_drawn_and_printed_interval_excludes_zero_iff_the_verdict_differs():
+    summary = grid_summary(_near_boundary_reps(), reference="paper")
+    rows = [r for r in summary if r["verdict"] != "reference"]
+    assert len(rows) == 8
+    # the unadjusted 95 % interval disagrees with Holm for some rows: the case being fixed
+    unadjusted = [abs(r["delta"]) > r["delta_ci95"] for r in rows]
+    differs = [r["verdict"] in ("better", "worse") for r in rows]
+    assert unadjusted != differs and any(differs) and not all(differs)
+    for r in rows:
+        assert _drawn_excludes_zero(r) == (r["verdict"] in ("better", "worse")), r
+        assert 0.95 <= r["ci_level"] <= 1 - 0.05 / 8 + 1e-12
+    # the table prints the same half-width the figure draws
+    printed = {row[0]: row for row in table_rows(summary, "utterance")}
+    for r in rows:
+        assert printed[r["setting"]][3] == delta_cell(r)
+        assert delta_cell(r).endswith(f"± {fmt(r['delta_ci_holm'])}")
+
+
+@given(st.lists(st.floats(1e-6, 0.3), min_size=1, max_size=12), st.floats(0.01, 0.1))
+def test_holm_levels_reproduce_holms_decisions(p, alpha):
+    """A t-interval at level L excludes 0 iff p < 1 − L: so p < 1 − level must be Holm's
+    rejection, as statsmodels decides it (values at the threshold itself aside)."""
+    names = [f"s{i}" for i in range(len(p))]
+    levels = holm_levels(dict(zip(names, p)), alpha)
+    reject = multipletests(p, alpha=alpha, method="holm")[0]
+    for n, x, r in zip(names, p, reject):
+        threshold = 1 - levels[n]
+        if abs(x - threshold) > 1e-12:
+            assert (x < threshold) == bool(r), (x, threshold, r)
+        assert alpha / len(p) - 1e-15 <= threshold <= alpha + 1e-15

@@ -69,7 +69,8 @@ def test_replicate_writes_runs_report_and_mlflow(workdir, capsys):
     from tests.analysis.findings_check import findings_of, mismatches, page_texts
 
     leads = [f.split(".")[0] for f in findings_of(page_texts(workdir / "reports" / "tiny.pdf")[0])]
-    assert leads == ["Table II", "The gap to the paper", "Real speech", "Perception study"]
+    assert leads == ["Table II", "The gap to the paper", "Real speech", "A real face",
+                     "Perception study"]
     assert mismatches(workdir / "reports" / "tiny.pdf") == []
     assert "MU variance explained: ours vs the paper's" in text
     assert "Utterance MUs (neutral speech)" in text and "97.56 %" in text
