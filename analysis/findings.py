@@ -14,7 +14,7 @@ import json
 import math
 from pathlib import Path
 
-from analysis import real_face_report as face
+from analysis import real_face_tables as face
 from analysis import speech_report as speech
 from analysis.config import TargetsConfig
 from analysis.grid_summary import (best, delta_cell, fmt, fmt_level, fmt_p, grid_summary,
@@ -174,18 +174,18 @@ def real_speaker_finding(real_dir: Path, targets: TargetsConfig | None = None) -
     r and /p b m/ closures, each with its chance in brackets, against the targets, the
     loudness envelope and the peers — saying plainly whether the default beats each, and where
     it does not, by how much (its cell beside theirs). Every figure is a cell of the section's
-    table (:func:`analysis.real_face_report._face_rows`), character for character."""
+    table (:func:`analysis.real_face_tables.face_rows`), character for character."""
     targets = targets or TargetsConfig()
     try:
         summary = json.loads((Path(real_dir) / "summary.json").read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
-    cells = {key: row for (key, _), row in zip(face.SCORE_ROWS, face._face_rows(summary, targets))}
-    r = {key: face.num(face._pooled(summary, key).get("r_speech")) for key, _ in face.SCORE_ROWS}
+    cells = {key: row for (key, _), row in zip(face.SCORE_ROWS, face.face_rows(summary, targets))}
+    r = {key: face.num(face.pooled_of(summary, key).get("r_speech")) for key, _ in face.SCORE_ROWS}
     mine = cells.get("synthetic_model")
     if mine is None or math.isnan(r["synthetic_model"]):
         return None
-    p = face._pooled(summary, "synthetic_model")
+    p = face.pooled_of(summary, "synthetic_model")
     checks = {c["key"]: c["verdict"] for c in face.target_checks(summary, targets)}
     spk = (summary.get("corpus") or {}).get("speaker", "the speaker")
     speakers = p.get("speakers", "?")

@@ -5,11 +5,10 @@ speaker's video (79 markers from MediaPipe landmarks), then scores models on its
 sentences with :mod:`analysis.face_eval`. Its folder holds ``summary.json`` (every number shown
 here), ``strip.npz`` (one held-out sentence: real and predicted aligned markers and normalised
 openings) and ``units.npz`` (the utterance MUs on the speaker's neutral face). This module draws
-the two figures and lays the section out; it computes nothing but the target verdicts, and a
-missing file or value becomes a sentence, not an error.
-
-Cells are formatted by :func:`fmt` and the verdicts come from :func:`target_checks`, so a
-findings page that uses them prints the section's numbers character for character.
+the two figures and lays the section out, and a missing file or value becomes a sentence, not
+an error. The tables' rows, their cells' formatting and the target verdicts come from
+:mod:`analysis.real_face_tables`, so a findings page that uses them prints the section's numbers
+character for character.
 """
 from __future__ import annotations
 
@@ -22,12 +21,14 @@ from matplotlib.lines import Line2D
 
 from analysis import figures
 from analysis.config import TARGET_TEXT, TargetsConfig
+from analysis.real_face_tables import (METHOD, SCORE_ROWS, face_rows, lip_rows, mapping_rows,
+                                       models_text, num, pct, peer_sentences, pooled_of,
+                                       rate_rows, tables_rows)
 from analysis.report import escape
 from face_model.layout import LEFT_INNER_CORNER, LEFT_OUTER_CORNER, LOWER_INNER, default_layout
 from mapping.peers import OCULUS_TABLE, ULIPSYNC_TABLE, peer_versions
 
 STAGE = "real_speaker"
-METHOD = "gated_mlp"  # the paper's mapping, shown in the Tables I-II comparison
 N_MUS_SHOWN = 4
 ARROW_PX = 25.0  # the largest MU arrow drawn, px of the face
 N_STRIP_FRAMES = 8
@@ -42,35 +43,6 @@ INNER = list(range(LEFT_INNER_CORNER, LOWER_INNER.stop)) + [LEFT_INNER_CORNER]
 GRID_ATTRIBUTION = ("GRID corpus: M. Cooke, J. Barker, S. Cunningham, X. Shao (2006), An "
                     "audio-visual corpus for speech perception and automatic speech "
                     "recognition, JASA 120(5):2421–2424; Zenodo 3625687; CC BY 4.0")
-SCORE_ROWS = (("speaker_model", "speaker-trained model"),
-              ("synthetic_model", "synthetic-trained default model"),
-              ("loudness", "loudness envelope (peer)"),
-              ("openfacefx-text", "openfacefx, transcript (peer)"),
-              ("openfacefx-energy", "openfacefx, loudness (peer)"),
-              ("pylipsync", "pylipsync (peer)"))
-PEER_ROWS = SCORE_ROWS[2:]
-
-
-def num(v) -> float:
-    """``v`` as a float; NaN for None, ``""`` or anything that is not a number."""
-    try:
-        return float(v)
-    except (TypeError, ValueError):
-        return float("nan")
-
-
-def fmt(v, digits: int = 3) -> str:
-    """``v`` with ``digits`` decimals, or ``–`` when absent."""
-    x = num(v)
-    return "–" if math.isnan(x) else f"{x:.{digits}f}"
-
-
-def pct(v, digits: int = 2) -> str:
-    """A fraction as a percentage (``97.56 %``), or ``–`` when absent."""
-    x = num(v)
-    return "–" if math.isnan(x) else f"{100 * x:.{digits}f} %"
-
-
 def mu_figure(units_npz, path, *, width: float = 1.0) -> Path:
     """The first :data:`N_MUS_SHOWN` utterance MUs drawn on the real speaker's neutral face.
 
@@ -193,167 +165,6 @@ def frame_strip_figure(strip_npz, path, *, width: float = 1.0) -> Path:
     return Path(path)
 
 
-def _pooled(summary: dict, key: str) -> dict:
-    return ((summary.get("face_scores") or {}).get(key) or {}).get("pooled") or {}
-
-
-def target_checks(summary: dict, targets: TargetsConfig = TargetsConfig()) -> list[dict]:
-    """The real-face targets of ``targets`` each checked against the stage's scores.
-
-    Returns
-    -------
-    list of dict
-        ``model`` (a key of :data:`SCORE_ROWS`), ``what`` (``r``, ``closures`` or ``rate``),
-        ``key`` (the field of :class:`analysis.config.TargetsConfig`), ``target``, ``value``
-        (speech-frame r; the share of /p b m/ segments closed; for ``rate`` the drop of the
-        speech-frame r from the corpus's rate to 16 kHz; NaN when absent) and ``verdict``:
-        ``met``, ``not met`` or ``not measured``.
-    """
-    rates = summary.get("rates") or {}
-    native = str(summary.get("input_rate", ""))
-    out = []
-    for key, model, what, value in (
-            ("face_speaker_r", "speaker_model", "r",
-             _pooled(summary, "speaker_model").get("r_speech")),
-            ("face_synthetic_r", "synthetic_model", "r",
-             _pooled(summary, "synthetic_model").get("r_speech")),
-            ("face_closures", "synthetic_model", "closures",
-             _pooled(summary, "synthetic_model").get("closure_rate"))):
-        out.append({"model": model, "what": what, "key": key, "target": getattr(targets, key),
-                    "value": num(value)})
-    for model in ("speaker_model", "synthetic_model"):
-        a = num(((rates.get(native) or {}).get(model) or {}).get("r_speech"))
-        b = num(((rates.get("16000") or {}).get(model) or {}).get("r_speech"))
-        out.append({"model": model, "what": "rate", "key": "rate_tolerance",
-                    "target": targets.rate_tolerance, "value": a - b})
-    for c in out:
-        v = c["value"]
-        ok = v <= c["target"] if c["what"] == "rate" else v >= c["target"]
-        c["verdict"] = "not measured" if math.isnan(v) else "met" if ok else "not met"
-    return out
-
-
-def _models_text(models: dict) -> str:
-    """The model files (their last three path parts) in a sentence."""
-    named = [f"{label} {escape('/'.join(Path(str(models[key])).parts[-3:]))}"
-             for key, label in SCORE_ROWS if models.get(key)]
-    return f"Models: {'; '.join(named)}." if named else "The summary names no model files."
-
-
-def _check_text(c: dict) -> str:
-    if c["what"] == "r":
-        return f"r ≥ {c['target']:.2f}: {c['verdict']}"
-    if c["what"] == "closures":
-        return f"closures ≥ {100 * c['target']:.0f} %: {c['verdict']}"
-    return f"drop ≤ {c['target']:.2f}: {c['verdict']}"
-
-
-def _with_chance(v, chance, digits: int = 3, percent: bool = False) -> str:
-    f = (lambda x: pct(x, 0)) if percent else (lambda x: fmt(x, digits))
-    return "–" if math.isnan(num(v)) else f"{f(v)} ({f(chance)})"
-
-
-def _face_rows(summary: dict, targets: TargetsConfig) -> list[list]:
-    checks = target_checks(summary, targets)
-    rows = []
-    for key, label in SCORE_ROWS:
-        p = _pooled(summary, key)
-        k, n = num(p.get("closures_hit")), num(p.get("bilabial_segments"))
-        rate = _with_chance(p.get("closure_rate"), p.get("chance_closure_rate"), percent=True)
-        closed = "–" if math.isnan(k) or math.isnan(n) else f"{int(k)}/{int(n)} {rate}"
-        lve = fmt(p.get("lve_px"), 2) if key == "speaker_model" else "–"
-        target = "; ".join(_check_text(c) for c in checks if c["model"] == key
-                           and c["what"] != "rate")
-        rows.append([label, _with_chance(p.get("r_speech"), p.get("chance_r_speech")),
-                     _with_chance(p.get("r_silence"), p.get("chance_r_silence")),
-                     fmt(p.get("r_clip_median")), closed,
-                     _with_chance(p.get("false_closure_rate"),
-                                  p.get("chance_false_closure_rate"), percent=True),
-                     lve, target or "–"])
-    return rows
-
-
-def _rate_rows(summary: dict, targets: TargetsConfig) -> tuple[list, list]:
-    rates = summary.get("rates") or {}
-    order = sorted(rates, key=lambda r: -num(r))
-    checks = {c["model"]: c for c in target_checks(summary, targets) if c["what"] == "rate"}
-    rows = []
-    for key, label in SCORE_ROWS[:2]:
-        cells = [fmt(((rates.get(r) or {}).get(key) or {}).get("r_speech")) for r in order]
-        c = checks.get(key)
-        rows.append([label, *cells, fmt(c["value"]) if c else "–",
-                     _check_text(c) if c else "–"])
-    return rows, order
-
-
-def _peer_sentences(summary: dict) -> list[str]:
-    """Plain sentences where the default does not beat a peer (r, closures, false closures)."""
-    d = _pooled(summary, "synthetic_model")
-    out = []
-    for key, label in PEER_ROWS:
-        p = _pooled(summary, key)
-        name = label.replace(" (peer)", "")
-        for field, what, better in (("r_speech", "speech-frame r", 1),
-                                    ("closure_rate", "share of /p b m/ closed", 1),
-                                    ("false_closure_rate", "false-closure rate", -1)):
-            a, b = num(d.get(field)), num(p.get(field))
-            if math.isnan(a) or math.isnan(b) or better * (a - b) > 0:
-                continue
-            fig = (lambda x: fmt(x)) if field == "r_speech" else (lambda x: pct(x, 0))
-            if field == "false_closure_rate":
-                text = (f"its {what} ({fig(a)}) is above that of the {name} ({fig(b)})"
-                        if a > b else f"its {what} equals that of the {name} ({fig(a)})")
-            else:
-                gap = fmt(b - a) if field == "r_speech" else pct(b - a, 0)
-                text = (f"its {what} ({fig(a)}) is below the {name}'s ({fig(b)}) by {gap}"
-                        if b > a else f"its {what} equals the {name}'s ({fig(a)})")
-            out.append(text)
-    return out
-
-
-def _mapping_rows(table: dict) -> list[list]:
-    return [[escape(ch), f"{o:.2f}", escape(v)] for ch, (o, v) in table.items()]
-
-
-def _rows_by(rows: list, method: str = METHOD) -> dict:
-    """``{(split, part): row}`` of the neutral rows of ``method``."""
-    return {(r.get("split"), r.get("part")): r for r in rows or []
-            if r.get("method") == method and r.get("expression", "neutral") == "neutral"}
-
-
-def _tables_rows(summary: dict) -> list[list]:
-    real, syn = (_rows_by((summary.get("tables") or {}).get(k)) for k in ("real", "synthetic"))
-    out = []
-    for split in ("random_frames", "utterance"):
-        for part in ("train", "test"):
-            r, s = real.get((split, part), {}), syn.get((split, part), {})
-            if not (r or s):
-                continue
-            row = [split, part]
-            for m, d in (("R", 3), ("nu_d", 3), ("nu_d_est", 3), ("MSE", 4)):
-                paper = r.get(f"paper_{m}", "") or s.get(f"paper_{m}", "")
-                row += [fmt(r.get(m), d), fmt(s.get(m), d), fmt(paper, d)]
-            out.append(row)
-    return out
-
-
-def _lip_rows(summary: dict) -> list[list]:
-    real, syn = (_rows_by((summary.get("tables") or {}).get(k)) for k in ("real", "synthetic"))
-
-    def closed(r):
-        n = num(r.get("bilabial_segments"))
-        return (f"{fmt(r.get('closure'), 2)} of {int(n)}" if not math.isnan(n) and n > 0
-                else "–")
-    out = []
-    for split in ("random_frames", "utterance"):
-        r, s = real.get((split, "test"), {}), syn.get((split, "test"), {})
-        cells = [fmt(r.get("LVE"), 2), fmt(s.get("LVE"), 2), fmt(r.get("R_lips")),
-                 fmt(s.get("R_lips")), closed(r), closed(s)]
-        if any(c != "–" for c in cells):
-            out.append([split, *cells])
-    return out
-
-
 def _corpus_paragraph(rep, summary: dict) -> None:
     c = summary.get("corpus") or {}
     if not c:
@@ -445,8 +256,8 @@ def real_speaker_section(rep, stage_dir, figs_dir,
             "the corpus (units.npz scale), added (red) and taken away (blue), with the "
             "mesh of the layout; all arrows are lengthened by one factor (in the legend) and "
             "each title gives the largest true displacement.", "Motion Unit figure", "real_units")
-    tables = _tables_rows(summary)
-    lips = _lip_rows(summary)
+    tables = tables_rows(summary)
+    lips = lip_rows(summary)
     if tables or lips:
         rep.paragraph(" ".join(t for t, ok in (
             ("{label:real_tables} sets Tables I–II on the real speaker beside this run's "
@@ -493,7 +304,7 @@ def _face_scores(rep, summary: dict, targets: TargetsConfig, has_strip: bool) ->
     if not scores:
         rep.paragraph("No face scores in the stage's summary.")
         return
-    p = next((_pooled(summary, k) for k, _ in SCORE_ROWS if _pooled(summary, k)), {})
+    p = next((pooled_of(summary, k) for k, _ in SCORE_ROWS if pooled_of(summary, k)), {})
     rate = escape(summary.get("input_rate", "?"))
     rule = next(((v or {}).get("rule") or {} for v in scores.values() if v), {})
     speech = ("speech frames (phones other than silence)" if p.get("speech_known", True)
@@ -516,20 +327,20 @@ def _face_scores(rep, summary: dict, targets: TargetsConfig, has_strip: bool) ->
         "the same prediction circularly shifted by a third and two thirds of its clip. "
         f"No interval: {escape(_no_interval(p))}."
         + strip)
-    sentences = _peer_sentences(summary)
+    sentences = peer_sentences(summary)
     if sentences:
         rep.paragraph("The synthetic-trained default does not beat every peer: "
                       + "; ".join(sentences) + ".")
     rep.table(f"Lips against the real face on the held-out sentences, input {rate} Hz",
               ["model", "r speech (chance)", "r silence (chance)", "median r per clip",
                "/p b m/ closed (chance)", "false closures (chance)", "LVE (px)", "target"],
-              _face_rows(summary, targets),
+              face_rows(summary, targets),
               note="Targets quoted from the run's targets: "
                    + "; ".join(f"{k} {getattr(targets, k):g} ({escape(TARGET_TEXT[k])})"
                                for k in ("face_speaker_r", "face_synthetic_r", "face_closures"))
                    + ". LVE only for the model trained on this speaker (aligned pixels). "
-                   + _models_text(summary.get("models") or {}), key="real_face_scores")
-    rows, order = _rate_rows(summary, targets)
+                   + models_text(summary.get("models") or {}), key="real_face_scores")
+    rows, order = rate_rows(summary, targets)
     if len(order) > 1:
         rep.paragraph(f"{{label:real_rates}} gives the two models' speech-frame r with the same "
                       "audio resampled to each rate (the models hear it at that rate), and the "
@@ -549,8 +360,8 @@ def _face_scores(rep, summary: dict, targets: TargetsConfig, has_strip: bool) ->
         f"{escape(peers.get('openfacefx_text_words', 'transcript'))}. The loudness envelope is "
         "dB of the RMS in 40 ms windows.")
     rep.table("openfacefx (Oculus-15 channels): opening and viseme of each channel",
-              ["channel", "opening", "viseme"], _mapping_rows(OCULUS_TABLE),
+              ["channel", "opening", "viseme"], mapping_rows(OCULUS_TABLE),
               key="real_peer_oculus")
     rep.table("pylipsync (uLipSync templates): opening and viseme of each channel",
-              ["channel", "opening", "viseme"], _mapping_rows(ULIPSYNC_TABLE),
+              ["channel", "opening", "viseme"], mapping_rows(ULIPSYNC_TABLE),
               key="real_peer_ulipsync")

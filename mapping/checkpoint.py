@@ -32,7 +32,8 @@ from groundwork import modelfile
 from groundwork.audio import read_wav, resample
 from groundwork.errors import ParameterError
 from mapping.baselines import BASELINES, Baseline
-from mapping.features import audio_features, check_align, check_mel_fmax, frame_rms_dbfs
+from mapping.features import audio_features, check_align, frame_rms_dbfs
+from mapping.filterbank import check_mel_fmax
 from mapping.gated_mlp import GatedMLP
 from mapping.recogniser import fit_length, recognise_windows
 from mapping.state import ArrayGroup
@@ -63,7 +64,7 @@ class AudioMapping:
     fps, n_mfcc, deltas, window_align, mel_fmax_hz : the feature settings the method was
         trained with (``window_align``: :func:`mapping.features.aligned`; a model saved before
         it existed is "centre"; ``mel_fmax_hz``: the mel filterbank's upper edge in Hz, 0 for
-        sr/2, :func:`mapping.features.check_mel_fmax`; a model saved before it existed is 0).
+        sr/2, :func:`mapping.filterbank.check_mel_fmax`; a model saved before it existed is 0).
     rest_mups : array_like (n_utterance,)
         Utterance MUPs of the neutral face (:func:`rest_mups` of the Motion Units).
     silence_dbfs : float

@@ -31,7 +31,7 @@ are unchanged:
 
 The features' band (issue 37): ``mel_fmax_hz`` is the mel filterbank's upper edge in Hz (0:
 sr/2), saved with the model, so audio of any rate resampled to the model's rate is read in the
-band the model was trained on (:func:`mapping.features.check_mel_fmax`).
+band the model was trained on (:func:`mapping.filterbank.check_mel_fmax`).
 
 The training set gains ``augment.copies`` copies of each training utterance (its training
 frames only; test utterances never), or one warped copy each when only the warp is on

@@ -24,8 +24,8 @@ from groundwork.cache import content_key
 from groundwork.errors import ParameterError
 from mapping.augment import augment, retime_labels, retime_targets, rir_bank
 from mapping.config import AugmentSettings
-from mapping.features import (FEATURES_VERSION, audio_features, check_mel_fmax,
-                               hop_samples)
+from mapping.features import FEATURES_VERSION, audio_features, hop_samples
+from mapping.filterbank import check_mel_fmax
 from mapping.recogniser import fit_length, recognise_windows, recogniser_name
 
 SPLITS = ("random_frames", "utterance")
@@ -84,7 +84,7 @@ def build_dataset(corpus, units, *, n_mfcc: int = 10, deltas: bool = False,
     (:func:`mapping.recogniser.recognise_windows`; the recogniser gate's input), fitted to the
     utterance's frames. ``window_align``: the MFCC window's alignment
     (:func:`mapping.features.aligned`). ``mel_fmax_hz``: the mel filterbank's upper edge, Hz
-    (0: sr/2; :func:`mapping.features.check_mel_fmax`), kept in each utterance. ``cache``: a
+    (0: sr/2; :func:`mapping.filterbank.check_mel_fmax`), kept in each utterance. ``cache``: a
     :class:`groundwork.cache.ArrayCache` that keeps the features and the recognised phones of
     a corpus, by its content and the settings, for every later call (a grid's tasks, later
     runs).

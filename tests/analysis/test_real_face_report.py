@@ -8,7 +8,8 @@ import pytest
 from pypdf import PdfReader
 
 from analysis.real_face_report import (frame_strip_figure, mu_figure, real_speaker_section,
-                                       strip_frames, target_checks)
+                                       strip_frames)
+from analysis.real_face_tables import target_checks
 from analysis.config import TargetsConfig
 from analysis.report import Report
 from face_model.layout import default_layout, mouth_opening

@@ -21,8 +21,9 @@ from mapping.animator import FaceAnimator, StreamingAnimator
 from mapping.checkpoint import AudioMapping, rest_mups
 from mapping.config import AugmentSettings, MappingConfig, TrainSettings
 from mapping.dataset import UttData, training_copies, utterance_key
-from mapping.features import (MFCC_SETTINGS, VTLP_F_HI, _mel_filters, audio_features,
-                              check_mel_fmax, mfcc, vtlp_f_hi, vtlp_warp, warped_mel_filters)
+from mapping.features import MFCC_SETTINGS, audio_features, mfcc
+from mapping.filterbank import (VTLP_F_HI, _mel_filters, check_mel_fmax, vtlp_f_hi, vtlp_warp,
+                                warped_mel_filters)
 
 SR = 22050
 N_FFT = 1024  # 25 ms at 22,050 Hz (551 samples) in the next power of two

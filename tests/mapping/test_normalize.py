@@ -10,8 +10,8 @@ import pytest
 from groundwork.errors import ParameterError
 from groundwork.settings import SettingError
 from mapping.config import AugmentSettings, MappingConfig
-from mapping.features import (MFCC_SETTINGS, ContextFeatures, _mel_filters, mfcc, vtlp_warp,
-                              warped_mel_filters)
+from mapping.features import MFCC_SETTINGS, ContextFeatures, mfcc
+from mapping.filterbank import _mel_filters, vtlp_warp, warped_mel_filters
 from mapping.normalize import CepstralNormalizer
 
 N0 = 5
