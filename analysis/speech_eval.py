@@ -1,42 +1,50 @@
-"""A trained mapping scored on real speech (issue 12, part 5): the gate's frame accuracy, lip
-closure at /p b m/, labiodental contact at /f v/, and the correlation of the predicted lip
-opening with the generator's own reference trajectory drawn from the real phone labels.
+"""A trained mapping scored on real speech (issue 12, part 5; issue 37): the gate's frame
+accuracy, lip closure at /p b m/, labiodental contact at /f v/, and the correlation of the
+predicted lip opening with the generator's own reference trajectory drawn from the real phone
+labels — each beside its chance baseline, on recordings whose speaker is the unit
+(DESIGN.md, "Evaluation on real data"). The frame-level scores are :mod:`analysis.speech_scores`;
+pooling, splits, intervals and the per-speaker table are :mod:`analysis.speech_pooling`.
 
-Frames. Frame k sits at k / fps seconds (the corpus convention); its true phone is the labelled
-segment holding that instant (:func:`phone_frames`).
+Seen and unseen. A model's *training speakers* (:func:`training_speakers`) are the speaker ids
+of its training corpus: the real speakers its synthetic voices were built from (flite's ``slt``
+is ``arctic-slt``; espeak's formant voices are ``espeak``), and for a corpus given from
+recordings (``corpus.json`` names its ``source``) the manifest's own speakers (``grid-s1``).
+A recording is *seen* iff its ``speaker`` is one of them.
 
 Lip opening. ``face_model.layout.mouth_opening`` of the markers the run's animator draws from
 the predicted MUPs (:class:`mapping.animator.FaceAnimator`, as ``talkingface animate`` does):
 inner lower lip minus inner upper lip, pixels.
 
 Closed-lip threshold (:func:`closed_threshold`). The generator draws two closed mouths: the
-bilabial press (closure = 1: about 0 px on the layout's face, the lips pressed together) and the
-rest face that silences and the mapping's silence rule draw ("a closed, neutral mouth": 2.1 px on
-the layout's face, the inner contours just touching in the drawing). The threshold is the larger
-of the two — the rest opening of the face being animated — so the lips *meet* in a frame when
-they are no further apart than in the generator's own closed neutral mouth. Every open sound of
-the generator lies well above it (``s`` 4.3 px, ``t`` 5.1, ``uw`` 5.0, ``iy`` 5.6, ``aa`` 16.2).
+bilabial press (about 0 px on the layout's face) and the rest face that silences and the
+mapping's silence rule draw ("a closed, neutral mouth": 2.1 px on the layout's face). The
+threshold is the larger of the two — the rest opening of the face being animated — so the lips
+*meet* in a frame when they are no further apart than in the generator's own closed neutral
+mouth. Every open sound of the generator lies well above it (``s`` 4.3 px, ``aa`` 16.2).
 
 (a) Gate accuracy: the gate's class per frame (``GatedMLP.gate_classes``) against the labelled
-phone's class after the model's own small-class merges (as ``mapping.phone_gate.gate_accuracy``
-measures it in-domain); viseme accuracy compares the visemes
-(``i a o f u m neutral``; silence is neutral) of the chosen class and of the labelled phone. A gate
-of 8 groups gives the viseme accuracy only; one group (or every class merged into one, or a
-method without a gate) neither.
+phone's class after the model's own small-class merges; viseme accuracy compares the visemes
+(``i a o f u m neutral``; silence is neutral). A gate of 8 groups gives the viseme accuracy
+only; one group (or a method without a gate) neither. Streaming: the gate of a frame model
+decides frame k from the same features offline and live (:mod:`mapping.animator`: "its frames
+equal the offline frames"), after its algorithmic look-ahead (:func:`stream_lookahead_s`), so
+its streaming accuracy *is* the offline one — checked on one recording per model
+(:func:`stream_matches`; a model whose live markers differ gets no streaming figure). The
+column is named after the targets' look-ahead (``targets.lookahead_ms``); the model's own
+look-ahead is recorded beside it (its context plus half its analysis window).
 
-(b) Bilabial closure: a /p b m/ segment is *closed* when the opening falls to the threshold in
-some frame whose 1/fps span overlaps the segment (a segment shorter than a frame still has the
-frame nearest its centre). The centre opening (linear interpolation at the segment's midpoint)
-is reported relative to the median opening over frames labelled with a vowel.
+(b) Bilabial closure and (c) labiodental contact: :func:`analysis.speech_scores.segment_contact`
+against the threshold; the centre opening relative to the median vowel opening.
 
-(c) Labiodental contact: the same for /f v/. In the generator the lower lip tucks up under the
-upper teeth (``lower_tuck``), which drives the inner opening *below* the bilabial press
-(about −2.4 px), so contact is the same test against the same threshold.
+(d) Reference correlation: r between the predicted opening and the opening of the generator's
+face for speaker 0 of the run's synth config driven by the real phone labels, on speech frames,
+clips centred and scaled before pooling (:func:`analysis.speech_scores.speech_r_terms`); the
+silence frames' median opening is reported apart, relative to the vowel median.
 
-(d) Reference correlation: Pearson's r between the predicted opening and the opening of the
-generator's face for speaker 0 of the run's synth config, driven by
-``data_synth.articulation.coarticulate`` of the real phone labels (no expression, no brows, no
-head motion, no noise).
+Input rate. Each recording is scored as its file holds it (``native``) and, for the rate
+variants, resampled down to 16 kHz or 8 kHz and given at that rate (:func:`rate_audio`); a
+recording already at or below a variant's rate is not resampled and its row says so
+(``rate_note``).
 """
 from __future__ import annotations
 
@@ -48,104 +56,24 @@ from pathlib import Path
 import numpy as np
 
 from analysis.figures import phone_labels, report_figure
-from analysis.speech_set import PARTS
+from analysis.speech_scores import (LABIODENTALS, VOWELS, ChanceTerms, Contact,  # noqa: F401
+                                    chance_scores, correlation, fit_frames, frame_accuracy,
+                                    group_viseme, label_frames, phone_frames, segment_contact,
+                                    silence_opening, speech_r_terms, viseme_index, vowel_median)
 from data_synth.articulation import coarticulate
-from data_synth.backends import ESPEAK_SPEAKER, voice_speaker
+from data_synth.backends import voice_speaker
 from data_synth.config import SynthConfig
 from data_synth.face import articulate, make_speaker
 from data_synth.flite import VOICE as FLITE_VOICE
 from face_model.corpus import read_manifest
 from face_model.layout import mouth_opening
-from face_model.phones import BILABIALS, PHONE_INDEX, PHONES, VISEMES, viseme
-from groundwork.errors import ParameterError
-from mapping.animator import FaceAnimator
+from face_model.phones import BILABIALS, PHONES
+from groundwork.audio import read_wav, resample
+from mapping.animator import FaceAnimator, StreamingAnimator
+from mapping.features import algorithmic_latency_s
 
-VOWELS = frozenset("iy ih ey eh ae aa ah ax ay aw ao ow oy uw uh er".split())
-LABIODENTALS = frozenset({"f", "v"})
-_VISEME_OF_PHONE = np.array([VISEMES.index(viseme(p)) for p in PHONES])
-
-
-def phone_frames(segments, times: np.ndarray) -> np.ndarray:
-    """Phone index (into ``PHONES``) of the segment holding each time; times past the last
-    segment take the last one."""
-    ends = np.array([s.end_s for s in segments])
-    idx = np.minimum(np.searchsorted(ends, np.asarray(times), side="right"), len(segments) - 1)
-    return np.array([PHONE_INDEX[segments[i].phone] for i in idx], dtype=int)
-
-
-def viseme_index(phone_idx: np.ndarray) -> np.ndarray:
-    """Viseme (index into ``VISEMES``) of each phone index."""
-    return _VISEME_OF_PHONE[np.asarray(phone_idx, dtype=int)]
-
-
-def group_viseme(name: str) -> int:
-    """Viseme index of a gate class name: a phone, or a group of the 8-class gate
-    (``other`` and ``sil`` are neutral)."""
-    if name in PHONE_INDEX:
-        return int(_VISEME_OF_PHONE[PHONE_INDEX[name]])
-    return VISEMES.index(name if name in VISEMES else "neutral")
-
-
-def frame_accuracy(true: np.ndarray, pred: np.ndarray) -> float:
-    """Fraction of frames where ``pred`` equals ``true`` (NaN for no frames)."""
-    true, pred = np.asarray(true), np.asarray(pred)
-    return float(np.mean(true == pred)) if len(true) else float("nan")
-
-
-@dataclass(frozen=True)
-class Contact:
-    """Per-segment result of :func:`segment_contact`: whether the lips met and the opening at
-    the segment's centre (px), one entry per segment of the chosen phones."""
-
-    met: np.ndarray
-    centre_opening: np.ndarray
-
-    @property
-    def n(self) -> int:
-        return len(self.met)
-
-    @property
-    def fraction(self) -> float:
-        return float(self.met.mean()) if self.n else float("nan")
-
-
-def segment_contact(opening: np.ndarray, fps: float, segments, phones, threshold: float
-                    ) -> Contact:
-    """For each segment whose phone is in ``phones``: do the lips meet (``opening`` ≤
-    ``threshold`` in a frame whose span [t − 1/2fps, t + 1/2fps) overlaps the segment, or in the
-    frame nearest the centre of a shorter segment), and the opening at its centre (linear
-    interpolation). ``opening`` (n_frames,) pixels, frame k at k / fps s."""
-    opening = np.asarray(opening, dtype=np.float64)
-    times = np.arange(len(opening)) / fps
-    half = 0.5 / fps
-    met, centre = [], []
-    for s in segments:
-        if s.phone not in phones:
-            continue
-        c = 0.5 * (s.start_s + s.end_s)
-        inside = (times + half > s.start_s) & (times - half < s.end_s)
-        k = np.flatnonzero(inside)
-        if len(k) == 0:
-            k = [int(np.clip(round(c * fps), 0, len(opening) - 1))]
-        met.append(bool(np.min(opening[k]) <= threshold))
-        centre.append(float(np.interp(c, times, opening)))
-    return Contact(np.array(met, dtype=bool), np.array(centre))
-
-
-def vowel_median(opening: np.ndarray, phone_idx: np.ndarray) -> float:
-    """Median opening over the frames labelled with a vowel (NaN if there are none)."""
-    sel = np.isin(np.asarray(phone_idx), [PHONE_INDEX[p] for p in VOWELS])
-    return float(np.median(np.asarray(opening)[sel])) if sel.any() else float("nan")
-
-
-def correlation(a: np.ndarray, b: np.ndarray) -> float:
-    """Pearson's r of two equal-length tracks (NaN when either is constant)."""
-    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
-    if len(a) != len(b):
-        raise ParameterError(f"tracks of {len(a)} and {len(b)} frames cannot be correlated")
-    if len(a) < 2 or np.std(a) == 0 or np.std(b) == 0:
-        return float("nan")
-    return float(np.corrcoef(a, b)[0, 1])
+NATIVE = "native"
+RATES = (NATIVE, 16000, 8000)  # the input rates every score is given at
 
 
 def closed_threshold(neutral: np.ndarray) -> float:
@@ -167,154 +95,187 @@ def reference_opening(segments, n_frames: int, fps: float, synth: SynthConfig, s
 
 
 def training_speakers(corpus_dir) -> frozenset:
-    """The real source speakers (``arctic_slt`` …) of the voices the corpus at ``corpus_dir``
-    was synthesised with: its manifest's ``voice`` column (``engine:voice``), or, without one,
-    the single voice of its ``backend`` (``corpus.json``: espeak's formant voice is built from
-    no real speaker, flite's default is :data:`data_synth.flite.VOICE`), through
-    :func:`data_synth.backends.voice_speaker`. A folder without a manifest is a
-    :class:`~groundwork.errors.CorpusError` saying the manifest is needed."""
+    """The speaker ids of the corpus at ``corpus_dir``.
+
+    A synthetic corpus (``corpus.json`` without ``source``): the real speakers of its voices
+    (the manifest's ``voice`` column, ``engine:voice``, or without one the single voice of its
+    ``backend``: espeak's accents are ``espeak``, flite's default is
+    :data:`data_synth.flite.VOICE`), through :func:`data_synth.backends.voice_speaker`. A given
+    corpus (``corpus.json`` names its ``source``, or there is no ``corpus.json``): its
+    manifest's ``speaker`` ids (lowercase), and the speakers of any ``voice`` it lists too.
+
+    Raises
+    ------
+    CorpusError
+        The folder has no manifest (it is needed to tell seen from unseen speakers).
+    """
     root = Path(corpus_dir)
     rows = read_manifest(root / "manifest.csv", (), not_found="the training corpus's manifest "
                          "is needed to tell seen from unseen speakers")
-    voices = {row.get("voice") or "" for row in rows}
-    if "" in voices:
-        info = json.loads((root / "corpus.json").read_text(encoding="utf-8"))
-        backend = (info.get("settings") or {}).get("backend", "espeak")
-        voices = (voices - {""}) | {f"flite:{FLITE_VOICE}" if backend == "flite"
-                                    else "espeak:en-us"}
-    return frozenset(s for s in map(voice_speaker, voices) if s != ESPEAK_SPEAKER)
+    info_file = root / "corpus.json"
+    info = json.loads(info_file.read_text(encoding="utf-8")) if info_file.is_file() else {}
+    given = not info_file.is_file() or bool(info.get("source"))
+    out = set()
+    if given:
+        out |= {(r.get("speaker") or "").strip().lower() for r in rows} - {""}
+    voices = {(r.get("voice") or "").strip() for r in rows}
+    if "" in voices and not given:
+        backend = (info.get("settings") or {}).get("backend") or info.get("backend", "espeak")
+        voices.add(f"flite:{FLITE_VOICE}" if backend == "flite" else "espeak:en-us")
+    out |= {voice_speaker(v) for v in voices - {""}}
+    return frozenset(out)
 
 
-# -- one model on the set ---------------------------------------------------------------------
+def rate_audio(item, rate) -> tuple[np.ndarray, int, str]:
+    """``(audio, sr, note)`` of recording ``item`` at input ``rate``: ``native`` reads the file
+    at its own rate; 16000 or 8000 resamples it down to that rate, or, when the file's rate is
+    already at most ``rate``, gives it as it is with a note saying so."""
+    native_sr = int(getattr(item, "native_sr", item.sr))
+    if native_sr == item.sr:
+        y, sr = np.asarray(item.audio, np.float32), int(item.sr)
+    else:
+        y, sr = read_wav(item.wav)
+    if rate == NATIVE:
+        return y, sr, ""
+    if sr <= int(rate):
+        return y, sr, f"native {sr} Hz <= {int(rate)} Hz: scored once, as recorded"
+    return resample(y, sr_in=sr, sr_out=int(rate)).astype(np.float32), int(rate), ""
+
+
+# -- one model on one recording ---------------------------------------------------------------
 @dataclass
 class FileScores:
     """A model's scores on one recording, with the per-frame tracks the figure and the pooled
     figures need."""
 
     id: str
-    speaker_source: str
+    speaker: str
     seen: bool
     seconds: float
     part: str  # "dev" or "test" (analysis.speech_set)
     labels: str  # "independent" of both recognisers, or "aligned" by pocketsphinx
+    input_rate: str  # "native", "16000" or "8000"
+    rate_note: str
     phone_acc: float
     viseme_acc: float
+    stream: bool  # the streaming accuracy at the targets' look-ahead is the offline one
     bilabial: Contact
     labiodental: Contact
     vowel_median_px: float
     r_reference: float
+    r_terms: float
+    speech_frames: int
+    silence_px: np.ndarray
+    chance: ChanceTerms
     n_frames: int
     tracks: dict = field(repr=False, default_factory=dict)
 
-    def row(self) -> dict:
-        b, f = self.bilabial, self.labiodental
-        return {"id": self.id, "speaker_source": self.speaker_source,
+    def row(self, stream_key: str) -> dict:
+        b, f, n = self.bilabial, self.labiodental, self.n_frames
+        c, k = self.chance, max(self.chance.n_shifts, 1)
+        vis_hits = self.viseme_acc * n
+        return {"id": self.id, "speaker": self.speaker,
                 "split": "seen" if self.seen else "unseen", "part": self.part,
-                "labels": self.labels,
-                "seconds": round(self.seconds, 3),
-                "frames": self.n_frames, "phone_acc": self.phone_acc,
-                "viseme_acc": self.viseme_acc, "bilabial_segments": b.n,
-                "bilabial_closed": int(b.met.sum()), "bilabial_closed_frac": b.fraction,
+                "labels": self.labels, "input_rate": self.input_rate,
+                "rate_note": self.rate_note, "seconds": round(self.seconds, 3),
+                "frames": n, "speech_frames": self.speech_frames,
+                "phone_acc": self.phone_acc, "phone_hits": self.phone_acc * n,
+                "viseme_acc": self.viseme_acc, "viseme_hits": vis_hits,
+                stream_key: self.viseme_acc if self.stream else float("nan"),
+                "viseme_stream_hits": vis_hits if self.stream else float("nan"),
+                "bilabial_segments": b.n, "bilabial_closed": int(b.met.sum()),
+                "bilabial_closed_frac": b.fraction,
                 "bilabial_centre_px": _median(b.centre_opening),
                 "labiodental_segments": f.n, "labiodental_contact": int(f.met.sum()),
                 "labiodental_contact_frac": f.fraction,
                 "labiodental_centre_px": _median(f.centre_opening),
                 "vowel_median_px": self.vowel_median_px,
                 "bilabial_centre_rel_vowel": _median(b.centre_opening) / self.vowel_median_px,
-                "r_reference": self.r_reference}
+                "r_reference": self.r_reference, "r_terms": self.r_terms,
+                "silence_frames": len(self.silence_px),
+                "silence_px": _median(self.silence_px),
+                "chance_viseme_hits": c.viseme_hits / k if np.isfinite(vis_hits) else np.nan,
+                "chance_closed": c.closed / k, "chance_r_terms": c.r_terms / k}
 
 
 def _median(x) -> float:
     return float(np.median(x)) if len(x) else float("nan")
 
 
-def gate_tracks(mapping, y: np.ndarray, sr: int, true_phone: np.ndarray):
-    """``(phone_acc, viseme_acc, gated class names)`` of the mapping's gate on one recording
-    (NaN where the gate cannot say: 8 groups give no phone accuracy, 1 group or no gate
-    neither)."""
+def gate_tracks(mapping, y: np.ndarray, sr: int, true_phone: np.ndarray, what: str):
+    """``(phone_acc, viseme_acc, gated class names, gated visemes)`` of the mapping's gate on
+    one recording (NaN and None where the gate cannot say: 8 groups give no phone accuracy, 1
+    group or no gate neither)."""
     mapper = mapping.mapper
     # no gate, or every class merged into one (a corpus too small for more): nothing to score
     if not hasattr(mapper, "gate_classes") or len(set(mapper.group_of_phone_.tolist())) == 1:
-        return float("nan"), float("nan"), None
-    gated = mapping.gate_classes(y, sr)[:len(true_phone)]
+        return float("nan"), float("nan"), None, None
+    gated = fit_frames(mapping.gate_classes(y, sr), len(true_phone), what=what)
     names = [mapper.class_names_[g] for g in gated]
-    true = true_phone[:len(gated)]
-    vis = frame_accuracy(viseme_index(true), [group_viseme(n) for n in names])
-    phone = (frame_accuracy(mapper.group_of_phone_[true], gated)
+    visemes = np.array([group_viseme(n) for n in names])
+    vis = frame_accuracy(viseme_index(true_phone), visemes)
+    phone = (frame_accuracy(mapper.group_of_phone_[true_phone], gated)
              if len(mapper.class_names_) == len(PHONES) else float("nan"))
-    return phone, vis, names
+    return phone, vis, names, visemes
+
+
+def stream_lookahead_s(mapping) -> float | None:
+    """Seconds of audio after frame k that the model's live stream waits for before frame k
+    (``mapping.features.algorithmic_latency_s`` of its context); None for a model that cannot
+    stream (whole-utterance models, deltas)."""
+    mapper = mapping.mapper
+    if getattr(mapping, "deltas", False) or not hasattr(mapper, "predict_stacked") or \
+            getattr(mapper, "sequence", False) or not hasattr(mapper, "context_"):
+        return None
+    return algorithmic_latency_s(mapper.context_.forward, mapping.sample_rate, mapping.fps,
+                                 getattr(mapping, "window_align", "centre"))
+
+
+def stream_matches(animator: FaceAnimator, y: np.ndarray, sr: int) -> float:
+    """Largest difference (px) between the markers the live stream emits for ``y`` (pushed in
+    10 ms chunks at the model's rate) and the offline markers: 0 when offline = live."""
+    m = animator.mapping
+    y_m = m.at_model_rate(y, sr)
+    stream = StreamingAnimator(animator)
+    step = max(1, m.sample_rate // 100)
+    frames = [f for i in range(0, len(y_m), step) for f in stream.push(y_m[i:i + step])]
+    frames += stream.flush()
+    live = np.stack([f.markers for f in frames])
+    offline = animator.markers(m.predict_audio(y_m, m.sample_rate))
+    if live.shape != offline.shape:
+        return float("inf")
+    return float(np.max(np.abs(live - offline)))
 
 
 def score_file(animator: FaceAnimator, item, synth: SynthConfig, seed: int, *, seen: bool,
-               threshold: float) -> FileScores:
-    """Every measure of the module docstring on one recording (``analysis.speech_set``)."""
+               threshold: float, rate=NATIVE, stream: bool = False) -> FileScores:
+    """Every measure of the module docstring, and its chance baseline, on one recording
+    (``analysis.speech_set``) given to the model at input ``rate``."""
     m = animator.mapping
-    mups = m.predict_audio(item.audio, item.sr)
-    opening = mouth_opening(animator.markers(mups)).astype(np.float64)
-    n, fps = len(opening), m.fps
+    y, sr, note = rate_audio(item, rate)
+    fps = m.fps
+    n = label_frames(len(y), sr, fps)
+    what = f"{item.id} at {rate}"
+    mups = m.predict_audio(y, sr)
+    opening = fit_frames(mouth_opening(animator.markers(mups)).astype(np.float64), n, what=what)
     true = phone_frames(item.phones, np.arange(n) / fps)
-    phone_acc, vis_acc, gated = gate_tracks(m, item.audio, item.sr, true)
+    phone_acc, vis_acc, gated, visemes = gate_tracks(m, y, sr, true, what)
     ref = reference_opening(item.phones, n, fps, synth, seed)
+    terms, n_speech = speech_r_terms(opening, ref, true)
+    sel = true != PHONES.index("sil")
     return FileScores(
-        id=item.id, speaker_source=item.speaker_source, seen=seen, seconds=item.duration_s,
-        part=item.part, labels="independent" if item.independent else "aligned",
-        phone_acc=phone_acc, viseme_acc=vis_acc,
+        id=item.id, speaker=item.speaker, seen=seen, seconds=len(y) / sr, part=item.part,
+        labels="independent" if item.independent else "aligned", input_rate=str(rate),
+        rate_note=note, phone_acc=phone_acc, viseme_acc=vis_acc, stream=stream,
         bilabial=segment_contact(opening, fps, item.phones, BILABIALS, threshold),
         labiodental=segment_contact(opening, fps, item.phones, LABIODENTALS, threshold),
-        vowel_median_px=vowel_median(opening, true), r_reference=correlation(opening, ref),
-        n_frames=n, tracks={"opening": opening, "reference": ref, "true": true, "gated": gated,
-                            "fps": fps})
-
-
-def pooled(scores: list, split: str) -> dict:
-    """The figures of ``scores`` pooled over files: frame accuracies over all frames, closure
-    and contact over all segments, centre openings over all segments relative to the median
-    of every vowel frame, and the mean of the per-file correlations."""
-    if not scores:
-        return {"split": split, "files": 0}
-    frames = np.array([s.n_frames for s in scores])
-
-    def weighted(attr):
-        v = np.array([getattr(s, attr) for s in scores])
-        return float(np.sum(v * frames) / frames.sum()) if np.isfinite(v).all() else float("nan")
-
-    bil = np.concatenate([s.bilabial.met for s in scores])
-    lab = np.concatenate([s.labiodental.met for s in scores])
-    bc = np.concatenate([s.bilabial.centre_opening for s in scores])
-    lc = np.concatenate([s.labiodental.centre_opening for s in scores])
-    vowels = np.concatenate([s.tracks["opening"][np.isin(s.tracks["true"], [
-        PHONE_INDEX[p] for p in VOWELS])] for s in scores])
-    vmed = _median(vowels)
-    rs = np.array([s.r_reference for s in scores])
-    return {"split": split, "files": len(scores),
-            "seconds": round(float(sum(s.seconds for s in scores)), 2),
-            "speakers": len({s.speaker_source for s in scores}),
-            "phone_acc": weighted("phone_acc"), "viseme_acc": weighted("viseme_acc"),
-            "bilabial_segments": len(bil), "bilabial_closed_frac":
-                float(bil.mean()) if len(bil) else float("nan"),
-            "bilabial_centre_rel_vowel": _median(bc) / vmed,
-            "labiodental_segments": len(lab), "labiodental_contact_frac":
-                float(lab.mean()) if len(lab) else float("nan"),
-            "labiodental_centre_rel_vowel": _median(lc) / vmed,
-            "vowel_median_px": vmed, "r_reference": float(np.nanmean(rs)) if
-                np.isfinite(rs).any() else float("nan")}
-
-
-@dataclass
-class ModelScores:
-    """One model on the set: per-file scores and the pooled rows (seen, unseen, all)."""
-
-    model: str
-    threshold_px: float
-    files: list
-    summary: list
-
-    def per_file_rows(self) -> list:
-        return [{"model": self.model, **f.row()} for f in self.files]
-
-    def summary_rows(self) -> list:
-        return [{"model": self.model, "threshold_px": self.threshold_px, **r}
-                for r in self.summary]
+        vowel_median_px=vowel_median(opening, true),
+        r_reference=correlation(opening[sel], ref[sel]), r_terms=terms, speech_frames=n_speech,
+        silence_px=silence_opening(opening, true),
+        chance=chance_scores(true, fps, item.phones, visemes=visemes, opening=opening,
+                             reference=ref, threshold=threshold),
+        n_frames=n, tracks={"opening": opening, "reference": ref, "true": true,
+                            "gated": gated, "visemes": visemes, "fps": fps})
 
 
 def synth_of(mapping) -> tuple[SynthConfig, int]:
@@ -327,22 +288,46 @@ def synth_of(mapping) -> tuple[SynthConfig, int]:
     return SynthConfig(**synth), int(mapping.metadata.get("seed", cfg.get("seed", 2002)))
 
 
-def score_model(name: str, mapping, units, items, seen_sources=frozenset()) -> ModelScores:
+@dataclass
+class ModelScores:
+    """One model on the set: its per-file scores at each input rate, its threshold, and
+    whether its streaming output equals its offline output (``stream``: the look-ahead and the
+    largest marker difference on one recording)."""
+
+    model: str
+    threshold_px: float
+    files: list
+    stream: dict
+
+    def per_file_rows(self, stream_key: str) -> list:
+        return [{"model": self.model, **f.row(stream_key)} for f in self.files]
+
+
+def score_model(name: str, mapping, units, items, seen=frozenset(), *, rates=(NATIVE,),
+                lookahead_s: float = 0.1, check_item=None) -> ModelScores:
     """Score ``mapping`` (an AudioMapping) with its Motion Units ``units`` on the recordings
-    ``items``; a recording is *seen* when its ``speaker_source`` is in ``seen_sources``."""
+    ``items`` at each input rate of ``rates``; a recording is *seen* when its ``speaker`` is in
+    ``seen``. The streaming column (named after the targets' ``lookahead_s``) holds the model's
+    live output when it can stream, at its own look-ahead (``stream["lookahead_s"]``: its
+    context plus half its analysis window, e.g. 112.5 ms for 3 frames and a 25 ms window;
+    the report states it); ``check_item``: the recording on which the live and offline
+    markers are compared (a model whose live output differs gets no streaming figure)."""
     animator = FaceAnimator(mapping, units)
     synth, seed = synth_of(mapping)
     threshold = closed_threshold(animator.neutral)
-    files = [score_file(animator, it, synth, seed, seen=it.speaker_source in seen_sources,
-                        threshold=threshold) for it in items]
-    summary = [pooled([f for f in files if f.seen], "seen"),
-               pooled([f for f in files if not f.seen], "unseen"), pooled(files, "all"),
-               *[pooled([f for f in files if not f.seen and f.part == p], f"unseen-{p}")
-                 for p in PARTS],
-               *[pooled([f for f in files if not f.seen and f.part == "test"
-                         and f.labels == lab], f"unseen-test-{lab}")
-                 for lab in ("independent", "aligned")]]
-    return ModelScores(name, threshold, files, summary)
+    la = stream_lookahead_s(mapping)
+    streams = la is not None
+    check = {"lookahead_s": la, "target_lookahead_s": lookahead_s,
+             "max_marker_diff_px": None, "checked_on": None}
+    if streams and check_item is not None:
+        check["max_marker_diff_px"] = stream_matches(animator, check_item.audio, check_item.sr)
+        check["checked_on"] = check_item.id
+        streams = check["max_marker_diff_px"] < 1e-3
+    check["stream_equals_offline"] = bool(streams)
+    files = [score_file(animator, it, synth, seed, seen=it.speaker in seen,
+                        threshold=threshold, rate=rate, stream=streams)
+             for rate in rates for it in items]
+    return ModelScores(name, threshold, files, check)
 
 
 def opening_figure(scores: FileScores, segments, path, *, title: str = "",

@@ -16,10 +16,11 @@ frames. Its decodes do not depend on the look-ahead, so one stream's decodes giv
 the look-ahead curve (:func:`mapping.hama_front.labels_at_delays`, tested equal to a stream per
 look-ahead).
 
-Every figure is pooled over seen / unseen speakers, the unseen development and test parts, and
-within the test part separately over recordings whose labels are independent of both
-recognisers (``analysis.speech_set``: HTS, TextGrid, GRID word alignments) and those labelled by
-pocketsphinx's own alignment — which favours pocketsphinx.
+Every figure is pooled (:mod:`analysis.speech_pooling`) over seen / unseen speakers, the unseen
+development and test parts, and within the test part separately over recordings whose labels
+are independent of both recognisers (``analysis.speech_set``: HTS, TextGrid, GRID word
+alignments, FSDD word spans) and those labelled by pocketsphinx's own alignment — which favours
+pocketsphinx — with the speakers and recordings behind each row and speaker-level intervals.
 """
 from __future__ import annotations
 
@@ -28,9 +29,12 @@ from pathlib import Path
 import numpy as np
 
 from analysis.figures import report_figure
-from analysis.speech_eval import phone_frames, viseme_index
-from analysis.speech_set import PARTS
+from analysis.speech_eval import rate_audio
+from analysis.speech_pooling import SPLITS, summarise
+from analysis.speech_scores import (chance_scores, fit_frames, label_frames, phone_frames,
+                                    viseme_index)
 from face_model.phones import PHONE_INDEX
+from groundwork.audio import resample
 from groundwork.errors import ParameterError
 from mapping import hama_front
 from mapping.recogniser import (RECOGNISER_FPS as FRAMES_PER_S, RECOGNISER_NAME,
@@ -115,83 +119,89 @@ class PhoneRecogniser:
 
 
 def recognised(recogniser: str, y: np.ndarray, sr: int, fps: int = 30) -> tuple:
-    """``(whole-utterance phones, {look-ahead frames: streaming phones})`` of one 16 kHz
-    recording by ``recogniser`` (pocketsphinx | hama), per video frame."""
+    """``(whole-utterance phones, {look-ahead frames: streaming phones})`` of one recording by
+    ``recogniser`` (pocketsphinx | hama), per video frame; audio at another rate than 16 kHz is
+    resampled to it first (as each front end does live)."""
+    if recogniser not in NAMES:
+        raise ParameterError(f"unknown recogniser {recogniser!r}; allowed: {', '.join(NAMES)}")
+    if sr != SAMPLE_RATE:
+        y, sr = resample(np.asarray(y, np.float32), sr_in=int(sr), sr_out=SAMPLE_RATE), \
+            SAMPLE_RATE
     if recogniser == "pocketsphinx":
         rec = PhoneRecogniser(fps)
         streams = rec.streaming_delays(y, sr, [k / fps for k in LOOKAHEAD_FRAMES])
         return rec.whole(y, sr), dict(zip(LOOKAHEAD_FRAMES, streams))
-    if recogniser == "hama":
-        if sr != hama_front.HAMA_RATE:
-            raise ParameterError(f"the recogniser needs {hama_front.HAMA_RATE} Hz audio, got "
-                                 f"{sr} Hz")
-        n = int(np.ceil(len(y) * fps / sr))
-        return (hama_front.whole_utterance(y, n, fps),
-                hama_front.labels_at_delays(y, sr, fps, LOOKAHEAD_FRAMES))
-    raise ParameterError(f"unknown recogniser {recogniser!r}; allowed: {', '.join(NAMES)}")
+    n = int(np.ceil(len(y) * fps / sr))
+    return (hama_front.whole_utterance(y, n, fps),
+            hama_front.labels_at_delays(y, sr, fps, LOOKAHEAD_FRAMES))
 
 
-def recogniser_scores(items, seen_sources=frozenset(), *, delay_s: float = 0.1, fps: int = 30,
-                      recognisers=tuple(NAMES)) -> tuple[list, list, list]:
+def recogniser_scores(items, seen=frozenset(), *, delay_s: float = 0.1, fps: int = 30,
+                      recognisers=tuple(NAMES), rates=("native",), summary: bool = True
+                      ) -> tuple[list, list, list]:
     """``(per-file rows, pooled rows, look-ahead rows)`` of each recogniser on the recordings
-    ``items`` (``analysis.speech_set``): phone and viseme frame accuracy of the whole
+    ``items`` (``analysis.speech_set``) at each input rate of ``rates``
+    (:func:`analysis.speech_eval.rate_audio`): phone and viseme frame accuracy of the whole
     utterance, viseme accuracy streaming with ``delay_s`` of look-ahead, and viseme accuracy
-    streaming at every look-ahead of :data:`LOOKAHEAD_FRAMES`. Phone accuracy counts the 44
-    classes; ``ax dx el en`` labels are never recognised by pocketsphinx (only the 39 ARPAbet
-    phones), so it is a lower bound there."""
+    streaming at every look-ahead of :data:`LOOKAHEAD_FRAMES` (native rate only). A recording
+    is *seen* when its ``speaker`` is in ``seen``. Phone accuracy counts the 44 classes;
+    ``ax dx el en`` labels are never recognised by pocketsphinx (only the 39 ARPAbet phones),
+    so it is a lower bound there (``summary=False``: no pooled rows, for a caller that pools
+    every system together). Each per-file row carries its numerators (``*_hits``) and the
+    chance baseline of its whole-utterance visemes (:func:`analysis.speech_scores.chance_scores`)
+    for :mod:`analysis.speech_pooling`."""
     key = f"viseme_acc_stream_{round(1000 * delay_s)}ms"
     delay_frames = round(delay_s * fps)
     if delay_frames not in LOOKAHEAD_FRAMES or abs(delay_frames / fps - delay_s) > 1e-9:
         raise ParameterError(f"delay_s {delay_s} is not one of the look-aheads "
                              f"{[round(k / fps, 3) for k in LOOKAHEAD_FRAMES]} s")
-    files, summary, curve = [], [], []
-    splits = ("seen", "unseen", "all", *[f"unseen-{p}" for p in PARTS],
-              *[f"unseen-test-{lab}" for lab in LABELS])
+    files, curve_hits = [], {}
     for recogniser in recognisers:
+        if recogniser not in NAMES:
+            raise ParameterError(f"unknown recogniser {recogniser!r}; allowed: "
+                                 f"{', '.join(NAMES)}")
         name = NAMES[recogniser]
-        pooled = {s: [] for s in splits}
-        for it in items:
-            whole, streams = recognised(recogniser, it.audio, it.sr, fps)
-            true = phone_frames(it.phones, np.arange(len(whole)) / fps)
-            vtrue = viseme_index(true)
-            hits = {"phone": true == whole, "viseme": vtrue == viseme_index(whole),
-                    **{k: vtrue == viseme_index(s[:len(true)]) for k, s in streams.items()}}
-            seen = it.speaker_source in seen_sources
-            files.append({"model": name, "id": it.id, "speaker_source": it.speaker_source,
-                          "split": "seen" if seen else "unseen", "part": it.part,
-                          "labels": LABELS[0] if it.independent else LABELS[1],
-                          "seconds": round(it.duration_s, 3), "frames": len(true),
-                          "phone_acc": float(hits["phone"].mean()),
-                          "viseme_acc": float(hits["viseme"].mean()),
-                          key: float(hits[delay_frames].mean())})
-            for g in _groups_of_row(files[-1]):
-                pooled[g].append(hits)
-        for split in splits:
-            hits = pooled[split]
-            row = {"model": name, "split": split, "files": len(hits)}
-            if hits:
-                row["seconds"] = round(sum(f["seconds"] for f in files if f["model"] == name
-                                           and split in _groups_of_row(f)), 2)
-                for k, col in (("phone", "phone_acc"), ("viseme", "viseme_acc"),
-                               (delay_frames, key)):
-                    row[col] = float(np.mean(np.concatenate([h[k] for h in hits])))
-                for k in LOOKAHEAD_FRAMES:
-                    curve.append({"model": name, "split": split, "lookahead_frames": k,
-                                  "lookahead_ms": round(1000 * k / fps, 1),
-                                  "viseme_acc": float(np.mean(np.concatenate(
-                                      [h[k] for h in hits])))})
-            summary.append(row)
-    return files, summary, curve
-
-
-def _groups_of_row(row: dict) -> list[str]:
-    """The pooled rows a recording's per-file row counts in."""
-    out = [row["split"], "all"]
-    if row["split"] == "unseen":
-        out.append(f"unseen-{row['part']}")
-        if row["part"] == "test":
-            out.append(f"unseen-test-{row['labels']}")
-    return out
+        for rate in rates:
+            for it in items:
+                y, sr, note = rate_audio(it, rate)
+                n = label_frames(len(y), sr, fps)
+                whole, streams = recognised(recogniser, y, sr, fps)
+                what = f"{name} on {it.id} at {rate}"
+                whole = fit_frames(whole, n, what=what)
+                streams = {k: fit_frames(s, n, what=what) for k, s in streams.items()}
+                true = phone_frames(it.phones, np.arange(n) / fps)
+                vtrue = viseme_index(true)
+                vis = viseme_index(whole)
+                hits = {"phone": true == whole, "viseme": vtrue == vis,
+                        **{k: vtrue == viseme_index(s) for k, s in streams.items()}}
+                chance = chance_scores(true, fps, it.phones, visemes=vis)
+                row = {"model": name, "id": it.id, "speaker": it.speaker,
+                       "split": "seen" if it.speaker in seen else "unseen", "part": it.part,
+                       "labels": LABELS[0] if it.independent else LABELS[1],
+                       "input_rate": str(rate), "rate_note": note,
+                       "seconds": round(len(y) / sr, 3), "frames": n,
+                       "phone_acc": float(hits["phone"].mean()),
+                       "phone_hits": int(hits["phone"].sum()),
+                       "viseme_acc": float(hits["viseme"].mean()),
+                       "viseme_hits": int(hits["viseme"].sum()),
+                       key: float(hits[delay_frames].mean()),
+                       "viseme_stream_hits": int(hits[delay_frames].sum()),
+                       "chance_viseme_hits": chance.viseme_hits / chance.n_shifts}
+                files.append(row)
+                if str(rate) == "native":
+                    curve_hits.setdefault(name, []).append((row, hits))
+    curve = []
+    for name, pairs in curve_hits.items():
+        for split, keep in SPLITS.items():
+            sel = [h for r, h in pairs if keep(r)]
+            if not sel:
+                continue
+            for k in LOOKAHEAD_FRAMES:
+                curve.append({"model": name, "split": split, "lookahead_frames": k,
+                              "lookahead_ms": round(1000 * k / fps, 1),
+                              "viseme_acc": float(np.mean(np.concatenate(
+                                  [h[k] for h in sel])))})
+    return files, (summarise(files, key) if summary else []), curve
 
 
 def lookahead_figure(curve: list[dict], path, *, width: float = 0.8) -> Path:

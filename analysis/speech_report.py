@@ -1,19 +1,20 @@
 """The report's "Real speech" section: every model of the run scored on recordings of real
-people (:mod:`analysis.speech_eval`), beside the reference recogniser and the in-domain Table II
-figure of each model."""
+people (:mod:`analysis.speech_eval`), beside the phone recognisers trained on real speech, the
+lip-sync tools users already use, and the in-domain Table II figure of each model — with the
+speaker as the unit: every table states its speakers and recordings and its input rate, every
+interval resamples speakers (:mod:`analysis.speaker_bootstrap`), every figure has its chance
+baseline beside it, and the targets are quoted from the run's ``targets`` section
+(:class:`analysis.config.TargetsConfig`)."""
 from __future__ import annotations
 
 import csv
+import json
 import math
 from pathlib import Path
 
-import numpy as np
-
-TARGETS = ("The project's targets on unseen speakers: viseme accuracy at least 0.75; /p b m/ "
-           "closed in at least 90 % of segments, with a centre opening at most 0.4 x the median "
-           "vowel opening; lip-opening correlation with the reference at least 0.7. They are "
-           "measured and reported here, never tuned toward.")
-
+from analysis.config import TargetsConfig
+from analysis.speaker_bootstrap import N_BOOT, SEED, speaker_interval
+from analysis.speech_pooling import SPLITS as KEEP
 
 # The rule that picks the default voice-robust model on the development speakers (never on the
 # test speakers): the highest mean of these figures over the unseen development recordings.
@@ -21,10 +22,8 @@ DEV_RULE = ("viseme_acc", "bilabial_closed_frac", "labiodental_contact_frac", "r
 SPLITS = (("unseen-test", "unseen speakers, test part"),
           ("unseen-test-independent", "unseen speakers, test part, labels independent of both "
                                       "recognisers"),
-          ("unseen-test-aligned", "unseen speakers, test part, labels by pocketsphinx's "
-                                  "alignment"),
           ("unseen-dev", "unseen speakers, development part"),
-          ("seen", "seen speakers"))
+          ("seen", "speakers the model was trained on (seen)"))
 RECOGNISERS = ("pocketsphinx", "hama")  # the recogniser rows' model names start so
 
 
@@ -34,7 +33,8 @@ def dev_choice(results: list[dict], prefix: str = "voices-") -> tuple[str | None
     results.csv rows); None when no such model has development figures."""
     scores = {}
     for r in results:
-        if r["split"] != "unseen-dev" or not r["model"].startswith(prefix):
+        if r["split"] != "unseen-dev" or not r["model"].startswith(prefix) or \
+                str(r.get("input_rate") or "native") != "native":
             continue
         try:
             v = [float(r[k]) for k in DEV_RULE]
@@ -53,49 +53,6 @@ def _rows(path: Path) -> list[dict]:
         return list(csv.DictReader(f))
 
 
-BOOTSTRAP = 2000  # resamples of the recordings behind each interval of the real-speech tables
-BOOTSTRAP_SEED = 0
-# pooled figures with intervals: (results column, per-file hits column or None, per-file weight)
-POOLED = (("viseme_acc", None, "frames"), ("viseme_acc_stream_100ms", None, "frames"),
-          ("bilabial_closed_frac", "bilabial_closed", "bilabial_segments"))
-
-
-def file_intervals(per_file: list[dict], model: str, split: str, *, level: float = 0.95,
-                   n_boot: int = BOOTSTRAP, seed: int = BOOTSTRAP_SEED) -> dict:
-    """``{figure: (lo, hi)}``: percentile bootstrap intervals of the pooled figures of
-    :data:`POOLED` for ``model`` on ``split`` (``unseen-test``, ``unseen-dev``, ``seen``),
-    resampling its recordings (per_file.csv rows) with replacement: the recordings, not the
-    frames, are the independent units. A figure pools as its results.csv value does (hits over
-    frames, closed over segments); figures missing for the model are left out."""
-    where, _, rest = split.partition("-")
-    part, _, labels = rest.partition("-")
-    rows = [r for r in per_file if r["model"] == model and r["split"] == where
-            and (not part or r["part"] == part) and (not labels or r.get("labels") == labels)]
-    out = {}
-    rng = np.random.default_rng(seed)
-    picks = rng.integers(0, len(rows), size=(n_boot, len(rows))) if rows else None
-    for key, hits_col, weight_col in POOLED:
-        try:
-            w = np.array([float(r[weight_col]) for r in rows])
-            h = (np.array([float(r[hits_col]) for r in rows]) if hits_col else
-                 np.array([float(r[key]) for r in rows]) * w)
-        except (KeyError, TypeError, ValueError):
-            continue
-        if picks is None or not np.isfinite(h).all() or w.sum() <= 0:
-            continue
-        with np.errstate(invalid="ignore", divide="ignore"):
-            boots = h[picks].sum(1) / w[picks].sum(1)
-        boots = boots[np.isfinite(boots)]
-        if boots.size:
-            out[key] = tuple(np.quantile(boots, [(1 - level) / 2, (1 + level) / 2]))
-    return out
-
-
-def _with_interval(v, interval) -> str:
-    text = _num(v)
-    if text == "–" or interval is None:
-        return text
-    return f"{text} [{interval[0]:.2f}, {interval[1]:.2f}]"
 
 
 def _num(v, digits: int = 2) -> str:
@@ -106,56 +63,133 @@ def _num(v, digits: int = 2) -> str:
     return "–" if math.isnan(x) else f"{x:.{digits}f}"
 
 
+def _with_interval(v, interval) -> str:
+    text = _num(v)
+    if text == "–" or interval is None:
+        return text
+    return f"{text} [{interval[0]:.2f}, {interval[1]:.2f}]"
+
+
+def _hits_column(key: str) -> tuple[str, str]:
+    """The per-file numerator and denominator behind a pooled figure."""
+    return {"viseme_acc": ("viseme_hits", "frames"),
+            "bilabial_closed_frac": ("bilabial_closed", "bilabial_segments"),
+            "r_reference": ("r_terms", "speech_frames")}.get(
+        key, ("viseme_stream_hits", "frames"))
+
+
+def file_intervals(per_file: list[dict], model: str, split: str) -> dict:
+    """``{figure: (lo, hi)}`` of ``model`` on ``split`` from its per_file.csv rows: the
+    speaker-level (two-stage) bootstrap of :func:`analysis.speaker_bootstrap.speaker_interval`
+    (the name is kept for :mod:`analysis.findings`; recordings are no longer resampled as if
+    independent). Figures without an interval (fewer than 3 speakers) are left out."""
+    rows = [r for r in per_file if r["model"] == model and KEEP[split](r)
+            and str(r.get("input_rate") or "native") == "native"]
+    out = {}
+    keys = {"viseme_acc", "bilabial_closed_frac", "r_reference",
+            *[k for r in rows[:1] for k in r if k.startswith("viseme_acc_stream_")]}
+    for key in keys:
+        num, den = _hits_column(key)
+        try:
+            iv = speaker_interval([r["speaker"] for r in rows], [float(r[num]) for r in rows],
+                                  [float(r[den]) for r in rows])
+        except (KeyError, TypeError, ValueError):
+            continue
+        if iv.ok:
+            out[key] = (iv.lo, iv.hi)
+    return out
+
+
+def _cell(r: dict, key: str, *, chance: bool = True) -> str:
+    """``value [lo, hi] (chance c)`` of a results row; † when the row has no interval."""
+    text = _num(r.get(key))
+    if text == "–":
+        return text
+    lo, hi = r.get(f"{key}_lo"), r.get(f"{key}_hi")
+    if _num(lo) != "–" and _num(hi) != "–":
+        text += f" [{float(lo):.2f}, {float(hi):.2f}]"
+    elif f"{key}_lo" in r:
+        text += " †"
+    if chance and _num(r.get(f"chance_{key}")) != "–":
+        text += f" ({_num(r.get(f'chance_{key}'))})"
+    return text
+
+
+def _who(r: dict) -> str:
+    return f"{r.get('speakers') or 0} / {r.get('files') or 0}"
+
+
+def targets_text(t: TargetsConfig) -> str:
+    """The targets this section measures, quoted from the run's ``targets`` section."""
+    return (f"Targets (config section targets, stated before the run, never tuned toward): on "
+            f"unseen speakers, streaming viseme accuracy at {t.lookahead_ms:g} ms at least "
+            f"{t.viseme_accuracy:g}; /p b m/ closed in at least {t.bilabial_closed:g} of "
+            f"segments with a centre opening at most {t.bilabial_centre_rel_vowel:g} x the "
+            f"median vowel opening; r with the reference at least {t.speech_r_reference:g}; "
+            f"a score at 16 kHz within {t.rate_tolerance:g} of the same score at the native "
+            "rate.")
+
+
+def _reasons(rows: list) -> str:
+    notes = sorted({r.get("interval_note") for r in rows if r.get("interval_note")})
+    return (" †: no interval (" + "; ".join(notes) + ").") if notes else ""
+
+
 def speech_section(rep, speech_dir: Path, voices_rows: list, *, table_ii_R: float | None,
-                   default_model: str | None, given_corpus: bool = False) -> None:
-    """Add the section from ``speech_eval/`` (results.csv, results.json, figures) and the rows
-    of ``voices/results.csv``; ``given_corpus``: the run's corpus was given (recordings of its
-    own speaker), not synthesised, and has no voice-robust models."""
+                   default_model: str | None, given_corpus: bool = False,
+                   targets: TargetsConfig = TargetsConfig()) -> None:
+    """Add the section from ``speech_eval/`` (results.csv, per_speaker.csv, comparisons.csv,
+    rates.csv, lookahead.csv and the figures) and the rows of ``voices/results.csv``;
+    ``given_corpus``: the run's corpus was given (recordings of its own speaker), not
+    synthesised; ``targets``: the run's :class:`~analysis.config.TargetsConfig`, quoted."""
     results = _rows(speech_dir / "results.csv")
     if not results:
         return
-    per_file = _rows(speech_dir / "per_file.csv")
     rep.heading("Real speech", stage="speech_eval", key="speech")
     in_domain = {f"voices-{r['model']}": r for r in voices_rows}
     robust = f"voices-{default_model}" if default_model else None
+    default = robust or next((r["model"] for r in results if r["model"].startswith(
+        "gated_mlp")), results[0]["model"])
+    key = next((k for k in results[0] if k.startswith("viseme_acc_stream_")),
+               "viseme_acc_stream_100ms")
+    ms = key.rsplit("_", 1)[-1]
+    info = _json(speech_dir / "results.json")
+    trained = (info.get("training_speakers") or {}).get(default) or []
+    shown = [s for s, _ in SPLITS if any(r["split"] == s and r.get("files") not in ("", "0")
+                                         for r in results)]
     rep.paragraph(
         ("Every model above was trained on the given corpus's speech. " if given_corpus else
          "Every model above was trained on synthetic speech. ")
-        + "Here each one animates recordings of "
-        "real people that no one in this project made (the evaluation set of "
-        "analysis/real_speech/, with its sources and licences), and is scored against their "
-        "phone labels: the gate's frame accuracy (phone class and viseme), whether the inner "
-        "lips meet on /p b m/ and the lower lip reaches the teeth on /f v/, and the correlation "
-        "of the predicted lip opening with the trajectory the generator's own coarticulation "
-        "model draws from the real labels. A recording is <i>seen</i> when its speaker is one of "
-        "the voices of the model's training corpus (flite's and festival's slt are the CMU "
-        "ARCTIC speaker slt; flite's awb and rms are ARCTIC awb and rms).")
+        + "Here each one animates recordings of real people that no one in this project made "
+        "(analysis/real_speech/, with its sources and licences), scored against their phone "
+        "labels: the gate's viseme accuracy, whether the inner lips meet on /p b m/, and the r "
+        "of the predicted lip opening with the opening the generator's own coarticulation "
+        "draws from the real labels, on speech frames, each clip centred and scaled before "
+        "pooling. The speaker is the unit: a recording is <i>seen</i> when its speaker id is "
+        f"one of the model's training speakers ({default}: "
+        f"{', '.join(trained) or 'none recorded'}; each model's are in results.json); "
+        "intervals resample speakers, then recordings, and a part of fewer than 3 speakers "
+        "gets none. Beside every figure, in brackets after it, its chance baseline: the same "
+        "prediction circularly shifted by a third and a half of its length. The split tables ("
+        + ", ".join(f"{{label:speech_{s}}}" for s in shown) + ") give the models, the phone "
+        "recognisers (trained on real speech, the bar a gate fed by them cannot pass) and the "
+        f"peers side by side. The streaming column ({ms}) is the recognisers' labels decided "
+        f"{ms} after each frame and the models' live output, " + _stream_text(info, default)
+        + " " + targets_text(targets))
     rep.paragraph(
         "Which model is which: Tables I-II are the paper's single-voice mapping "
-        + ("(mapping/gated_mlp_*.tfmap, trained on the given corpus). " if given_corpus else
-           "(mapping/gated_mlp_*.tfmap, one espeak voice). ")
-        + (f"The models named voices-* are the voice-robust configurations of configs/voices.yaml "
-           f"(stage voices): one-voice is the paper's espeak voice, many-* a corpus speaking "
-           f"with ten synthetic voices; -cmvn, -warp and -augment add cepstral normalisation, "
-           f"the VTLP warp and augmented copies; -recogniser takes the gate's phones from "
-           f"pocketsphinx (trained on real speech) instead of mixtures on our MFCC; -phones "
-           f"also feeds the MLPs the recogniser's window of phones instead of the MFCC; -hama "
-           f"takes those phones from hama's multilingual phoneme model instead of "
-           f"pocketsphinx; -labels trains the phone-input MLPs on the corpus's phone labels. "
-           f"<b>{robust}</b> is the one `talkingface animate`, `talkingface "
-           f"stream` and the study's synthetic face use by default." if robust else
-           ("This run trained no voice-robust models (the corpus is given: the voices stage "
-            "speaks a synthetic corpus with other voices), so `animate` and `stream` use the "
-            "single-voice mapping." if given_corpus else
-            "This run trained no voice-robust models (voices.grid: none), so `animate`, "
-            "`stream` and the study use the single-voice mapping.")))
+        + ("(trained on the given corpus). " if given_corpus else "(one espeak voice). ")
+        + (f"The models named voices-* are the voice-robust configurations of "
+           f"configs/voices.yaml (stage voices); <b>{robust}</b> is the one `talkingface "
+           f"animate`, `stream` and the study use by default." if robust else
+           "This run trained no voice-robust models, so `animate` and `stream` use the "
+           "single-voice mapping."))
     best, scores = dev_choice(results)
     if best is not None:
         rep.paragraph(
-            "Choosing on the development speakers only: the recordings are split by speaker into "
-            "a development part (a configuration may be chosen on it) and a test part (reported; "
-            "never chosen on). The rule — the highest mean of viseme accuracy, /p b m/ closure, "
-            "/f v/ contact and r on the unseen development recordings — picks "
+            "The development rule, computed on the development part only (unseen speakers, "
+            "independent labels; a configuration may be chosen there, never on the test part): "
+            "the highest mean of viseme accuracy, /p b m/ closure, /f v/ contact and r picks "
             f"<b>{best}</b> ({scores[best]:.3f}); the run's default is <b>{robust}</b>"
             + (" (the same)." if best == robust else
                f" ({scores.get(robust, float('nan')):.3f}), set in configs/voices.yaml."))
@@ -168,34 +202,137 @@ def speech_section(rep, speech_dir: Path, voices_rows: list, *, table_ii_R: floa
             dom = in_domain.get(r["model"], {})
             r_in = dom.get("in_domain_R") or (table_ii_R if r["model"] ==
                                               "gated_mlp_utterance" else None)
-            ci = file_intervals(per_file, r["model"], split)
-            body.append([r["model"], r["files"], _num(r.get("phone_acc")),
-                         _with_interval(r.get("viseme_acc"), ci.get("viseme_acc")),
-                         _with_interval(r.get("viseme_acc_stream_100ms"),
-                                        ci.get("viseme_acc_stream_100ms")),
-                         _with_interval(r.get("bilabial_closed_frac"),
-                                        ci.get("bilabial_closed_frac")),
+            body.append([r["model"], _who(r), _cell(r, "viseme_acc"),
+                         _cell(r, key, chance=False), _cell(r, "bilabial_closed_frac"),
                          _num(r.get("bilabial_centre_rel_vowel")),
-                         _num(r.get("labiodental_contact_frac")), _num(r.get("r_reference")),
+                         _cell(r, "r_reference"), _num(r.get("silence_rel_vowel")),
                          _num(r_in, 3)])
-        rep.table(f"Real speech, {title} ({rows[0].get('seconds') or '?'} s of audio)",
-                  ["model", "files", "phone acc", "viseme acc", "viseme acc, stream 100 ms",
-                   "/p b m/ closed", "/p b m/ centre / vowel", "/f v/ contact",
-                   "r vs reference", "in-domain R (Table II)"], body,
-                  note="The recogniser rows are pocketsphinx's and hama's phone recognisers "
-                       "(trained on real speech), the bar a gate fed by them cannot pass; they "
-                       "draw no face, so only their accuracies are given. In-domain R: test R on the run's "
-                       "single-voice corpus, utterance split, as in Table II. [a, b]: 95 % "
-                       f"percentile bootstrap interval over the recordings ({BOOTSTRAP:,} "
-                       f"resamples, seed {BOOTSTRAP_SEED}). " + TARGETS,
-                  key=f"speech_{split}")
-    front_ends(rep, results, per_file, speech_dir)
-    figure_model = robust or "gated_mlp_utterance"
-    for model in dict.fromkeys([figure_model, "gated_mlp_utterance"]):
+        spk = rows[0].get("speaker_ids", "").replace(";", ", ")
+        rep.table(f"Real speech, {title}, native input rate ({rows[0].get('seconds') or '?'} s; "
+                  f"speakers: {spk})",
+                  ["system", "speakers / recordings", "viseme acc", f"stream {ms}",
+                   "/p b m/ closed", "/p b m/ centre / vowel", "r speech frames",
+                   "silence / vowel", "in-domain R"], body,
+                  note="[a, b]: 95 % speaker-level bootstrap interval "
+                       f"({N_BOOT:,} resamples, seed {SEED}); (c): chance baseline. Peers "
+                       "(loudness, openfacefx, pylipsync) close on their m viseme. Silence / "
+                       "vowel: median opening on silence frames over the median vowel opening. "
+                       "In-domain R: test R on the run's training corpus, utterance split "
+                       "(Table II)." + _reasons(rows), key=f"speech_{split}")
+    _per_speaker(rep, speech_dir, default)
+    _comparisons(rep, speech_dir, default, key)
+    _rates(rep, speech_dir, default, key, targets)
+    front_ends(rep, results, speech_dir, key)
+    for model in dict.fromkeys([default, "gated_mlp_utterance"]):
         fig = speech_dir / f"opening_{model}.png"
         if fig.is_file():
+            k = f"speech_opening_{model}"
+            rep.paragraph(f"{{label:{k}}} shows {model}'s predicted lip opening on one real "
+                          "sentence against the reference drawn from its labels.")
             rep.figure(fig, f"Predicted lip opening of {model} on a real sentence, against the "
-                            "reference drawn from its phone labels; /p b m/ and /f v/ shaded.")
+                            "reference drawn from its phone labels; /p b m/ and /f v/ shaded.",
+                       key=k)
+
+
+def _stream_text(info: dict, default: str) -> str:
+    """What the models' streaming figure is: their live output, its look-ahead, and whether it
+    was checked equal to the offline output (results.json, stream)."""
+    check = (info.get("stream") or {}).get(default) or {}
+    la = check.get("lookahead_s")
+    if la is None:
+        return f"which {default} cannot give (it estimates whole utterances)."
+    same = check.get("stream_equals_offline")
+    return (f"which for {default} waits {1000 * la:.1f} ms (its context and half its analysis "
+            "window) and "
+            + (f"equals its offline output (checked on {check.get('checked_on')}: largest "
+               f"marker difference {check.get('max_marker_diff_px', 0):.1g} px)."
+               if same else "differs from its offline output, so it is not given."))
+
+
+def _json(path: Path) -> dict:
+    return json.loads(path.read_text(encoding="utf-8")) if path.is_file() else {}
+
+
+def _per_speaker(rep, speech_dir: Path, default: str) -> None:
+    rows = _rows(speech_dir / "per_speaker.csv")
+    mine = [r for r in rows if r["model"] == default]
+    if not mine:
+        return
+    recs = list(dict.fromkeys(r["model"] for r in rows if r["model"].startswith(RECOGNISERS)))
+    by = {(r["model"], r["speaker"]): r for r in rows}
+    body = []
+    for r in mine:
+        cells = [r["speaker"], "yes" if r["seen"] == "True" else "", r["files"], r["seconds"],
+                 f"{_num(r.get('viseme_acc'))} ({_num(r.get('chance_viseme_acc'))})",
+                 f"{_num(r.get('bilabial_closed_frac'))} "
+                 f"({_num(r.get('chance_bilabial_closed_frac'))})",
+                 f"{_num(r.get('r_reference'))} ({_num(r.get('chance_r_reference'))})"]
+        cells += [_num(by.get((m, r["speaker"]), {}).get("viseme_acc")) for m in recs]
+        body.append(cells)
+    rep.paragraph("{label:speech_per_speaker} splits the test part by speaker: the pooled "
+                  "figures above are these rows weighted by their frames and segments, so a "
+                  "speaker with many recordings weighs as much as its recordings do.")
+    rep.table(f"Per speaker, test part, native input rate: {default} and the recognisers' "
+              "viseme accuracy (every system: per_speaker.csv)",
+              ["speaker", "seen", "recordings", "seconds", "viseme acc", "/p b m/ closed",
+               "r speech frames", *[f"{m.split()[0]} viseme acc" for m in recs]], body,
+              note="(c): chance baseline. No intervals: one speaker per row.",
+              key="speech_per_speaker")
+
+
+def _comparisons(rep, speech_dir: Path, default: str, key: str) -> None:
+    rows = [r for r in _rows(speech_dir / "comparisons.csv") if r["split"] == "unseen-test"]
+    if not rows:
+        return
+    rep.paragraph(f"{{label:speech_comparisons}} compares {default} with each recogniser "
+                  "(both streaming, at the same look-ahead) and each peer on the same "
+                  "recordings: the interval of the difference draws the same speakers and "
+                  "recordings for both.")
+    body = []
+    for r in rows:
+        iv = (f"[{float(r['lo']):+.2f}, {float(r['hi']):+.2f}]" if _num(r.get("lo")) != "–"
+              else f"none: {r.get('interval_note')}")
+        label = {key: "viseme acc, streaming", "viseme_acc": "viseme acc",
+                 "bilabial_closed_frac": "/p b m/ closed",
+                 "r_reference": "r speech frames"}.get(r["figure"], r["figure"])
+        body.append([r["model_b"], label,
+                     _who(r), _num(r["a"]), _num(r["b"]),
+                     f"{float(r['difference']):+.2f}", iv])
+    rep.table(f"{default} against the recognisers and peers, unseen test speakers, native "
+              "input rate", ["other system", "figure", "speakers / recordings", default,
+                             "other", "difference", "95 % paired interval"], body,
+              note="Paired speaker-level bootstrap of the difference "
+                   f"({N_BOOT:,} resamples, seed {SEED}).", key="speech_comparisons")
+
+
+def _rates(rep, speech_dir: Path, default: str, key: str, targets: TargetsConfig) -> None:
+    rows = [r for r in _rows(speech_dir / "rates.csv")
+            if r["model"] == default and r["split"] == "unseen-test"
+            and r.get("files") not in ("", "0")]
+    if len(rows) < 2:
+        return
+    native = next((r for r in rows if r["input_rate"] == "native"), rows[0])
+    figs = (("viseme_acc", "viseme acc"), (key, "stream"),
+            ("bilabial_closed_frac", "/p b m/ closed"), ("r_reference", "r"))
+    body = []
+    for r in rows:
+        cells = []
+        for k, _ in figs:
+            v, n0 = r.get(k), native.get(k)
+            drop = (float(n0) - float(v)) if _num(v) != "–" and _num(n0) != "–" else None
+            flag = "" if drop is None or drop <= targets.rate_tolerance else " !"
+            cells.append(_num(v) + ("" if drop is None or r is native else
+                                    f" ({-drop:+.2f}{flag})"))
+        body.append([r["input_rate"], _who(r), *cells,
+                     (r.get("rate_note") or "").split(" (")[0]])
+    rep.paragraph(f"{{label:speech_rates}} gives {default} on the same recordings at the "
+                  "rates users record at: each recording resampled down to 16 kHz and 8 kHz "
+                  "and given to the model at that rate.")
+    rep.table(f"{default} by input rate, unseen test speakers",
+              ["input rate", "speakers / recordings", *[lab for _, lab in figs], "note"], body,
+              note=f"(d): change from the native rate; !: a drop larger than the target's "
+                   f"{targets.rate_tolerance:g} (targets.rate_tolerance). Recordings already at "
+                   "or below a rate are given as recorded.", key="speech_rates")
 
 
 FRONT_END_SPLITS = (("unseen-test-independent", "test, independent labels"),
@@ -203,7 +340,8 @@ FRONT_END_SPLITS = (("unseen-test-independent", "test, independent labels"),
                     ("unseen-test", "test, all"), ("unseen-dev", "development"))
 
 
-def front_ends(rep, results: list, per_file: list, speech_dir: Path) -> None:
+def front_ends(rep, results: list, speech_dir: Path, key: str = "viseme_acc_stream_100ms"
+               ) -> None:
     """The recognisers alone, whole-utterance and streaming, on each kind of labels, and their
     look-ahead curve (``lookahead.csv`` / ``lookahead.png`` of speech_eval)."""
     rows = [r for r in results if r["model"].startswith(RECOGNISERS)
@@ -211,27 +349,25 @@ def front_ends(rep, results: list, per_file: list, speech_dir: Path) -> None:
     body = []
     for split, title in FRONT_END_SPLITS:
         for r in (r for r in rows if r["split"] == split):
-            ci = file_intervals(per_file, r["model"], split)
-            body.append([r["model"], title, r["files"], r.get("seconds") or "–",
-                         _num(r.get("phone_acc")),
-                         _with_interval(r.get("viseme_acc"), ci.get("viseme_acc")),
-                         _with_interval(r.get("viseme_acc_stream_100ms"),
-                                        ci.get("viseme_acc_stream_100ms"))])
+            body.append([r["model"], title, _who(r), r.get("seconds") or "–",
+                         _num(r.get("phone_acc")), _cell(r, "viseme_acc"),
+                         _cell(r, key, chance=False)])
     if not body:
         return
-    rep.table("The front ends alone: each recogniser's visemes against independent and "
-              "aligner-made labels",
-              ["recogniser", "recordings", "files", "seconds", "phone acc", "viseme acc",
-               "viseme acc, stream 100 ms"], body,
-              note="Independent labels: HTS (ARCTIC a0009), a TextGrid (praatio's bobby) and "
-                   "GRID s1 sentences labelled from GRID's own word alignments with espeak-ng's "
-                   "in-word phone durations (analysis/real_speech/README.md); aligned: "
-                   "pocketsphinx's forced alignment of the transcript, which favours "
-                   "pocketsphinx. Streaming at 100 ms: each frame is decided 100 ms after its "
-                   "instant; hama decodes the last second of audio every 3 frames, so its "
-                   "decision has heard 33–100 ms past the instant. [a, b]: 95 % bootstrap "
-                   "interval over recordings.", key="speech_front_ends")
     fig = speech_dir / "lookahead.png"
+    rep.paragraph("{label:speech_front_ends} reads each recogniser alone against labels made "
+                  "independently of it and against labels its own aligner made"
+                  + (", and {label:speech_lookahead} its streaming accuracy against look-ahead."
+                     if fig.is_file() else "."))
+    rep.table("The front ends alone, native input rate: each recogniser's visemes against "
+              "independent and aligner-made labels",
+              ["recogniser", "recordings", "speakers / recordings", "seconds", "phone acc",
+               "viseme acc", "viseme acc, streaming"], body,
+              note="Independent labels: HTS, a TextGrid, GRID's own word alignments and FSDD "
+                   "word spans with espeak-ng's in-word phone durations "
+                   "(analysis/real_speech/README.md); aligned: pocketsphinx's forced "
+                   "alignment, which favours pocketsphinx. [a, b]: speaker-level interval; "
+                   "(c): chance." + _reasons(rows), key="speech_front_ends")
     if fig.is_file():
         rep.figure(fig, "Streaming viseme accuracy of each recogniser against its look-ahead "
                         "(0–200 ms) on the unseen test speakers: solid, labels independent of "

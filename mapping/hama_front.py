@@ -3,22 +3,26 @@
 hama 1.7.0 (Apache-2.0, a wheel with its own engine and a 4.7 MB multilingual phoneme model, no
 download) reads 16 kHz audio and gives, every 20 ms, log posteriors over 191 tokens: 189 IPA
 symbols (:mod:`mapping.ipa` maps each to a phone class or to none), a word boundary and the CTC
-blank. Its phone *identity* is far better than pocketsphinx's on real voices (phone error rate
-≈ 18 % against ≈ 56 % on the real-speech set); its *timing* is CTC's: each phone is one spike
-of posterior among blanks, and the model attends over its whole input, so a phone depends on
-the audio around it.
+blank. Its phone *identity* is the point of it (a model trained on real voices); its *timing*
+is CTC's: each phone is one spike of posterior among blanks, and the model attends over its
+whole input, so a phone depends on the audio around it.
 
 Timing from the posteriors. A spike is an output frame whose most probable token is a phone
-symbol different from the frame before's (CTC's collapse). Each spike labels the output frames
-nearer to it than to the next spike — the boundary half-way between two spikes — up to
-:data:`REACH` frames on each side; a frame no spike reaches is silence. The spikes sit
-:data:`SPIKE_LAG` frames (40 ms) after the phone they mark, so video frame k (instant k / fps)
-reads output frame ⌊50·k / fps⌋ + SPIKE_LAG; a frame whose instant was heard but whose spike
-would lie past the end of the audio decoded reads the decode's last output frame. The settings
-were chosen on the development part of the real-speech set (``analysis/real_speech``, part
-``dev``, whole utterances): midpoint boundaries (0.826) against 0.35 / 0.65 of the way (0.815,
-0.815), a lag of 2 frames against 1.5–3, a reach of 6 frames where 4–8 lie within 0.011; the
-edge rule on the streams at 22,050 Hz (0.723 against 0.701 without).
+symbol different from the frame before's (CTC's collapse). Between two spikes the labels change
+:data:`BOUNDARY` of the way from the first to the second (one half: the nearer spike); each spike
+labels its frames up to :data:`REACH` output frames on each side, and a frame no spike reaches
+is silence. The spikes sit :data:`SPIKE_LAG` output frames (20 ms each) after the phone they
+mark, so video frame k (instant k / fps) reads output frame ⌊50·k / fps⌋ + SPIKE_LAG; with
+:data:`EDGE`, a frame whose instant was heard but whose spike would lie past the end of the
+audio decoded reads the decode's last output frame (else silence). These settings and the
+streams' resampler (:data:`RESAMPLE_QUALITY`) are chosen on the development part of the
+real-speech set (``analysis/real_speech``, part ``dev``) by
+
+    python tools/choose_hama_timing.py
+
+which prints the sweep (viseme frame accuracy: lag × reach × boundary on whole utterances, then
+resampler × edge rule on streams at 22,050 Hz with a 100-ms look-ahead), its tie rule and the
+pick; ``--check`` fails when the constants here are not the pick.
 
 Streaming (:class:`HamaStream`). The audio (at the mapping's rate) is cut into blocks of one
 video frame and resampled to 16 kHz by one ``soxr.ResampleStream``, as for pocketsphinx. Every
@@ -33,9 +37,11 @@ to ``delay_frames`` frames past it: the look-ahead is a bound. At the end of the
 decode decides the rest. Every decision reads only the blocks fed, never how the
 caller cut its chunks, so offline (:func:`mapping.recogniser.recognise_windows`) and live give
 the same phones for any chunking. The cost is one model run on ``window_s`` of audio per
-``hop_frames`` frames (≈ 57 ms per second of audio on one core here).
+``hop_frames`` frames (``bench/bench_streaming.py`` measures it).
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 import soxr
@@ -47,15 +53,20 @@ from mapping.ipa import BLANK, check_vocabulary
 HAMA_RATE = 16000  # Hz, the model's rate
 OUTPUT_HOP = 320  # samples of 16 kHz audio per output frame (20 ms)
 OUTPUT_FPS = HAMA_RATE // OUTPUT_HOP  # 50
-SPIKE_LAG = 2  # output frames from a phone to its spike (chosen on the dev part)
-REACH = 6  # output frames a spike labels on each side at most (chosen on the dev part)
+# The four timing settings below are chosen on the development part of the real-speech set by
+# `python tools/choose_hama_timing.py` (it prints the sweep; `--check` fails when these differ).
+SPIKE_LAG = 0  # output frames from a phone to its spike
+REACH = 7  # output frames a spike labels on each side at most
+BOUNDARY = 0.65  # where between two spikes the labels change, as a fraction of the way
+EDGE = True  # a frame whose spike lies past the decode's end reads the decode's last frame
 WINDOW_S = 1.0  # seconds of audio each streaming decode reads
 HOP_FRAMES = 3  # video frames between streaming decodes
 MIN_DECODE_SAMPLES = OUTPUT_HOP  # a decode needs one output frame of audio
-# soxr's quick (cubic) resampler: no delay, where "HQ" holds back 30 ms from 22,050 Hz and "LQ"
-# 7 ms — time the phones, whose spikes come 40 ms late already, cannot spare at a 100-ms
-# look-ahead (development part at 22,050 Hz: QQ 0.723, LQ 0.714 viseme accuracy)
-RESAMPLE_QUALITY = "QQ"
+# soxr's resampler quality for the streams (chosen by tools/choose_hama_timing.py on the streams
+# at 22,050 Hz and a 100-ms look-ahead): "QQ" is the quick (cubic) one, with no delay; the others
+# filter better but hold some audio back, which a bounded look-ahead pays for
+RESAMPLE_QUALITY = "MQ"
+RESAMPLE_QUALITIES = ("QQ", "LQ", "MQ", "HQ", "VHQ")  # soxr's, quickest first
 SILENCE = PHONE_INDEX["sil"]
 RECOGNISER_NAME = "hama-1.7.0 phoneme CTC"
 
@@ -89,10 +100,16 @@ def log_posteriors(x: np.ndarray) -> np.ndarray:
     return np.asarray(lp[0][: int(np.asarray(n).reshape(-1)[0])])
 
 
-def output_classes(log_probs: np.ndarray, *, reach: int = REACH) -> np.ndarray:
+def output_classes(log_probs: np.ndarray, *, reach: int = REACH,
+                   boundary: float = BOUNDARY) -> np.ndarray:
     """Phone class per output frame (n_out,) from the posteriors' spikes (see the module
-    docstring): each spike labels the frames nearer to it than to its neighbours, up to
-    ``reach`` frames away; other frames are silence."""
+    docstring): between two spikes s < s', frame f belongs to s when f − s ≤ ``boundary`` ·
+    (s' − s) (0.5: the nearer spike, a tie to the earlier), else to s'; a frame before the
+    first spike or after the last belongs to it; each spike labels its frames up to ``reach``
+    frames away, other frames are silence."""
+    if not 0.0 < boundary < 1.0:
+        raise ParameterError(f"boundary must be a fraction of the way between two spikes in "
+                             f"(0, 1), got {boundary!r}")
     _, classes, blank = model()
     best = np.asarray(log_probs).argmax(axis=1)
     before = np.r_[-1, best[:-1]]
@@ -103,7 +120,7 @@ def output_classes(log_probs: np.ndarray, *, reach: int = REACH) -> np.ndarray:
     frames = np.arange(len(best))
     right = np.clip(np.searchsorted(spikes, frames), 0, len(spikes) - 1)
     left = np.clip(right - 1, 0, len(spikes) - 1)
-    nearest = np.where(np.abs(frames - spikes[left]) <= np.abs(spikes[right] - frames),
+    nearest = np.where(frames - spikes[left] <= boundary * (spikes[right] - spikes[left]),
                        spikes[left], spikes[right])
     near = np.abs(nearest - frames) <= reach
     out[near] = classes[best[nearest[near]]]
@@ -129,10 +146,15 @@ class HamaStream:
         Seconds of audio each decode reads (> 0).
     hop_frames : int
         Video frames between decodes (≥ 1).
+    timing : Timing
+        Spike lag, reach, boundary and edge rule (default: the module's constants).
+    resample_quality : str
+        soxr's quality for the resampling to 16 kHz, one of :data:`RESAMPLE_QUALITIES`.
     """
 
     def __init__(self, sample_rate: int, fps: int = 30, delay_frames: int = 3, back: int = 0,
-                 *, window_s: float = WINDOW_S, hop_frames: int = HOP_FRAMES):
+                 *, window_s: float = WINDOW_S, hop_frames: int = HOP_FRAMES,
+                 timing: "Timing | None" = None, resample_quality: str = RESAMPLE_QUALITY):
         if isinstance(sample_rate, bool) or not isinstance(sample_rate, (int, np.integer)) \
                 or sample_rate <= 0 or isinstance(fps, bool) \
                 or not isinstance(fps, (int, np.integer)) or fps <= 0:
@@ -145,13 +167,17 @@ class HamaStream:
         if not np.isfinite(window_s) or window_s <= 0:
             raise ParameterError(f"window_s must be a positive number of seconds, got "
                                  f"{window_s!r}")
+        if resample_quality not in RESAMPLE_QUALITIES:
+            raise ParameterError(f"resample_quality must be one of {RESAMPLE_QUALITIES}, got "
+                                 f"{resample_quality!r}")
+        self.timing = Timing() if timing is None else timing
         model()  # load (and check the vocabulary) before the first block
         self.sample_rate, self.fps = int(sample_rate), int(fps)
         self.delay, self.back, self.hop_frames = int(delay_frames), int(back), int(hop_frames)
         self.window = int(round(window_s * HAMA_RATE))
         self._resampler = (None if self.sample_rate == HAMA_RATE else
                            soxr.ResampleStream(self.sample_rate, HAMA_RATE, 1,
-                                               dtype="float32", quality=RESAMPLE_QUALITY))
+                                               dtype="float32", quality=resample_quality))
         self._pending = np.zeros(0, np.float32)  # samples of the block not yet complete
         self._heard = np.zeros(0, np.float32)  # 16 kHz audio from sample self._h0 on
         self._h0 = 0
@@ -188,7 +214,8 @@ class HamaStream:
         pad = -(-max(0, self.window - len(x)) // OUTPUT_HOP) * OUTPUT_HOP
         self.decodes += 1
         decode = ((start - pad) // OUTPUT_HOP,
-                  output_classes(log_posteriors(np.concatenate([np.zeros(pad, np.float32), x]))))
+                  output_classes(log_posteriors(np.concatenate([np.zeros(pad, np.float32), x])),
+                                 reach=self.timing.reach, boundary=self.timing.boundary))
         if self.record is not None:
             self.record.append((self._blocks, decode))
         return decode
@@ -196,7 +223,7 @@ class HamaStream:
     def _label(self, decode: tuple, j: int) -> int:
         if j < 0:
             return SILENCE
-        label = read_frame(decode, j, self.fps)
+        label = read_frame(decode, j, self.fps, lag=self.timing.lag, edge=self.timing.edge)
         if label is None:  # before the window: as decided then
             return self._windows[j][self.back] if j < len(self._windows) else SILENCE
         return label
@@ -271,31 +298,56 @@ class HamaStream:
         return self.windows[:, self.back]
 
 
-def read_frame(decode: tuple, j: int, fps: int) -> int | None:
+def read_frame(decode: tuple, j: int, fps: int, *, lag: int = SPIKE_LAG,
+               edge: bool = EDGE) -> int | None:
     """Video frame j's phone in a decode ``(first global output frame, classes)``: the class of
-    output frame ⌊50·j / fps⌋ + SPIKE_LAG; when the frame's instant was heard but its spike
-    lies past the decode's end, the class of the decode's last frame (what is heard at the edge
-    of the audio); silence for a frame not heard yet; None before the decode's window."""
+    output frame ⌊50·j / fps⌋ + ``lag``; when the frame's instant was heard but its spike
+    lies past the decode's end, the class of the decode's last frame if ``edge`` (what is heard
+    at the edge of the audio), else silence; silence for a frame not heard yet; None before the
+    decode's window."""
     first, classes = decode
     g0 = (j * OUTPUT_FPS) // fps  # the output frame holding the frame's instant
-    g = g0 + SPIKE_LAG
+    g = g0 + lag
     end = first + len(classes)
     if g < first:
         return None
     if g < end:
         return int(classes[g - first])
-    if g0 < end and len(classes):
+    if edge and g0 < end and len(classes):
         return int(classes[-1])
     return SILENCE
 
 
-def labels_at_delays(y: np.ndarray, sample_rate: int, fps: int, delays) -> dict:
-    """``{look-ahead frames: phone per video frame}``: for each look-ahead of ``delays``, the
-    phones a :class:`HamaStream` with that ``delay_frames`` decides on audio ``y`` — from one
-    stream's decodes, since a decode reads only the audio heard, whatever the look-ahead. Frame
-    k with look-ahead d is decided once k + d blocks are heard, by the latest decode (one every
-    ``HOP_FRAMES`` blocks), or at the end of the audio by the last decode."""
-    stream = HamaStream(sample_rate, fps, 0, 0)
+@dataclass(frozen=True)
+class Timing:
+    """How phones are read from the posteriors' spikes (see the module docstring): the spike
+    ``lag`` and ``reach`` (output frames), the ``boundary`` between two spikes (fraction of the
+    way) and the ``edge`` rule; the defaults are the module's constants."""
+
+    lag: int = SPIKE_LAG
+    reach: int = REACH
+    boundary: float = BOUNDARY
+    edge: bool = EDGE
+
+
+@dataclass(frozen=True)
+class StreamDecodes:
+    """The decodes one :class:`HamaStream` made of some audio: ``(blocks heard, decode)`` every
+    ``HOP_FRAMES`` blocks, the blocks of the whole audio, the end-of-audio decode and the number
+    of video frames."""
+
+    decodes: list
+    blocks: int
+    final: tuple
+    n_frames: int
+
+
+def stream_decodes(y: np.ndarray, sample_rate: int, fps: int, *, timing: Timing | None = None,
+                   resample_quality: str = RESAMPLE_QUALITY) -> StreamDecodes:
+    """Every decode a :class:`HamaStream` (any look-ahead: a decode reads only the audio heard)
+    makes of audio ``y``."""
+    stream = HamaStream(sample_rate, fps, 0, 0, timing=timing,
+                        resample_quality=resample_quality)
     stream.record = []
     stream.push(y)
     decodes = list(stream.record)  # one every HOP_FRAMES blocks
@@ -303,8 +355,15 @@ def labels_at_delays(y: np.ndarray, sample_rate: int, fps: int, delays) -> dict:
     stream.flush()
     final = (stream.record[len(decodes)][1] if len(stream.record) > len(decodes)
              else stream._decode())  # the end-of-audio decode
-    n = -(-len(y) * fps // sample_rate)
-    at = np.array([b for b, _ in decodes], dtype=np.int64)
+    return StreamDecodes(decodes, blocks, final, -(-len(y) * fps // sample_rate))
+
+
+def labels_from_decodes(sd: StreamDecodes, fps: int, delays, *, lag: int = SPIKE_LAG,
+                        edge: bool = EDGE) -> dict:
+    """``{look-ahead frames: phone per video frame}`` read from a stream's decodes ``sd`` (see
+    :func:`labels_at_delays`) with the spike ``lag`` and ``edge`` rule given."""
+    n = sd.n_frames
+    at = np.array([b for b, _ in sd.decodes], dtype=np.int64)
     none = (0, np.zeros(0, np.int64))
     out = {}
     for d in delays:
@@ -313,12 +372,48 @@ def labels_at_delays(y: np.ndarray, sample_rate: int, fps: int, delays) -> dict:
         due = max(int(d), 1)  # blocks past frame k when it is decided
         which = np.searchsorted(at, np.arange(n) + due, side="right") - 1
         for k in range(n):
-            decode = (final if k + due > blocks else
-                      decodes[which[k]][1] if which[k] >= 0 else none)
-            label = read_frame(decode, k, fps)
+            decode = (sd.final if k + due > sd.blocks else
+                      sd.decodes[which[k]][1] if which[k] >= 0 else none)
+            label = read_frame(decode, k, fps, lag=lag, edge=edge)
             labels[k] = SILENCE if label is None else label
         out[int(d)] = labels
     return out
+
+
+def labels_at_delays(y: np.ndarray, sample_rate: int, fps: int, delays, *,
+                     timing: Timing | None = None,
+                     resample_quality: str = RESAMPLE_QUALITY) -> dict:
+    """``{look-ahead frames: phone per video frame}``: for each look-ahead of ``delays``, the
+    phones a :class:`HamaStream` with that ``delay_frames`` (and ``timing``,
+    ``resample_quality``) decides on audio ``y`` — from one stream's decodes, since a decode
+    reads only the audio heard, whatever the look-ahead. Frame k with look-ahead d is decided
+    once k + d blocks are heard, by the latest decode (one every ``HOP_FRAMES`` blocks), or at
+    the end of the audio by the last decode."""
+    timing = Timing() if timing is None else timing
+    sd = stream_decodes(y, sample_rate, fps, timing=timing, resample_quality=resample_quality)
+    return labels_from_decodes(sd, fps, delays, lag=timing.lag, edge=timing.edge)
+
+
+def whole_posteriors(y16: np.ndarray) -> tuple[np.ndarray | None, int]:
+    """``(log posteriors, output frames of padding)`` of one 16 kHz utterance decoded whole,
+    filled on the left with silence to ``WINDOW_S`` as a stream's first decodes are (None for
+    audio shorter than one output frame)."""
+    pad = -(-max(0, int(WINDOW_S * HAMA_RATE) - len(y16)) // OUTPUT_HOP) * OUTPUT_HOP
+    if len(y16) < MIN_DECODE_SAMPLES:
+        return None, pad // OUTPUT_HOP
+    x = np.concatenate([np.zeros(pad, np.float32), np.asarray(y16, np.float32)])
+    return log_posteriors(x), pad // OUTPUT_HOP
+
+
+def whole_frames(log_probs: np.ndarray | None, pad: int, n_frames: int, fps: int = 30, *,
+                 timing: Timing | None = None) -> np.ndarray:
+    """Phone class per video frame (n_frames,) from :func:`whole_posteriors`' output, read
+    with ``timing`` (default: the module's constants)."""
+    timing = Timing() if timing is None else timing
+    classes = (output_classes(log_probs, reach=timing.reach, boundary=timing.boundary)[pad:]
+               if log_probs is not None else np.zeros(0, np.int64))
+    return np.array([read_frame((0, classes), k, fps, lag=timing.lag, edge=timing.edge)
+                     for k in range(n_frames)], dtype=np.int64).reshape(n_frames)
 
 
 def whole_utterance(y16: np.ndarray, n_frames: int, fps: int = 30) -> np.ndarray:
@@ -326,9 +421,4 @@ def whole_utterance(y16: np.ndarray, n_frames: int, fps: int = 30) -> np.ndarray
     streaming: every phone sees all the audio; a clip shorter than ``WINDOW_S`` filled on the
     left with silence, as a stream's first decodes are) — the recogniser's offline
     reference."""
-    pad = -(-max(0, int(WINDOW_S * HAMA_RATE) - len(y16)) // OUTPUT_HOP) * OUTPUT_HOP
-    x = np.concatenate([np.zeros(pad, np.float32), np.asarray(y16, np.float32)])
-    classes = (output_classes(log_posteriors(x))[pad // OUTPUT_HOP:]
-               if len(y16) >= MIN_DECODE_SAMPLES else np.zeros(0, np.int64))
-    return np.array([read_frame((0, classes), k, fps) for k in range(n_frames)],
-                    dtype=np.int64).reshape(n_frames)
+    return whole_frames(*whole_posteriors(y16), n_frames, fps)

@@ -261,26 +261,32 @@ def cmd_evaluate_speech(args) -> int:
     files = output_files(args.out)
     for path in (files["results"], files["per_file"], files["json"]):
         check_output_file(path, "--out", overwrite=args.overwrite)
-    res = evaluate_models(models, args.out, set_dir=args.set_dir,
+    res = evaluate_models(models, args.out, set_dir=args.set_dir, targets=cfg.targets,
                           progress=lambda msg: print(msg, file=sys.stderr))
-    cols = (("phone_acc", "phone"), ("viseme_acc", "viseme"),
-            ("viseme_acc_stream_100ms", "stream"), ("bilabial_closed_frac", "p b m"),
-            ("bilabial_centre_rel_vowel", "centre/vowel"),
-            ("labiodental_contact_frac", "f v"), ("r_reference", "r ref"))
-    print(f"{'model':<30}{'split':<8}{'files':>6}" + "".join(f"{c:>13}" for _, c in cols))
+    key = res["stream_key"]
+    cols = (("viseme_acc", "viseme"), ("chance_viseme_acc", "chance"), (key, "stream"),
+            ("bilabial_closed_frac", "p b m"), ("chance_bilabial_closed_frac", "chance"),
+            ("r_reference", "r speech"), ("chance_r_reference", "chance"))
+    print(f"native input rate; chance: the same prediction circularly shifted; "
+          f"stream: live output at {key.rsplit('_', 1)[-1]} of look-ahead")
+    print(f"{'system':<30}{'split':<25}{'spk/rec':>8}" + "".join(f"{c:>9}" for _, c in cols))
     for r in res["summary"]:
-        if not r.get("files"):
+        if not r.get("files") or r["split"] not in ("seen", "unseen-test",
+                                                    "unseen-test-independent", "unseen-dev"):
             continue
-        figures = "".join(f"{r[k]:13.3f}" if isinstance(r.get(k), float) else f"{'-':>13}"
-                          for k, _ in cols)
-        print(f"{r['model']:<30}{r['split']:<8}{r['files']:>6}{figures}")
-    seen = {m: ", ".join(s) or "none" for m, s in res["seen_speakers"].items()}
-    print("seen speakers: " + "; ".join(f"{m}: {s}" for m, s in seen.items()))
+        figures = "".join(f"{r[k]:9.3f}" if isinstance(r.get(k), float) and r[k] == r[k]
+                          else f"{'-':>9}" for k, _ in cols)
+        who = f"{r['speakers']}/{r['files']}"
+        print(f"{r['model'][:29]:<30}{r['split']:<25}{who:>8}{figures}")
+    for m in res["models"]:
+        print(f"training speakers of {m}: {', '.join(res['training_speakers'][m]) or 'none'}"
+              f" (seen in the set: {', '.join(res['seen_speakers'][m]) or 'none'})")
     for model in res["models"]:
         with mlflow_run(cfg, run_name=f"speech_eval:{model}") as mlf:
             if mlf is not None:
                 log_speech_eval_model(mlf, res, files["results"].parent, model)
-    print(f"results: {files['results']} (per file: {files['per_file']}; {files['json']})")
+    print(f"results: {files['results']} (per file: {files['per_file']}; per speaker: "
+          f"{files['per_speaker']}; by input rate: {files['rates']}; {files['json']})")
     return 0
 
 
@@ -350,10 +356,12 @@ def _run_commands(sub) -> None:
     s.set_defaults(func=cmd_report)
 
     s = sub.add_parser("evaluate-speech", help="score trained mappings on the real-speech "
-                       "evaluation set (gate accuracy, lip closure, labiodental contact, "
-                       "reference correlation) beside pocketsphinx's bar; one MLflow run each")
-    s.add_argument("--model", required=True, help="run name, run folder (all its models) or "
-                   ".tfmap file")
+                       "evaluation set (viseme accuracy, lip closure, labiodental contact, "
+                       "reference correlation, each with its chance baseline, per speaker and "
+                       "at native/16 kHz/8 kHz input) beside the recognisers and the lip-sync "
+                       "peers; one MLflow run each")
+    s.add_argument("--model", required=True, help="run name, run folder (all its models; a "
+                   "nested real-speaker run runs/NAME/real too) or .tfmap file")
     s.add_argument("--set-dir", type=Path, default=SET_DIR, help="evaluation set folder with "
                    "manifest.csv (default: the shipped analysis/real_speech)")
     s.add_argument("--out", type=Path, default=Path("speech_eval") / "results.csv",

@@ -402,14 +402,17 @@ def speech_eval_tags(results: dict, model: str) -> dict:
     return {"stage": "speech_eval", "speech_eval.model": model,
             "speech_eval.model_file": results["models"][model],
             "speech_eval.seen_speakers": ",".join(results["seen_speakers"].get(model, []))
-            or "none"}
+            or "none",
+            "speech_eval.training_speakers": ",".join(
+                (results.get("training_speakers") or {}).get(model, [])) or "none"}
 
 
 def log_speech_eval_model(mlf, results: dict, out_dir: Path, model: str) -> None:
     """One evaluated model into the active MLflow run: its tags, metrics and the files."""
     mlf.set_tags(speech_eval_tags(results, model))
     mlf.log_metrics(speech_eval_metrics(results["summary"], model))
-    for name in ("results.csv", "per_file.csv", "results.json", f"opening_{model}.png"):
+    for name in ("results.csv", "per_file.csv", "per_speaker.csv", "comparisons.csv",
+                 "rates.csv", "results.json", f"opening_{model}.png"):
         if (Path(out_dir) / name).is_file():
             mlf.log_artifact(str(Path(out_dir) / name), "speech_eval")
 

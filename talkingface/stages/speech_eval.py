@@ -1,27 +1,45 @@
 """The ``speech_eval`` stage and ``talkingface evaluate-speech``: trained mappings scored on the
 real-speech evaluation set (:mod:`analysis.speech_set`, :mod:`analysis.speech_eval`), beside the
-reference bar of a recogniser trained on real speech (:mod:`analysis.speech_recogniser`).
+phone recognisers trained on real speech (:mod:`analysis.speech_recogniser`) and the lip-sync
+tools users already use (:mod:`analysis.speech_peers`), with the speaker as the unit
+(:mod:`analysis.speech_pooling`).
 
 Files written (``runs/<name>/speech_eval/`` for the stage; for the command, ``--out FILE`` and
 files named after it: ``FILE``, ``<stem>_per_file.csv``, ``<stem>.json``, ``<stem>_opening_…``):
 
-    results.csv     per model (and each recogniser) × split (seen, unseen, all, the unseen
-                    development and test parts, the test part's independently labelled and
-                    aligner-labelled recordings): the pooled figures
-    per_file.csv    per model × recording
+    results.csv     per system (model, recogniser, peer) × split (seen, unseen, all, test, the
+                    unseen development and test parts, the test part's independently labelled
+                    and aligner-labelled recordings), at the recordings' native rate: the pooled
+                    figures, each with its chance baseline (``chance_*``), the speakers and
+                    recordings behind it and speaker-level intervals (``*_lo``/``*_hi`` or
+                    ``interval_note``)
+    per_file.csv    per system × recording, native rate
+    rates.csv       the pooled rows at every input rate (native, 16 kHz, 8 kHz: the default
+                    model re-run on the resampled audio, every model with ``all_rates``;
+                    the other models, recognisers and peers at the native rate)
+    rates_per_file.csv  per model × recording at 16 kHz and 8 kHz
+    per_speaker.csv per system × speaker of the test part, native rate
+    comparisons.csv the default model − each recogniser (streaming viseme accuracy at the
+                    targets' look-ahead) and − each peer (viseme accuracy, closure, r) on the
+                    same unseen test recordings, with paired speaker-level intervals
     lookahead.csv   per recogniser × split × look-ahead (0–200 ms): streaming viseme accuracy
     lookahead.png   that curve on the unseen test speakers, both kinds of labels
-    results.json    both, with the set, the threshold and which speakers counted as seen
+    results.json    the rows above, with the set, each model's training speakers, the
+                    speakers and recording ids of every split row, and whether each model's
+                    live output equals its offline output
     opening_<model>.png  predicted vs reference lip opening on one real sentence with its phones
 """
 from __future__ import annotations
 
-import csv
 import json
 from pathlib import Path
 
-from analysis.speech_eval import opening_figure, score_model, training_speakers
-from analysis.speech_recogniser import lookahead_figure, recogniser_scores
+from analysis.config import TargetsConfig
+from analysis.speech_eval import NATIVE, RATES, opening_figure, score_model, synth_of, \
+    training_speakers
+from analysis.speech_peers import peer_scores
+from analysis.speech_pooling import SPLITS, compare, per_speaker, summarise
+from analysis.speech_recogniser import NAMES, lookahead_figure, recogniser_scores
 from analysis.speech_set import MANIFEST, SET_DIR, load_speech_set, read_manifest
 from face_model.motion_units import MotionUnits
 from groundwork.errors import ParameterError
@@ -32,7 +50,6 @@ from talkingface.stages.models import model_units
 from talkingface.stages.voices import voices_models
 
 FIGURE_RECORDING = "slt_a0009"  # a real sentence with hand-checked (HTS) labels
-STREAM_DELAY_S = 0.1
 
 
 def set_files(paths, cfg) -> list:
@@ -47,51 +64,128 @@ def output_files(out_csv) -> dict:
     stem = "" if out_csv.stem == "results" else f"{out_csv.stem}_"
     return {"results": out_csv, "per_file": out_csv.with_name(f"{stem}per_file.csv"),
             "json": out_csv.with_suffix(".json"),
+            "rates": out_csv.with_name(f"{stem}rates.csv"),
+            "rates_per_file": out_csv.with_name(f"{stem}rates_per_file.csv"),
+            "per_speaker": out_csv.with_name(f"{stem}per_speaker.csv"),
+            "comparisons": out_csv.with_name(f"{stem}comparisons.csv"),
             "lookahead": out_csv.with_name(f"{stem}lookahead.csv"),
             "lookahead_figure": out_csv.with_name(f"{stem}lookahead.png"),
             "figure": lambda model: out_csv.with_name(f"{stem}opening_{model}.png")}
 
 
-def evaluate_models(models: dict, out_csv, *, set_dir=SET_DIR, recogniser: bool = True,
+def stream_key(lookahead_ms: float) -> str:
+    """The results column of streaming viseme accuracy at ``lookahead_ms``."""
+    return f"viseme_acc_stream_{round(lookahead_ms)}ms"
+
+
+def _comparisons(per_file: list, default: str | None, others: list, key: str) -> list:
+    out = []
+    if default is None:
+        return out
+    for other in others:
+        figs = ((key,) if other in NAMES.values() else
+                ("viseme_acc", "bilabial_closed_frac", "r_reference"))
+        for fig in figs:
+            for split in ("unseen-test", "unseen-test-independent"):
+                row = compare(per_file, default, other, fig, key, split=split)
+                if row is not None:
+                    out.append(row)
+    return out
+
+
+def _split_ids(per_file: list) -> dict:
+    """``{model: {split: {"speakers": [...], "recordings": [...]}}}`` at the native rate."""
+    out = {}
+    for r in per_file:
+        for split, keep in SPLITS.items():
+            if keep(r):
+                d = out.setdefault(r["model"], {}).setdefault(split, {"speakers": set(),
+                                                                      "recordings": []})
+                d["speakers"].add(r["speaker"])
+                d["recordings"].append(r["id"])
+    return {m: {s: {"speakers": sorted(d["speakers"]), "recordings": d["recordings"]}
+                for s, d in v.items()} for m, v in out.items()}
+
+
+def evaluate_models(models: dict, out_csv, *, set_dir=None, recogniser: bool = True,
+                    peers: bool = True, rates=RATES, default_model: str | None = None,
+                    all_rates: bool = False, targets: TargetsConfig = TargetsConfig(),
                     progress=None) -> dict:
     """Score every ``models`` entry (name → ``(tfmap, motion_units.npz, training corpus folder
-    or None)``) on the set at ``set_dir`` and write the files of the module docstring into
-    :func:`output_files` of ``out_csv``. A recording is *seen* for a model when its speaker
-    is one of the voices of that model's training corpus. Returns what the JSON file holds."""
+    or None)``) on the set at ``set_dir`` (default: the shipped set) at the native rate, and
+    ``default_model`` (every model with ``all_rates``: each costs a full pass per rate) at each
+    input rate of ``rates`` too, beside the recognisers and the peers (native rate), and
+    write the files of the module docstring into :func:`output_files` of ``out_csv``. A
+    recording is *seen* for a model when its speaker is one of that model's training speakers
+    (:func:`analysis.speech_eval.training_speakers`); the recognisers and peers take the
+    splits of ``default_model`` (default: the first model), the model every comparison is made
+    against. The streaming column is at
+    ``targets.lookahead_ms``. Returns what the JSON file holds."""
     files = output_files(out_csv)
     files["results"].parent.mkdir(parents=True, exist_ok=True)
+    set_dir = SET_DIR if set_dir is None else set_dir
     items = load_speech_set(set_dir)
-    summary, per_file, seen_by = [], [], {}
+    key = stream_key(targets.lookahead_ms)
+    default_model = default_model if default_model in models else next(iter(models), None)
+    per_file, train_by, stream_by, default_synth = [], {}, {}, None
     figure_item = next((it for it in items if it.id == FIGURE_RECORDING), items[0])
     for name, (tfmap, units, corpus) in models.items():
         if progress:
-            progress(f"scoring {name} on {len(items)} recordings")
+            n_rates = len(rates) if all_rates or name == default_model else 1
+            progress(f"scoring {name} on {len(items)} recordings at {n_rates} input rate(s)")
         mapping = AudioMapping.load(tfmap)
-        seen = training_speakers(corpus) if corpus is not None else frozenset()
-        scores = score_model(name, mapping, MotionUnits.load(units), items, seen)
-        seen_by[name] = sorted(seen)
-        summary += scores.summary_rows()
-        per_file += scores.per_file_rows()
+        train_by[name] = training_speakers(corpus) if corpus is not None else frozenset()
+        scores = score_model(name, mapping, MotionUnits.load(units), items, train_by[name],
+                             rates=rates if all_rates or name == default_model else (NATIVE,),
+                             lookahead_s=targets.lookahead_ms / 1000,
+                             check_item=figure_item)
+        stream_by[name] = scores.stream
+        per_file += scores.per_file_rows(key)
+        if name == default_model:
+            default_synth = synth_of(mapping)
         fig = next(f for f in scores.files if f.id == figure_item.id)
         opening_figure(fig, figure_item.phones, files["figure"](name),
                        title=f"{name} on {figure_item.id} ({figure_item.speaker}, "
                              f"{'seen' if fig.seen else 'unseen'}): \"{figure_item.transcript}\"")
+    seen_default = train_by.get(default_model, frozenset())
+    others = []
     if recogniser:
         if progress:
             progress("the recognisers (pocketsphinx, hama) on the same recordings")
-        seen_any = frozenset(s for v in seen_by.values() for s in v)
-        rec_files, rec_summary, curve = recogniser_scores(items, seen_any,
-                                                          delay_s=STREAM_DELAY_S)
-        summary += rec_summary
+        rec_files, _, curve = recogniser_scores(items, seen_default, summary=False,
+                                                delay_s=targets.lookahead_ms / 1000)
         per_file += rec_files
+        others += list(dict.fromkeys(r["model"] for r in rec_files))
         write_csv(files["lookahead"], curve)
         lookahead_figure(curve, files["lookahead_figure"])
+    if peers and default_synth is not None:
+        peer_rows = peer_scores(items, set_dir, *default_synth, seen=seen_default,
+                                stream_key=key, progress=progress)
+        per_file += peer_rows
+        others += list(dict.fromkeys(r["model"] for r in peer_rows))
+    summary_all = summarise(per_file, key)
+    native = [r for r in per_file if r["input_rate"] == NATIVE]
+    summary = [r for r in summary_all if r["input_rate"] == NATIVE]
+    speakers = per_speaker(native, key)
+    comparisons = _comparisons(native, default_model, others, key)
     write_csv(files["results"], summary)
-    write_csv(files["per_file"], per_file)
+    write_csv(files["per_file"], native)
+    write_csv(files["rates"], summary_all)
+    write_csv(files["rates_per_file"], [r for r in per_file if r["input_rate"] != NATIVE])
+    write_csv(files["per_speaker"], speakers)
+    write_csv(files["comparisons"], comparisons)
+    set_speakers = {it.speaker for it in items}
     result = {"set_dir": str(Path(set_dir)), "recordings": [it.id for it in items],
+              "speakers": sorted(set_speakers),
               "seconds": round(sum(it.duration_s for it in items), 2),
-              "seen_speakers": seen_by, "stream_delay_s": STREAM_DELAY_S,
-              "figure_recording": figure_item.id, "summary": summary, "per_file": per_file,
+              "training_speakers": {m: sorted(s) for m, s in train_by.items()},
+              "seen_speakers": {m: sorted(s & set_speakers) for m, s in train_by.items()},
+              "default_model": default_model, "stream_key": key,
+              "stream_delay_s": targets.lookahead_ms / 1000, "stream": stream_by,
+              "rates": [str(r) for r in rates], "split_ids": _split_ids(native),
+              "figure_recording": figure_item.id, "summary": summary,
+              "rates_summary": summary_all, "per_speaker": speakers,
+              "comparisons": comparisons, "per_file": native,
               "models": {n: str(m[0]) for n, m in models.items()}}
     files["json"].write_text(json.dumps(result, indent=1, default=float))
     return result
@@ -107,19 +201,32 @@ def run_models(paths: RunPaths) -> dict:
             for f in done["models"].values()}
 
 
+def _tfmap_corpus(tfmap: Path, units: Path) -> Path | None:
+    """The corpus a ``.tfmap`` was trained on: a voice-robust model's own corpus
+    (``<run>/voices/<child>/``, from the voices stage's record), else its run's ``corpus/``
+    (``runs/<name>/mapping`` or a nested real run's ``runs/<name>/real/mapping``); None when
+    that folder holds no manifest."""
+    run = units.parent.parent
+    if tfmap.parent.parent.name == "voices":
+        for path, corpus in voices_models(RunPaths.at(run)).values():
+            if Path(path).resolve() == tfmap.resolve():
+                return corpus if (Path(corpus) / "manifest.csv").is_file() else None
+    corpus = run / "corpus"
+    return corpus if (corpus / "manifest.csv").is_file() else None
+
+
 def find_models(model: str, runs_dir="runs") -> dict:
-    """``--model``: a run name (under ``runs_dir``), a run folder, or one ``.tfmap`` file
-    (its run's Motion Units and corpus beside it) → :func:`run_models`' mapping."""
+    """``--model``: a run name (under ``runs_dir``), a run folder (a nested real-speaker run
+    ``runs/<name>/real`` too), or one ``.tfmap`` file (its run's Motion Units and training
+    corpus found from it: :func:`_tfmap_corpus`) → :func:`run_models`' mapping."""
     p = Path(model)
     if p.suffix == ".tfmap":
         if not p.is_file():
             raise ParameterError(f"--model {p}: file not found")
         units = model_units(p)
-        run = units.parent.parent
-        corpus = run / "corpus"
-        return {p.stem: (p, units, corpus if (corpus / "manifest.csv").is_file() else None)}
+        return {p.stem: (p, units, _tfmap_corpus(p, units))}
     if p.is_dir():
-        return run_models(RunPaths(p.name, p, Path("reports")))
+        return run_models(RunPaths.at(p, reports_dir="reports"))
     if not (Path(runs_dir) / model).is_dir():
         raise ParameterError(f"--model {model}: not a run under {runs_dir}/, a run folder or a "
                              ".tfmap file")
@@ -128,10 +235,14 @@ def find_models(model: str, runs_dir="runs") -> dict:
 
 def evaluate_speech(paths: RunPaths, cfg) -> dict:
     """The run's mapping model(s) and its voice-robust models (stage ``voices``, each with the
-    corpus it was trained on) on the real-speech set (stage ``speech_eval``)."""
+    corpus it was trained on) on the real-speech set (stage ``speech_eval``); the comparisons
+    are made against the run's default model (the voices stage's pick, else the mapping)."""
     models = run_models(paths)
     for name, (tfmap, corpus) in voices_models(paths).items():
         models[f"voices-{name}"] = (tfmap, paths.units_model, corpus)
-    res = evaluate_models(models, paths.stage("speech_eval") / "results.csv")
+    chosen = (read_done(paths.stage("voices")) or {}).get("model")
+    default = f"voices-{chosen}" if chosen else f"{cfg.mapping.method}_utterance"
+    res = evaluate_models(models, paths.stage("speech_eval") / "results.csv",
+                          default_model=default, targets=cfg.targets)
     return {"summary": res["summary"], "seen_speakers": res["seen_speakers"],
-            "models": res["models"]}
+            "training_speakers": res["training_speakers"], "models": res["models"]}

@@ -3,6 +3,8 @@ stream per look-ahead, and the recognisers' rows split the test part by where it
 from."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -16,7 +18,9 @@ from mapping import hama_front
 @pytest.fixture(scope="module")
 def two():
     # one recording with independent (HTS) labels, one labelled by pocketsphinx's alignment
-    return load_speech_set(ids=["slt_a0009", "ps_cards_001"])
+    # (put in a development part here, to see both parts)
+    slt, cards = load_speech_set(ids=["slt_a0009", "ps_cards_001"])
+    return [slt, dataclasses.replace(cards, part="dev")]
 
 
 def test_hama_curve_from_one_decoding_equals_a_stream_per_look_ahead(two):
@@ -47,8 +51,14 @@ def test_the_recognisers_rows_split_the_test_part_by_label_source(two, tmp_path)
         assert by[(name, "unseen-test-aligned")]["files"] == 0
         assert by[(name, "unseen-dev")]["files"] == 1
         indep = next(r for r in files if r["model"] == name and r["id"] == "slt_a0009")
-        assert indep["labels"] == LABELS[0]
-        assert by[(name, "unseen-test-independent")]["viseme_acc"] == indep["viseme_acc"]
+        assert indep["labels"] == LABELS[0] and indep["speaker"] == "arctic-slt"
+        row = by[(name, "unseen-test-independent")]
+        assert row["viseme_acc"] == indep["viseme_acc"]
+        # one speaker: no interval, and the row says why
+        assert row["speakers"] == 1 and row["speaker_ids"] == "arctic-slt"
+        assert row["viseme_acc_lo"] is None and "1 speaker" in row["interval_note"]
+        # its chance baseline: the same labels shifted, far below the recogniser
+        assert row["chance_viseme_acc"] < row["viseme_acc"]
         # the 100-ms column is the curve's 3-frame point
         point = next(r for r in curve if r["model"] == name and r["lookahead_frames"] == 3
                      and r["split"] == "unseen-test-independent")
@@ -59,6 +69,21 @@ def test_the_recognisers_rows_split_the_test_part_by_label_source(two, tmp_path)
         assert indep["viseme_acc"] > 0.6
     png = lookahead_figure(curve, tmp_path / "lookahead.png")
     assert png.stat().st_size > 10_000
+
+
+def test_a_seen_speaker_is_never_in_an_unseen_row(two):
+    files, summary, _ = recogniser_scores(two[:1], frozenset({"arctic-slt"}),
+                                          recognisers=("hama",))
+    by = {r["split"]: r for r in summary}
+    assert by["seen"]["files"] == 1 and by["unseen"]["files"] == 0
+    assert by["unseen-test"]["files"] == 0 and files[0]["split"] == "seen"
+
+
+def test_an_8_khz_input_is_scored_as_given(two):
+    files, _, _ = recogniser_scores(two[:1], recognisers=("hama",), rates=("native", 8000))
+    native, low = files
+    assert (native["input_rate"], low["input_rate"]) == ("native", "8000")
+    assert native["frames"] == low["frames"] and low["rate_note"] == ""
 
 
 def test_a_look_ahead_off_the_curve_is_refused(two):

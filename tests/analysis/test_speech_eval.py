@@ -12,18 +12,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis.speech_eval import (Contact, closed_threshold, correlation, frame_accuracy,
-                                  phone_frames, reference_opening, segment_contact,
-                                  training_speakers,
-                                  viseme_index)
+from analysis.speech_eval import (NATIVE, closed_threshold, rate_audio, reference_opening,
+                                  training_speakers)
+from analysis.speech_scores import (Contact, correlation, fit_frames, frame_accuracy,
+                                    phone_frames, segment_contact, viseme_index)
 from analysis.speech_recogniser import PhoneRecogniser
 from analysis.speech_report import DEV_RULE, dev_choice
-from analysis.speech_set import (SET_DIR, load_speech_set, phone_class, read_manifest)
+from analysis.speech_set import (SET_DIR, SPEAKER_ID, load_speech_set, phone_class,
+                                 read_manifest)
 from data_synth.config import SynthConfig
 from face_model.corpus import PhoneSegment
 from face_model.layout import default_layout
 from face_model.phones import BILABIALS, PHONE_INDEX, VISEMES
-from groundwork.errors import CorpusError
+from groundwork.errors import CorpusError, ParameterError
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tools"))
 import align_real_speech  # noqa: E402
@@ -42,17 +43,17 @@ def set_copy(tmp_path):
 
 
 def test_the_shipped_set_is_16k_mono_with_labels_covering_the_audio(speech_set):
-    assert len(speech_set) == 54  # 14 recordings found in packages, 40 GRID s1 sentences
-    assert {it.speaker_source for it in speech_set} == {
-        "arctic_slt", "arctic_awb", "pocketsphinx_test_male", "librivox_reader", "praatio_bobby",
-        "grid_s1"}
+    assert len(speech_set) >= 54  # 14 recordings found in packages, 40 GRID s1 sentences, FSDD
+    speakers = {it.speaker for it in speech_set}
+    assert {"arctic-slt", "arctic-awb", "librivox-ss01", "praatio-bobby", "grid-s1"} <= speakers
+    assert all(SPEAKER_ID.match(s) for s in speakers)
     for it in speech_set:
         assert it.sr == 16000 and it.audio.ndim == 1
         assert it.phones[0].start_s == 0 and abs(it.phones[-1].end_s - it.duration_s) < 0.01
         assert all(a.end_s == b.start_s for a, b in zip(it.phones, it.phones[1:]))
-    assert 160 < sum(it.duration_s for it in speech_set) < 161
-    size = sum(p.stat().st_size for p in SET_DIR.rglob("*") if p.is_file())
-    assert size < 1.5e6
+    assert sum(it.duration_s for it in speech_set) > 160
+    grid = next(it for it in speech_set if it.speaker == "grid-s1")
+    assert getattr(grid, "native_sr", 22050) == 22050  # the FLAC's own rate is kept
 
 
 def test_every_source_licence_sits_beside_its_files():
@@ -61,10 +62,13 @@ def test_every_source_licence_sits_beside_its_files():
         assert (SET_DIR / folder / licence).is_file()
     assert "Any modifications must be clearly marked" in (SET_DIR / "arctic" /
                                                           "COPYING").read_text()
-    readme = (SET_DIR / "README.md").read_text()
-    for row in read_manifest():  # every recording's provenance is written down, with its hash
+    # every recording's provenance is written down, with its hash: in the README, or for the
+    # FSDD part (300 files) in its SHA256SUMS beside its NOTICE (CC BY-SA 4.0)
+    written = (SET_DIR / "README.md").read_text() + (SET_DIR / "fsdd" / "SHA256SUMS").read_text()
+    assert "CC BY-SA 4.0" in (SET_DIR / "fsdd" / "NOTICE.md").read_text()
+    for row in read_manifest():
         digest = hashlib.sha256((SET_DIR / row["wav"]).read_bytes()).hexdigest()
-        assert digest in readme, row["id"]
+        assert digest in written, row["id"]
 
 
 @pytest.mark.parametrize("damage, message", [
@@ -179,31 +183,79 @@ def test_the_recogniser_reads_a_real_recording(speech_set):
     assert frame_accuracy(viseme_index(true), viseme_index(stream)) > 0.7
 
 
-def test_seen_speakers_are_the_real_sources_of_the_training_voices(tmp_path):
+def test_training_speakers_of_a_synthetic_corpus_are_its_voices_real_speakers(tmp_path):
     corpus = tmp_path / "corpus"
     corpus.mkdir()
-    (corpus / "manifest.csv").write_text("utt_id,voice\na,flite:slt\nb,espeak:en-us+m3\n"
-                                         "c,flite:awb\n")
-    assert training_speakers(corpus) == {"arctic_slt", "arctic_awb"}
-    # no voice column: the corpus's one backend voice (espeak: no real speaker)
-    (corpus / "manifest.csv").write_text("utt_id\na\n")
     (corpus / "corpus.json").write_text(json.dumps({"settings": {"backend": "espeak"}}))
-    assert training_speakers(corpus) == frozenset()
+    (corpus / "manifest.csv").write_text("utt_id,speaker,voice\na,s00,flite:slt\n"
+                                         "b,s00,espeak:en-us+m3\nc,s01,flite:awb\n")
+    # the synthetic face's speaker (s00) is no real speaker; the voices are
+    assert training_speakers(corpus) == {"arctic-slt", "arctic-awb", "espeak"}
+    # no voice column: the corpus's one backend voice
+    (corpus / "manifest.csv").write_text("utt_id,speaker\na,s00\n")
+    assert training_speakers(corpus) == {"espeak"}
     (corpus / "corpus.json").write_text(json.dumps({"settings": {"backend": "flite"}}))
-    assert training_speakers(corpus) == {"arctic_slt"}
+    assert training_speakers(corpus) == {"arctic-slt"}
     (corpus / "manifest.csv").unlink()
     with pytest.raises(CorpusError, match=r"manifest\.csv: manifest not found \(the training "
                        r"corpus's manifest is needed to tell seen from unseen speakers\)"):
         training_speakers(corpus)
 
 
+def test_training_speakers_of_a_given_corpus_are_its_manifests_speakers(tmp_path):
+    corpus = tmp_path / "grid"
+    corpus.mkdir()
+    (corpus / "corpus.json").write_text(json.dumps({"source": "GRID s1 video",
+                                                    "settings": {"speaker": "grid-s1"}}))
+    (corpus / "manifest.csv").write_text("utt_id,speaker\na,grid-s1\nb,Grid-S1\n")
+    assert training_speakers(corpus) == {"grid-s1"}
+    # a given corpus that also lists synthetic voices: both kinds
+    (corpus / "manifest.csv").write_text("utt_id,speaker,voice\na,grid-s1,\nb,grid-s1,"
+                                         "flite:rms\n")
+    assert training_speakers(corpus) == {"grid-s1", "arctic-rms"}
+    # a folder of recordings with no corpus.json is given too
+    (corpus / "corpus.json").unlink()
+    assert training_speakers(corpus) == {"grid-s1", "arctic-rms"}
+
+
+def test_the_shipped_grid_corpus_is_seen_by_a_model_trained_on_it(speech_set):
+    import face_model
+    builtin = Path(face_model.__file__).parent / "real_faces" / "grid-s1"
+    seen = training_speakers(builtin)
+    assert seen == {"grid-s1"}
+    assert {it.speaker for it in speech_set if it.speaker in seen} == {"grid-s1"}
+
+
+def test_a_prediction_off_by_more_than_rounding_is_an_error():
+    assert len(fit_frames(np.arange(10), 11, what="x")) == 11  # one frame: rounding, padded
+    assert fit_frames(np.arange(10), 9, what="x").tolist() == list(range(9))
+    with pytest.raises(ParameterError, match=r"slt at native: 10 frames predicted for labels "
+                       r"of 12 frames; allowed: within 1"):
+        fit_frames(np.arange(10), 12, what="slt at native")
+
+
+def test_rate_variants_resample_down_and_mark_what_is_already_low(speech_set):
+    slt = next(it for it in speech_set if it.id == "slt_a0009")  # a 16 kHz file
+    y, sr, note = rate_audio(slt, NATIVE)
+    assert sr == 16000 and note == "" and np.array_equal(y, slt.audio)
+    y16, sr16, note16 = rate_audio(slt, 16000)
+    assert sr16 == 16000 and "scored once" in note16 and np.array_equal(y16, slt.audio)
+    y8, sr8, note8 = rate_audio(slt, 8000)
+    assert sr8 == 8000 and note8 == "" and abs(len(y8) - len(slt.audio) / 2) <= 1
+    grid = next(it for it in speech_set if it.speaker == "grid-s1")
+    assert rate_audio(grid, NATIVE)[1] == getattr(grid, "native_sr", grid.sr)
+    assert rate_audio(grid, 16000)[1] == 16000
+
+
 def test_the_set_is_split_by_speaker_into_development_and_test_parts(speech_set):
     parts = {}
     for it in speech_set:
-        parts.setdefault(it.speaker_source, set()).add(it.part)
+        parts.setdefault(it.speaker, set()).add(it.part)
     assert all(len(p) == 1 for p in parts.values())  # no speaker on both sides
     test = {s for s, p in parts.items() if p == {"test"}}
-    assert {"dev"} in parts.values() and {"arctic_slt", "praatio_bobby"} <= test
+    assert {"arctic-slt", "praatio-bobby"} <= test
+    # a development recording's labels never come from a system the set compares
+    assert all(it.independent for it in speech_set if it.part == "dev")
 
 
 def test_the_development_rule_picks_the_best_mean_on_dev_rows_only():
