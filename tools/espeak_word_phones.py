@@ -11,6 +11,8 @@ phone before it. :func:`scale_into` spreads the phones over a span in proportion
 from __future__ import annotations
 
 import os
+import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -75,3 +77,31 @@ def scale_into(parts, start_s: float, end_s: float) -> list[tuple[float, float, 
     cum = np.concatenate([[0.0], np.cumsum([d for _, d in parts])])
     bounds = start_s + (end_s - start_s) * cum / cum[-1]
     return [(bounds[i], bounds[i + 1], p) for i, (p, _) in enumerate(parts)]
+
+
+def file_differences(set_dir, subdir: str, files: dict) -> list[str]:
+    """The files (relative to the set at ``set_dir``) that differ from ``files`` (relative path
+    → bytes), and any file in ``subdir`` that ``files`` does not hold."""
+    set_dir = Path(set_dir)
+    differ = [rel for rel, data in files.items()
+              if not (set_dir / rel).is_file() or (set_dir / rel).read_bytes() != data]
+    extra = [f"{subdir}/{p.name}" for p in sorted((set_dir / subdir).glob("*"))
+             if f"{subdir}/{p.name}" not in files]
+    return differ + [f"{rel} (not made by the tool)" for rel in extra]
+
+
+def write_or_check(set_dir, subdir: str, files: dict, *, check: bool) -> int:
+    """A label tool's last step: with ``check``, name every file that differs from ``files``
+    (exit status 1 when one does); else write them all. Returns the exit status."""
+    set_dir = Path(set_dir)
+    if check:
+        differ = file_differences(set_dir, subdir, files)
+        for rel in differ:
+            print(f"{set_dir / rel}: differs from what the tool makes", file=sys.stderr)
+        print(f"{len(files)} files checked, {len(differ)} differ")
+        return 1 if differ else 0
+    (set_dir / subdir).mkdir(exist_ok=True)
+    for rel, data in files.items():
+        (set_dir / rel).write_bytes(data)
+    print(f"{len(files)} files written under {set_dir}")
+    return 0

@@ -50,7 +50,8 @@ for _p in (REPO, REPO / "tools"):
 
 from analysis.speech_set import (FSDD_WORDS, MANIFEST, SET_DIR, load_speech_set,  # noqa: E402
                                  write_labels)
-from espeak_word_phones import scale_into, word_phones  # noqa: E402
+from espeak_word_phones import (file_differences, scale_into, word_phones,  # noqa: E402
+                                write_or_check)
 from face_model.corpus import PhoneSegment  # noqa: E402
 from face_model.forced_align import tidy_segments  # noqa: E402
 from groundwork.audio import read_wav  # noqa: E402
@@ -199,13 +200,8 @@ def build(set_dir=SET_DIR, source=None, *, progress: bool = True) -> dict[str, b
 def differences(set_dir=SET_DIR, files=None) -> list[str]:
     """The files (relative to the set) that differ from ``files`` (default: :func:`build` from
     the shipped copies), and any file in ``fsdd/`` the tool would not write."""
-    set_dir = Path(set_dir)
     files = build(set_dir, progress=False) if files is None else files
-    differ = [rel for rel, data in files.items()
-              if not (set_dir / rel).is_file() or (set_dir / rel).read_bytes() != data]
-    extra = [f"{SUBDIR}/{p.name}" for p in sorted((set_dir / SUBDIR).glob("*"))
-             if f"{SUBDIR}/{p.name}" not in files]
-    return differ + [f"{rel} (not made by the tool)" for rel in extra]
+    return file_differences(set_dir, SUBDIR, files)
 
 
 def measure(set_dir=SET_DIR) -> dict:
@@ -299,17 +295,7 @@ def main(argv=None) -> int:
               file=sys.stderr)
         source = None
     files = build(args.set_dir, source)
-    if args.check:
-        differ = differences(args.set_dir, files)
-        for rel in differ:
-            print(f"{args.set_dir / rel}: differs from what the tool makes", file=sys.stderr)
-        print(f"{len(files)} files checked, {len(differ)} differ")
-        return 1 if differ else 0
-    (args.set_dir / SUBDIR).mkdir(exist_ok=True)
-    for rel, data in files.items():
-        (args.set_dir / rel).write_bytes(data)
-    print(f"{len(files)} files written under {args.set_dir}")
-    return 0
+    return write_or_check(args.set_dir, SUBDIR, files, check=args.check)
 
 
 if __name__ == "__main__":

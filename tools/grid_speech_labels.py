@@ -52,7 +52,8 @@ for _p in (REPO, REPO / "tools"):
 
 from analysis.speech_set import (GRID_WORDS, MANIFEST, SET_DIR, read_labels,  # noqa: E402
                                  write_labels)
-from espeak_word_phones import scale_into, word_phones  # noqa: E402,F401 (word_phones: API)
+from espeak_word_phones import (file_differences, scale_into,  # noqa: E402
+                                word_phones, write_or_check)  # noqa: F401 (word_phones: API)
 from face_model.corpus import PhoneSegment, read_phones  # noqa: E402
 from face_model.forced_align import tidy_segments  # noqa: E402
 from face_model.transcripts import read_align  # noqa: E402
@@ -180,13 +181,8 @@ def build(set_dir=SET_DIR, align_dir=None) -> dict[str, bytes]:
 def differences(set_dir=SET_DIR, files=None) -> list[str]:
     """The files (relative to the set) that differ from ``files`` (default: :func:`build`),
     and any file in ``grid/`` the tool would not write."""
-    set_dir = Path(set_dir)
     files = build(set_dir) if files is None else files
-    differ = [rel for rel, data in files.items()
-              if not (set_dir / rel).is_file() or (set_dir / rel).read_bytes() != data]
-    extra = [f"{SUBDIR}/{p.name}" for p in sorted((set_dir / SUBDIR).glob("*"))
-             if f"{SUBDIR}/{p.name}" not in files]
-    return differ + [f"{rel} (not made by the tool)" for rel in extra]
+    return file_differences(set_dir, SUBDIR, files)
 
 
 # -- quality of the labels --------------------------------------------------------------------
@@ -276,17 +272,7 @@ def main(argv=None) -> int:
         print_measure(measure(args.set_dir))
         return 0
     files = build(args.set_dir, args.align_dir)
-    if args.check:
-        differ = differences(args.set_dir, files)
-        for rel in differ:
-            print(f"{args.set_dir / rel}: differs from what the tool makes", file=sys.stderr)
-        print(f"{len(files)} files checked, {len(differ)} differ")
-        return 1 if differ else 0
-    (args.set_dir / SUBDIR).mkdir(exist_ok=True)
-    for rel, data in files.items():
-        (args.set_dir / rel).write_bytes(data)
-    print(f"{len(files)} files written under {args.set_dir}")
-    return 0
+    return write_or_check(args.set_dir, SUBDIR, files, check=args.check)
 
 
 if __name__ == "__main__":
