@@ -46,7 +46,8 @@ def test_the_recognisers_rows_split_the_test_part_by_label_source(two, tmp_path)
     assert {r["model"] for r in files} == set(NAMES.values())
     by = {(r["model"], r["split"]): r for r in summary}
     for name in NAMES.values():
-        # slt_a0009 is a test recording with HTS labels, ps_cards_001 a dev one (aligned)
+        # slt_a0009 is a test recording with HTS labels, ps_cards_001 (aligned) put in a
+        # development part by the fixture
         assert by[(name, "unseen-test-independent")]["files"] == 1
         assert by[(name, "unseen-test-aligned")]["files"] == 0
         assert by[(name, "unseen-dev")]["files"] == 1
@@ -65,8 +66,8 @@ def test_the_recognisers_rows_split_the_test_part_by_label_source(two, tmp_path)
         assert point["viseme_acc"] == indep["viseme_acc_stream_100ms"]
         assert len([r for r in curve if r["model"] == name and r["split"] == "all"]) == \
             len(LOOKAHEAD_FRAMES)
-        # both hear the sentence: far above chance on its independent labels
-        assert indep["viseme_acc"] > 0.6
+        # both hear the sentence: well above chance on its independent labels
+        assert indep["viseme_acc"] > row["chance_viseme_acc"] + 0.1
     png = lookahead_figure(curve, tmp_path / "lookahead.png")
     assert png.stat().st_size > 10_000
 
