@@ -478,8 +478,9 @@ def test_the_ablation_answer_is_two_clicks_from_the_printed_link(ui, store, grid
             assert f"best: the reference {grid.reference} itself" in text, text
         else:  # the best setting, its difference with its interval, Holm's p and the verdict
             assert re.search(
-                rf"best: {re.escape(grid.best)}: R [\d.]+ ± [\d.]+, Δ [+-][\d.]+ ± [\d.]+, "
-                r"p \(Holm\) \S+: (significantly better|no difference from the reference)",
+                rf"best: {re.escape(grid.best)}: R [\d.]+ ± [\d.]+, Δ [+-][\d.]+ ± [\d.]+ "
+                r"\([\d.]+ %\), p \(Holm\) \S+: "
+                r"(significantly better|no difference from the reference)",
                 text), text
         # the table of every setting, rendered as a table, with intervals
         table = note.find_element(By.TAG_NAME, "table")
