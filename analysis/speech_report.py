@@ -27,21 +27,44 @@ SPLITS = (("unseen-test", "unseen speakers, test part"),
 RECOGNISERS = ("pocketsphinx", "hama")  # the recogniser rows' model names start so
 
 
-def dev_choice(results: list[dict], prefix: str = "voices-") -> tuple[str | None, dict]:
-    """``(model, {model: score})``: among the models named ``prefix``*, the one with the highest
-    mean of :data:`DEV_RULE` on the ``unseen-dev`` rows of ``results`` (speech_eval's
-    results.csv rows); None when no such model has development figures."""
-    scores = {}
+def _dev_rows(results: list[dict], prefix: str) -> dict:
+    """``{model: {figure: value}}`` of :data:`DEV_RULE` on the native-rate ``unseen-dev`` rows of
+    the models named ``prefix``* (NaN where a figure is missing)."""
+    out = {}
     for r in results:
         if r["split"] != "unseen-dev" or not r["model"].startswith(prefix) or \
                 str(r.get("input_rate") or "native") != "native":
             continue
-        try:
-            v = [float(r[k]) for k in DEV_RULE]
-        except (KeyError, TypeError, ValueError):
-            continue
-        if all(math.isfinite(x) for x in v):
-            scores[r["model"]] = sum(v) / len(v)
+        vals = {}
+        for k in DEV_RULE:
+            try:
+                vals[k] = float(r[k])
+            except (KeyError, TypeError, ValueError):
+                vals[k] = float("nan")
+        out[r["model"]] = vals
+    return out
+
+
+def dev_rule_figures(results: list[dict], prefix: str = "voices-") -> tuple[str, ...]:
+    """The figures of :data:`DEV_RULE` the development part measures: a figure it measures for
+    no candidate (the digits of the development speakers hold no /p b m/, so no closure can be
+    scored) is left out of the rule for all of them alike."""
+    rows = _dev_rows(results, prefix)
+    return tuple(k for k in DEV_RULE if any(math.isfinite(v[k]) for v in rows.values()))
+
+
+def dev_choice(results: list[dict], prefix: str = "voices-") -> tuple[str | None, dict]:
+    """``(model, {model: score})``: among the models named ``prefix``*, the one with the highest
+    mean of :func:`dev_rule_figures` (the figures of :data:`DEV_RULE` the development part
+    measures) on the ``unseen-dev`` rows of ``results`` (speech_eval's results.csv rows); a
+    model missing one of those figures gets no score; an exact tie goes to the later name; None
+    when no such model has development figures."""
+    rows = _dev_rows(results, prefix)
+    used = dev_rule_figures(results, prefix)
+    if not used:
+        return None, {}
+    scores = {m: sum(v[k] for k in used) / len(used) for m, v in rows.items()
+              if all(math.isfinite(v[k]) for k in used)}
     best = max(scores, key=lambda m: (scores[m], m)) if scores else None
     return best, scores
 

@@ -25,7 +25,7 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from analysis.speech_report import DEV_RULE, dev_choice  # noqa: E402
+from analysis.speech_report import DEV_RULE, dev_choice, dev_rule_figures  # noqa: E402
 from groundwork.errors import CorpusError, ParameterError  # noqa: E402
 
 PREFIX = "voices-"
@@ -71,14 +71,18 @@ def choose(results: list[dict]) -> dict:
         row["score"] = scores.get(r["model"])
         rows.append(row)
     rows.sort(key=lambda row: (row["score"] is None, -(row["score"] or 0.0), row["child"]))
-    return {"rows": rows, "pick": best[len(PREFIX):] if best else None}
+    return {"rows": rows, "pick": best[len(PREFIX):] if best else None,
+            "figures": list(dev_rule_figures(results, prefix=PREFIX))}
 
 
 def table(result: dict, current: str | None) -> str:
     cols = ("child", *DEV_RULE, "score")
     width = max([len(r["child"]) for r in result["rows"]] + [5])
+    used = result.get("figures") or list(DEV_RULE)
+    left = [k for k in DEV_RULE if k not in used]
     lines = [f"voices children on the unseen development recordings ({SPLIT}); score = mean of "
-             + ", ".join(DEV_RULE),
+             + ", ".join(used) + (f" ({', '.join(left)}: not measured on the development part, "
+                                  "left out for every child)" if left else ""),
              f"{cols[0]:<{width}}" + "".join(f"{c:>26}" for c in cols[1:])]
     for r in result["rows"]:
         score = "no score" if r["score"] is None else f"{r['score']:.3f}"

@@ -184,6 +184,23 @@ def test_the_voice_check_fails_with_one_line_on_a_mismatch(run_dir, capsys):
                             "--check"]) == 0
 
 
+def test_a_figure_the_development_part_cannot_measure_is_left_out_for_every_child(tmp_path,
+                                                                                 capsys):
+    """Digits hold no /p b m/: closure is NaN for every child, so the rule is the mean of the
+    other three for all of them alike; a child missing a measured figure still gets no score."""
+    run = _results(tmp_path, [
+        ("voices-a", "unseen-dev", 0.50, "nan", 0.60, 0.10),  # mean of three 0.40
+        ("voices-b", "unseen-dev", 0.40, "nan", 0.20, 0.30),  # 0.30
+        ("voices-c", "unseen-dev", 0.90, "nan", "nan", 0.90)])  # incomplete: no score
+    result = voice_tool.choose(voice_tool.read_results(run))
+    assert result["figures"] == ["viseme_acc", "labiodental_contact_frac", "r_reference"]
+    scores = {r["child"]: r["score"] for r in result["rows"]}
+    assert result["pick"] == "a" and scores["a"] == pytest.approx(0.4)
+    assert scores["b"] == pytest.approx(0.3) and scores["c"] is None
+    assert voice_tool.main([str(run), "--voices", str(_voices(run, "a"))]) == 0
+    assert "bilabial_closed_frac: not measured on the development part" in capsys.readouterr().out
+
+
 def test_the_voice_chooser_names_a_missing_results_file(tmp_path, capsys):
     assert voice_tool.main([str(tmp_path), "--voices", str(_voices(tmp_path, "x"))]) == 2
     assert "speech_eval/results.csv: not found" in capsys.readouterr().err
