@@ -162,7 +162,8 @@ def speech_finding(speech_dir: Path, default_model: str | None,
                  f"{targets.viseme_accuracy:g} {_cite('targets')}")
     if bars:
         text += "; the recognisers streaming at the same look-ahead reach " + " and ".join(
-            f"{escape(b['model'].split()[0])} {speech._cell(b, key, chance=False)}"
+            f"{escape(b['model'].split()[0].split('-')[0])} "
+            f"{speech._cell(b, key, chance=False)}"
             for b in bars)
     return text + (f"; it closes the lips on {speech._cell(mine, 'bilabial_closed_frac')} of "
                    "/p b m/ segments (in brackets: chance) " + _cite("speech_unseen-test")
