@@ -157,6 +157,12 @@ class Landmarks:
     size : tuple of int
         (width, height).
     detector : str
+    n_faces : ndarray of int, shape (n_frames,), or None
+        The faces the detector counted in each frame (:mod:`face_model.landmark_worker`); None
+        for a file written before the worker counted them (unknown).
+    roll_deg : ndarray, shape (n_frames,), or None
+        The face's in-plane rotation, degrees in (-180, 180], 0 upright, 180 upside down; NaN
+        where the detector found no face; None for a file written before the worker measured it.
     """
 
     points: np.ndarray
@@ -165,12 +171,30 @@ class Landmarks:
     time_s: np.ndarray
     size: tuple
     detector: str
+    n_faces: np.ndarray | None = None
+    roll_deg: np.ndarray | None = None
 
     @classmethod
     def load(cls, path) -> "Landmarks":
+        """Read a worker's ``.npz``; ``n_faces`` and ``roll_deg`` are None when it has none.
+
+        Raises
+        ------
+        KeyError, ValueError, OSError
+            Not such a file; ValueError also when a per-frame array's length differs from
+            the frames'.
+        """
         with np.load(path, allow_pickle=False) as d:
-            return cls(d["landmarks"], d["found"].astype(bool), d["confidence"], d["time_s"],
-                       tuple(int(v) for v in d["size"]), str(d["detector"]))
+            lm = cls(d["landmarks"], d["found"].astype(bool), d["confidence"], d["time_s"],
+                     tuple(int(v) for v in d["size"]), str(d["detector"]),
+                     d["n_faces"].astype(np.int64) if "n_faces" in d.files else None,
+                     d["roll_deg"].astype(np.float64) if "roll_deg" in d.files else None)
+        n = len(lm.found)
+        for name in ("confidence", "time_s", "n_faces", "roll_deg"):
+            a = getattr(lm, name)
+            if a is not None and a.shape != (n,):
+                raise ValueError(f"{name} has shape {a.shape}; allowed: ({n},), one per frame")
+        return lm
 
 
 def _weights() -> np.ndarray:

@@ -10,6 +10,12 @@ For every clip (any video FFmpeg reads, with its audio):
    the nearest frames with one (held at the clip's ends) and marked *interpolated*; a clip is
    refused, with the reason, when more than ``max_missing_fraction`` of its frames or a run
    longer than ``max_gap_s`` have no face.
+   **One upright face**: a clip is refused when the face detector counts more than one face in
+   more than ``max_multi_face_fraction`` of its frames (the face mesh follows one face, which
+   need not be the speaker's: on two GRID clips side by side it followed the left one), or when
+   the face's median |roll| over its frames exceeds ``max_roll_deg`` (the mesh fits an upright
+   face to an upside-down one, its mouth on the forehead); both are measured by
+   :mod:`face_model.landmark_worker` and unknown (not checked) in its older files.
 3. **30 fps**: each marker coordinate is interpolated linearly in time from the video's frame
    times (its presentation times; 25 fps for GRID) to k/30 s; a 30 fps frame is *interpolated*
    when a source frame it is made from was; its confidence is its nearest source frame's.
@@ -19,7 +25,10 @@ For every clip (any video FFmpeg reads, with its audio):
    (polyphase).
 5. **Phones**: the transcript (a GRID ``.align``, a ``.txt`` beside the clip, or a CSV) aligned
    to the audio by the project's recogniser (:mod:`face_model.forced_align`, pocketsphinx); a
-   transcript that does not match the audio is refused.
+   transcript that does not match the audio is refused. A clip that ends before its
+   transcript's times (a GRID ``.align``) do is refused as truncated, with the video's and the
+   audio's lengths (:func:`check_length`): a ``.mpg`` cut to half its bytes decodes without
+   complaint to half its length, and was blamed on its transcript.
 
 The corpus is built in a partial folder beside ``--out`` and renamed into place when every clip
 is done and the whole folder has passed the corpus reader (:func:`face_model.corpus.load_corpus`);
@@ -40,6 +49,7 @@ import numpy as np
 from face_model.corpus import FPS, QUALITY_COLUMNS, SUPPORTED_SR, write_utterance
 from face_model.forced_align import align_audio
 from face_model.landmarks import Landmarks, markers_from_landmarks
+from face_model.transcripts import END_TOLERANCE_S
 from groundwork.audio import read_wav, resample
 from groundwork.errors import CorpusError, ParameterError
 
@@ -65,6 +75,15 @@ class FromVideoSettings:
         The manifest's expression of every clip (``neutral`` for plain speech).
     audio_format : {"wav", "flac"}
         The audio files' format (both PCM16; FLAC is lossless and about half the size).
+    max_multi_face_fraction : float
+        Refuse a clip in which more of its frames than this show more than one face.
+    max_roll_deg : float
+        Refuse a clip whose face's median |roll| (in-plane rotation from upright) is larger,
+        degrees. On 60 GRID s1 clips as recorded the clips' median |roll| was 0.3–4.1° (no
+        frame's above 6.8°) and no frame showed a second face; upside down (``vflip``) the
+        median |roll| was 173.9–177.5°, and two clips side by side (``hstack``) showed two faces
+        in every frame (``python tools/face_checks_sweep.py ../shared/grid-s1/video``). 30°
+        leaves room for a speaker's natural head tilt.
     """
 
     sample_rate: int = 22050
@@ -73,6 +92,8 @@ class FromVideoSettings:
     speaker: str = "speaker"
     expression: str = "neutral"
     audio_format: str = "wav"
+    max_multi_face_fraction: float = 0.10
+    max_roll_deg: float = 30.0
 
     def check(self) -> "FromVideoSettings":
         if self.sample_rate not in SUPPORTED_SR:
@@ -83,6 +104,11 @@ class FromVideoSettings:
                                  "0 <= value < 1")
         if self.max_gap_s < 0:
             raise ParameterError(f"max_gap_s {self.max_gap_s}; allowed: >= 0 seconds")
+        if not 0 <= self.max_multi_face_fraction < 1:
+            raise ParameterError(f"max_multi_face_fraction {self.max_multi_face_fraction}; "
+                                 "allowed: 0 <= value < 1")
+        if not 0 < self.max_roll_deg < 180:
+            raise ParameterError(f"max_roll_deg {self.max_roll_deg}; allowed: 0 < degrees < 180")
         if self.audio_format not in AUDIO_FORMATS:
             raise ParameterError(f"audio format {self.audio_format!r}; allowed: "
                                  f"{', '.join(AUDIO_FORMATS)}")
@@ -196,12 +222,33 @@ def decode_audio(video: Path, sample_rate: int, scratch: Path) -> np.ndarray:
     return resample(y, sr_in=sr, sr_out=sample_rate) if sr != sample_rate else y
 
 
+def face_orientation(lm: Landmarks) -> tuple[float, float]:
+    """``(share, roll)``: the share of the clip's frames in which the detector counted more than
+    one face, and the median |roll| in degrees over the frames with a detection (NaN: none, or
+    unknown in an older landmark file; the share is then 0)."""
+    share = float(np.mean(lm.n_faces > 1)) if lm.n_faces is not None and len(lm.n_faces) else 0.0
+    roll = np.abs(lm.roll_deg[~np.isnan(lm.roll_deg)]) if lm.roll_deg is not None else []
+    return share, float(np.median(roll)) if len(roll) else float("nan")
+
+
 def check_face(video: Path, lm: Landmarks, settings: FromVideoSettings) -> None:
-    """Refuse a clip whose face is missed too often (see the module text)."""
+    """Refuse a clip whose face is missed too often, or is not one upright face (see the
+    module text)."""
     n = len(lm.found)
     missed = int(n - lm.found.sum())
     if missed == n:
         raise ClipRefused(f"{video}: no face found in any of its {n} frames")
+    share, roll = face_orientation(lm)
+    if share > settings.max_multi_face_fraction:
+        many = int(np.sum(lm.n_faces > 1))
+        raise ClipRefused(f"{video}: {many} of {n} frames show more than one face "
+                          f"({100 * share:.0f} %); allowed: one speaker's face (more than one "
+                          f"face in at most {100 * settings.max_multi_face_fraction:.0f} % of "
+                          "frames) — crop the video to the speaker's face")
+    if roll > settings.max_roll_deg:
+        raise ClipRefused(f"{video}: the face is turned {roll:.0f}° from upright (median |roll| "
+                          f"over its frames); allowed: at most {settings.max_roll_deg:g}° — turn "
+                          "the video upright")
     if missed > settings.max_missing_fraction * n:
         raise ClipRefused(f"{video}: {missed} of {n} frames without a face "
                           f"({100 * missed / n:.0f} %); allowed: at most "
@@ -244,6 +291,9 @@ class ClipData:
     markers: np.ndarray  # (n_frames, 79, 2) float32, image pixels
     confidence: np.ndarray  # (n_frames,)
     interpolated: np.ndarray  # (n_frames,) bool
+    video_s: float = 0.0  # the decoded video's length, seconds
+    video_frames: int = 0  # its frames, at its own rate
+    audio_s: float = 0.0  # the decoded audio's length, seconds
 
     @property
     def n_frames(self) -> int:
@@ -269,14 +319,39 @@ def clip_data(video: Path, landmark_file: Path, settings: FromVideoSettings,
     sr = settings.sample_rate
     dt = float(np.median(np.diff(lm.time_s))) if len(lm.time_s) > 1 else 1 / FPS
     video_s = float(lm.time_s[-1] - lm.time_s[0] + dt)
-    n_out = int(np.floor(min(video_s, len(y) / sr) * FPS + 1e-6))
+    audio_s = len(y) / sr
+    n_out = int(np.floor(min(video_s, audio_s) * FPS + 1e-6))
     if n_out < 2:
-        raise ClipRefused(f"{video}: {min(video_s, len(y) / sr):.3f} s of video with audio; "
+        raise ClipRefused(f"{video}: {min(video_s, audio_s):.3f} s of video with audio; "
                           f"allowed: at least 2 frames at {FPS} fps")
     n_samples = int(round(n_out * sr / FPS))
     y = np.pad(y[:n_samples], (0, max(0, n_samples - len(y))))
     markers, confidence, interpolated = clip_tracks(lm, n_out)
-    return ClipData(video, y, sr, markers, confidence, interpolated)
+    return ClipData(video, y, sr, markers, confidence, interpolated, video_s, len(lm.found),
+                    audio_s)
+
+
+def check_length(clip: ClipData, transcript) -> None:
+    """Refuse a clip that ends before its transcript's times do (a file cut short, e.g. an
+    interrupted download or copy, or another recording's transcript), naming the video and its
+    lengths rather than blaming the transcript.
+
+    Raises
+    ------
+    ClipRefused
+        The transcript (a GRID ``.align``) ends more than
+        :data:`face_model.transcripts.END_TOLERANCE_S` after the shorter of video and audio.
+    """
+    end = getattr(transcript, "end_s", None)
+    usable = clip.n_frames / FPS
+    if end is None or end <= usable + END_TOLERANCE_S:
+        return
+    raise ClipRefused(
+        f"{clip.video}: the video is truncated or shorter than its transcript's timing: its "
+        f"picture lasts {clip.video_s:.2f} s ({clip.video_frames} frames) and its audio "
+        f"{clip.audio_s:.2f} s, but {transcript.source} runs to {end:.2f} s; allowed: the "
+        f"transcript ending at most {END_TOLERANCE_S:g} s after the clip (check that the file "
+        "was copied or downloaded whole and that the transcript is this recording's)")
 
 
 def make_utterance(video: Path, landmark_file: Path, transcript, root: Path,
@@ -290,6 +365,7 @@ def make_utterance(video: Path, landmark_file: Path, transcript, root: Path,
     """
     clip = clip_data(video, landmark_file, settings, root)
     y, sr, n_out = clip.audio, clip.sample_rate, clip.n_frames
+    check_length(clip, transcript)
     transcript.check_duration(n_out / FPS, source=str(video))
     phones = align_audio(y, sr, transcript.text, source=str(video))
     utt_id = video.stem

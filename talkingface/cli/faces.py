@@ -1,21 +1,29 @@
 """Real faces from video: ``talkingface corpus from-video`` and ``talkingface evaluate-face``.
 
     talkingface corpus from-video SRC --out DIR [--speaker S] [--transcripts CSV] [--workers N]
-    talkingface evaluate-face [--model M] VIDEOS [--out DIR] [--speaker S] [--workers N]
+    talkingface evaluate-face [--model M] VIDEOS [--out DIR] [--overwrite] [--speaker S]
+                              [--workers N]
 
 Both read video through MediaPipe Face Mesh in the face environment (``bash tools/setup.sh
 face``; :mod:`face_model.landmarks`). ``evaluate-face`` also takes a corpus folder (one made
-by ``corpus from-video``, whose markers need no decoding).
+by ``corpus from-video``, whose markers need no decoding). Its results folder
+(:data:`EVAL_FILES`) is by default ``face_eval/<source>-<8 hex digits of the source's full
+path>`` beside the model (:func:`default_eval_folder`: never another source's); an existing
+one is replaced only with ``--overwrite``, and then at once (built beside it, swapped in).
 """
 from __future__ import annotations
 
+import argparse
+import hashlib
 import json
+import re
+import shutil
 from pathlib import Path
 
 from analysis.face_eval import opening_strip_figure, write_scores_csv
 from face_model.video_corpus import FromVideoSettings, default_speaker
-from face_model.video_import import corpus_from_video
-from groundwork.atomic import atomic_file
+from face_model.video_import import check_sources, corpus_from_video
+from groundwork.atomic import fresh_partial_folder, swap_in
 from groundwork.errors import ParameterError
 from talkingface.stages.face_scoring import clips_from_corpus, clips_from_videos, score_model
 from talkingface.stages.models import load_animator
@@ -44,29 +52,89 @@ def _model_corpus(tfmap: Path) -> Path | None:
     return None
 
 
+EVAL_FILES = ("per_clip.csv", "scores.json", "opening_*.png")  # what evaluate-face writes
+
+
+def default_eval_folder(tfmap, src) -> Path:
+    """``face_eval/<name>`` beside the model file ``tfmap`` for the source ``src``: the name is
+    the source's folder and name (``s1-video`` for ``.../s1/video``) and 8 hex digits of its
+    full resolved path, so two sources never share a folder (every GRID speaker's folder is
+    named ``video``) and one source always gets the same one."""
+    path = Path(src).resolve()
+    readable = re.sub(r"[^A-Za-z0-9._-]+", "_", f"{path.parent.name}-{path.name}").strip("._-")
+    digest = hashlib.sha256(str(path).encode()).hexdigest()[:8]
+    return Path(tfmap).parent / "face_eval" / f"{readable or 'source'}-{digest}"
+
+
+def _evaluation_source(folder: Path) -> str | None:
+    """The full path of the source an evaluation folder scored (None: not an evaluation's
+    folder, i.e. it holds files other than :data:`EVAL_FILES`)."""
+    entries = list(folder.iterdir())
+    if not all(e.is_file() and any(e.match(pat) for pat in EVAL_FILES) for e in entries):
+        return None
+    try:
+        record = json.loads((folder / "scores.json").read_text(encoding="utf-8"))
+        return str(record.get("source_path") or record["source"])
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return "an unknown source"
+
+
+def check_eval_folder(out: Path, src: Path, *, overwrite: bool, default: bool) -> Path:
+    """Refuse, before any work, a results folder that is a file, holds an earlier evaluation
+    (unless ``overwrite``), holds files that are not an evaluation's, or (the default folder)
+    holds another source's evaluation."""
+    what = "the default results folder" if default else "--out"
+    if out.exists() and not out.is_dir():
+        raise ParameterError(f"{what} {out} is a file; give a folder")
+    if not out.is_dir() or not any(out.iterdir()):
+        return out
+    source = _evaluation_source(out)
+    if source is None:
+        raise ParameterError(f"{what} {out} holds files that are not an evaluation's; give "
+                             "another --out (nothing is replaced)")
+    if default and source != str(src.resolve()):
+        raise ParameterError(f"{what} {out} holds an evaluation of {source}; give --out")
+    if not overwrite:
+        raise ParameterError(f"{what} {out} already holds an evaluation (of {source}); pass "
+                             "--overwrite to replace it, or another --out")
+    return out
+
+
 def cmd_evaluate_face(args) -> int:
     """Score a model on real clips by the rules of :mod:`analysis.face_eval`: speech frames from
     the corpus's phones, or, for videos, from each clip's transcript forced-aligned (a clip
     without one is scored on all its valid frames, and the command says so)."""
-    animator, tfmap = load_animator(args.model, args.runs_dir)
     src = Path(args.videos)
-    if (src / "manifest.csv").is_file():
+    corpus = (src / "manifest.csv").is_file()
+    if not corpus:
+        check_sources(src)
+    if args.out:
+        check_eval_folder(Path(args.out), src, overwrite=args.overwrite, default=False)
+    animator, tfmap = load_animator(args.model, args.runs_dir)
+    out = Path(args.out) if args.out else default_eval_folder(tfmap, src)
+    if not args.out:
+        check_eval_folder(out, src, overwrite=args.overwrite, default=True)
+    if corpus:
         clips, refused, unaligned = clips_from_corpus(src), [], []
     else:
         clips, refused, unaligned = clips_from_videos(
             src, speaker=args.speaker or default_speaker(src), workers=args.workers)
     training = _model_corpus(Path(tfmap))
     scores = score_model(animator, clips, training_corpus=training, progress=True)
-    out = Path(args.out) if args.out else Path(tfmap).parent / "face_eval" / src.name
-    out.mkdir(parents=True, exist_ok=True)
-    write_scores_csv(scores, out / "per_clip.csv")
-    record = {"model": str(tfmap), "source": str(src), "refused": refused,
-              "no_speech_frames": unaligned, **scores.to_dict()}
-    with atomic_file(out / "scores.json") as tmp:
-        tmp.write_text(json.dumps(record, indent=1) + "\n")
+    record = {"model": str(tfmap), "source": str(src), "source_path": str(src.resolve()),
+              "refused": refused, "no_speech_frames": unaligned, **scores.to_dict()}
     first = scores.tracks[0]
-    opening_strip_figure(first, out / f"opening_{first.clip}.png",
-                         f"{first.clip}: real vs predicted inner-lip opening")
+    figure = f"opening_{first.clip}.png"
+    partial = fresh_partial_folder(out)
+    try:
+        write_scores_csv(scores, partial / "per_clip.csv")
+        (partial / "scores.json").write_text(json.dumps(record, indent=1) + "\n")
+        opening_strip_figure(first, partial / figure,
+                             f"{first.clip}: real vs predicted inner-lip opening")
+    except BaseException:
+        shutil.rmtree(partial, ignore_errors=True)
+        raise
+    swap_in(partial, out)
     p = scores.pooled
     for clip, reason in refused:
         print(f"refused {clip}: {reason}")
@@ -83,14 +151,19 @@ def cmd_evaluate_face(args) -> int:
           f"({p['excluded_frames']} without a face excluded): inner-lip opening r "
           f"{p['r_speech']:.3f} over {part} (chance {p['chance_r_speech']:.3f}; median per "
           f"clip {p['r_clip_median']:.3f}; interval {p['interval_r_speech']}){closures}{lve}\n"
-          f"results: {out / 'per_clip.csv'}, {out / 'scores.json'}")
+          f"results: {out}/ (per_clip.csv, scores.json, {figure})")
     return 0
 
 
 def _positive(value: str) -> int:
-    n = int(value)
+    """A count of 1 or more, for argparse (which shows the message of an ArgumentTypeError
+    only: ``error: argument --workers: 0; allowed: ...``)."""
+    try:
+        n = int(value)
+    except ValueError:
+        n = 0
     if n < 1:
-        raise ParameterError(f"--workers {value}; allowed: 1 or more")
+        raise argparse.ArgumentTypeError(f"{value}; allowed: a whole number, 1 or more")
     return n
 
 
@@ -118,7 +191,7 @@ def add_parser(sub) -> None:
     s.add_argument("--licence", default="", help="the videos' licence and attribution, kept "
                    "in corpus.json")
     s.add_argument("--keep-landmarks", type=Path, help="keep the raw landmarks (one .npz per "
-                   "clip) in this folder")
+                   "clip) in this folder (refused if it holds one of those names already)")
     s.set_defaults(func=cmd_from_video)
 
     s = sub.add_parser("evaluate-face", help="score a model's lips against real talking-face "
@@ -128,7 +201,10 @@ def add_parser(sub) -> None:
                    "run's voice-robust model)")
     s.add_argument("--runs-dir", type=Path, default=Path("runs"))
     s.add_argument("--speaker", help="the videos' speaker (default: their folder's name)")
-    s.add_argument("--out", type=Path, help="results folder (default: face_eval/<videos> "
-                   "beside the model)")
+    s.add_argument("--out", type=Path, help="results folder: per_clip.csv, scores.json, "
+                   "opening_<clip>.png (default: face_eval/<source>-<hash of its path> beside "
+                   "the model)")
+    s.add_argument("--overwrite", action="store_true", help="replace an earlier evaluation in "
+                   "that folder")
     s.add_argument("--workers", type=_positive, default=2)
     s.set_defaults(func=cmd_evaluate_face)

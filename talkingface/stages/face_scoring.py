@@ -9,8 +9,13 @@ neutral face plus the model's deformation (Eq. 2) from the audio. The neutral fa
 speaker the model was trained on, the one its Motion Units were fitted with (``neutrals`` in
 their metadata: training sentences only) or else the training corpus's
 (:func:`face_model.alignment.speaker_neutrals`) — then LVE is reported; for any other speaker
-the median of the aligned first frames of its clips here. The prediction has exactly the clip's
-frames (the model's frames cut, or the last one repeated, to the clip's ``n_frames``).
+the median of the aligned first frames of its clips here. Clips scored as a speaker the model
+was trained on must show that speaker's face: the median of their aligned first frames is
+compared with the speaker's neutral face (:func:`face_model.face_match.check_face_match`: the
+shape's misfit after a similarity fit, at most :data:`face_model.face_match.MAX_FACE_MISFIT` % of
+the face's size), and clips of another face are refused before any scoring. The prediction has
+exactly the clip's frames (the model's frames cut, or the last one repeated, to the clip's
+``n_frames``).
 
 Input rate: with ``input_rate`` the clip's audio is resampled (:func:`groundwork.audio.resample`)
 to that rate and the model (or peer) hears it at that rate.
@@ -27,12 +32,14 @@ from tqdm import tqdm
 from analysis.face_eval import ClipTrack, FaceScores, phone_segments, score_clips
 from face_model.alignment import align_markers, speaker_neutrals, unflatten
 from face_model.corpus import load_corpus
+from face_model.face_match import check_face_match
 from face_model.forced_align import align_audio
 from face_model.landmarks import extract_landmarks
 from face_model.layout import mouth_opening
 from face_model.transcripts import find_transcript
 from face_model.video_corpus import FPS as VIDEO_FPS
-from face_model.video_corpus import ClipRefused, FromVideoSettings, clip_data, find_videos
+from face_model.video_corpus import ClipRefused, FromVideoSettings, clip_data
+from face_model.video_import import check_sources
 from groundwork.audio import resample
 from groundwork.errors import CorpusError, TalkingFaceError
 from mapping.peers import peer_track
@@ -92,7 +99,7 @@ def clips_from_videos(src, *, speaker: str, workers: int = 2, progress: bool = T
     each clip's transcript, when one is found beside it, forced-aligned to give its phones
     (``unaligned``: ``(clip, why)`` of the clips without phones, hence without speech frames)."""
     settings = (settings or FromVideoSettings()).check()
-    videos = find_videos(src)
+    videos = check_sources(src)
     clips, refused, unaligned = [], [], []
     with tempfile.TemporaryDirectory(prefix="talkingface-face-") as tmp:
         tmp = Path(tmp)
@@ -156,6 +163,16 @@ def model_neutrals(animator, clips: list, aligned: dict, training_corpus=None
     return neutrals, trained
 
 
+def check_faces(clips: list, aligned: dict, neutrals: dict, trained: set) -> dict:
+    """``{speaker: misfit (percent)}`` of the clips of each speaker in ``trained`` against its
+    neutral face in ``neutrals``; raises :class:`groundwork.errors.ParameterError` naming the
+    speaker and its first clip when a misfit is above the threshold (module docstring)."""
+    own = _first_frame_neutrals(clips, aligned)
+    return {spk: check_face_match(spk, [c.clip for c in clips if c.speaker == spk], own[spk],
+                                  neutrals[spk])
+            for spk in sorted(trained)}
+
+
 def predicted_markers(animator, c: RealClip, neutral: np.ndarray, input_rate=None
                       ) -> np.ndarray:
     """The model's markers (n_frames, 79, 2) for clip ``c`` on ``neutral``: exactly the clip's
@@ -171,11 +188,14 @@ def score_model(animator, clips: list, *, training_corpus=None, input_rate=None,
 
     ``training_corpus`` (a loaded corpus or its folder), when given, names the speakers the
     model was trained on: their neutral face is the model's (module docstring) and their LVE is
-    scored. ``input_rate``: the audio's rate the model hears (Hz; None: the clip's own).
+    scored, once their own neutral face is found to fit it (:func:`check_faces`: clips of
+    another face raise :class:`groundwork.errors.ParameterError`). ``input_rate``: the audio's
+    rate the model hears (Hz; None: the clip's own).
     """
     alignment = animator.units.metadata_.get("alignment", "similarity")
     aligned = {c.clip: align_markers(c.markers, model=alignment) for c in clips}
     neutrals, trained = model_neutrals(animator, clips, aligned, training_corpus)
+    check_faces(clips, aligned, neutrals, trained)
     tracks = []
     for c in tqdm(clips, desc="scoring", unit="clip", disable=not progress, leave=False):
         pred = predicted_markers(animator, c, neutrals[c.speaker], input_rate)

@@ -1,13 +1,17 @@
 """Models and peers scored on real clips (talkingface.stages.face_scoring): the prediction has
-exactly the clip's frames at every input rate, and the clip's phones and no-face frames reach
-the scores."""
+exactly the clip's frames at every input rate, the clip's phones and no-face frames reach
+the scores, and clips of another face scored as a training speaker are refused (issue 42)."""
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
+import pytest
 
 from face_model.corpus import load_corpus
+from face_model.face_match import MAX_FACE_MISFIT
+from groundwork.errors import ParameterError
 from mapping.animator import FaceAnimator
 from talkingface.stages.face_scoring import (clips_from_corpus, peer_opening, score_model,
                                              score_peer, speech_span)
@@ -41,3 +45,31 @@ def test_the_transcript_peer_is_closed_outside_the_speech_span():
     assert o[a:b].max() > 0
     s = score_peer("loudness", [clip], input_rate=8000)
     assert s.tracks[0].n_frames == clip.n_frames
+
+
+def test_clips_of_another_face_scored_as_a_training_speaker_are_refused(small_corpus,
+                                                                         small_corpus_dir):
+    trained = train_small(small_corpus, method="linear", epochs=5)
+    animator = FaceAnimator(trained.mapping, trained.units)
+    synthetic = small_corpus.utterances[0].speaker
+    allowed = rf"at most {MAX_FACE_MISFIT:.1f} % allowed"
+    # real GRID s1 clips named as the model's synthetic speaker (the issue's case)
+    grid = [dataclasses.replace(c, speaker=synthetic) for c in clips_from_corpus(BUILTIN, IDS)]
+    with pytest.raises(ParameterError, match=rf"^clips bbaf3s \(and 1 more\) scored as speaker "
+                       rf"'{synthetic}' show another face: their neutral face misfits the "
+                       rf"speaker's by \d+\.\d % of the face's size .*{allowed}"):
+        score_model(animator, grid, training_corpus=small_corpus)
+    # the opposite: a synthetic clip named as the real speaker of the training corpus
+    first = small_corpus.utterances[0].utt_id
+    synth = [dataclasses.replace(c, speaker="grid-s1")
+             for c in clips_from_corpus(small_corpus_dir, [first])]
+    with pytest.raises(ParameterError, match=rf"^clip {first} scored as speaker 'grid-s1' shows "
+                       rf"another face: .*{allowed}"):
+        score_model(animator, synth, training_corpus=load_corpus(BUILTIN))
+    # each under its own name: scored, with LVE on the training speaker's
+    own = score_model(animator, clips_from_corpus(small_corpus_dir, [first]),
+                      training_corpus=small_corpus)
+    assert own.pooled["lve_clips"] == 1
+    # a speaker the model was not trained on has no neutral to compare: scored without LVE
+    unseen = score_model(animator, grid, training_corpus=load_corpus(BUILTIN))
+    assert unseen.pooled["lve_clips"] == 0
