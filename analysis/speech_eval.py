@@ -50,10 +50,12 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from analysis.figures import phone_labels, report_figure
 from analysis.speech_scores import (LABIODENTALS, VOWELS, ChanceTerms, Contact,  # noqa: F401
@@ -304,14 +306,17 @@ class ModelScores:
 
 
 def score_model(name: str, mapping, units, items, seen=frozenset(), *, rates=(NATIVE,),
-                lookahead_s: float = 0.1, check_item=None) -> ModelScores:
+                lookahead_s: float = 0.1, check_item=None, progress: bool = True
+                ) -> ModelScores:
     """Score ``mapping`` (an AudioMapping) with its Motion Units ``units`` on the recordings
     ``items`` at each input rate of ``rates``; a recording is *seen* when its ``speaker`` is in
     ``seen``. The streaming column (named after the targets' ``lookahead_s``) holds the model's
     live output when it can stream, at its own look-ahead (``stream["lookahead_s"]``: its
     context plus half its analysis window, e.g. 112.5 ms for 3 frames and a 25 ms window;
     the report states it); ``check_item``: the recording on which the live and offline
-    markers are compared (a model whose live output differs gets no streaming figure)."""
+    markers are compared (a model whose live output differs gets no streaming figure);
+    ``progress``: a bar of the recordings scored on stderr (the scores are the same either
+    way)."""
     animator = FaceAnimator(mapping, units)
     synth, seed = synth_of(mapping)
     threshold = closed_threshold(animator.neutral)
@@ -324,9 +329,11 @@ def score_model(name: str, mapping, units, items, seen=frozenset(), *, rates=(NA
         check["checked_on"] = check_item.id
         streams = check["max_marker_diff_px"] < 1e-3
     check["stream_equals_offline"] = bool(streams)
+    jobs = [(rate, it) for rate in rates for it in items]
     files = [score_file(animator, it, synth, seed, seen=it.speaker in seen,
                         threshold=threshold, rate=rate, stream=streams)
-             for rate in rates for it in items]
+             for rate, it in tqdm(jobs, desc=name, unit="recording", file=sys.stderr,
+                                  disable=not progress)]
     return ModelScores(name, threshold, files, check)
 
 

@@ -24,9 +24,11 @@ pocketsphinx — with the speakers and recordings behind each row and speaker-le
 """
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from analysis.figures import report_figure
 from analysis.speech_eval import rate_audio
@@ -137,8 +139,8 @@ def recognised(recogniser: str, y: np.ndarray, sr: int, fps: int = 30) -> tuple:
 
 
 def recogniser_scores(items, seen=frozenset(), *, delay_s: float = 0.1, fps: int = 30,
-                      recognisers=tuple(NAMES), rates=("native",), summary: bool = True
-                      ) -> tuple[list, list, list]:
+                      recognisers=tuple(NAMES), rates=("native",), summary: bool = True,
+                      progress: bool = True) -> tuple[list, list, list]:
     """``(per-file rows, pooled rows, look-ahead rows)`` of each recogniser on the recordings
     ``items`` (``analysis.speech_set``) at each input rate of ``rates``
     (:func:`analysis.speech_eval.rate_audio`): phone and viseme frame accuracy of the whole
@@ -149,7 +151,8 @@ def recogniser_scores(items, seen=frozenset(), *, delay_s: float = 0.1, fps: int
     so it is a lower bound there (``summary=False``: no pooled rows, for a caller that pools
     every system together). Each per-file row carries its numerators (``*_hits``) and the
     chance baseline of its whole-utterance visemes (:func:`analysis.speech_scores.chance_scores`)
-    for :mod:`analysis.speech_pooling`."""
+    for :mod:`analysis.speech_pooling`. ``progress``: a bar of the recordings heard (each
+    recogniser at each rate) on stderr; the rows are the same either way."""
     key = f"viseme_acc_stream_{round(1000 * delay_s)}ms"
     delay_frames = round(delay_s * fps)
     if delay_frames not in LOOKAHEAD_FRAMES or abs(delay_frames / fps - delay_s) > 1e-9:
@@ -160,36 +163,41 @@ def recogniser_scores(items, seen=frozenset(), *, delay_s: float = 0.1, fps: int
         if recogniser not in NAMES:
             raise ParameterError(f"unknown recogniser {recogniser!r}; allowed: "
                                  f"{', '.join(NAMES)}")
-        name = NAMES[recogniser]
-        for rate in rates:
-            for it in items:
-                y, sr, note = rate_audio(it, rate)
-                n = label_frames(len(y), sr, fps)
-                whole, streams = recognised(recogniser, y, sr, fps)
-                what = f"{name} on {it.id} at {rate}"
-                whole = fit_frames(whole, n, what=what)
-                streams = {k: fit_frames(s, n, what=what) for k, s in streams.items()}
-                true = phone_frames(it.phones, np.arange(n) / fps)
-                vtrue = viseme_index(true)
-                vis = viseme_index(whole)
-                hits = {"phone": true == whole, "viseme": vtrue == vis,
-                        **{k: vtrue == viseme_index(s) for k, s in streams.items()}}
-                chance = chance_scores(true, fps, it.phones, visemes=vis)
-                row = {"model": name, "id": it.id, "speaker": it.speaker,
-                       "split": "seen" if it.speaker in seen else "unseen", "part": it.part,
-                       "labels": LABELS[0] if it.independent else LABELS[1],
-                       "input_rate": str(rate), "rate_note": note,
-                       "seconds": round(len(y) / sr, 3), "frames": n,
-                       "phone_acc": float(hits["phone"].mean()),
-                       "phone_hits": int(hits["phone"].sum()),
-                       "viseme_acc": float(hits["viseme"].mean()),
-                       "viseme_hits": int(hits["viseme"].sum()),
-                       key: float(hits[delay_frames].mean()),
-                       "viseme_stream_hits": int(hits[delay_frames].sum()),
-                       "chance_viseme_hits": chance.viseme_hits / chance.n_shifts}
-                files.append(row)
-                if str(rate) == "native":
-                    curve_hits.setdefault(name, []).append((row, hits))
+    with tqdm(total=len(recognisers) * len(rates) * len(items), desc="recognisers",
+              unit="recording", file=sys.stderr, disable=not progress) as bar:
+        for recogniser in recognisers:
+            name = NAMES[recogniser]
+            bar.set_postfix_str(recogniser, refresh=False)
+            for rate in rates:
+                for it in items:
+                    y, sr, note = rate_audio(it, rate)
+                    n = label_frames(len(y), sr, fps)
+                    whole, streams = recognised(recogniser, y, sr, fps)
+                    what = f"{name} on {it.id} at {rate}"
+                    whole = fit_frames(whole, n, what=what)
+                    streams = {k: fit_frames(s, n, what=what) for k, s in streams.items()}
+                    true = phone_frames(it.phones, np.arange(n) / fps)
+                    vtrue = viseme_index(true)
+                    vis = viseme_index(whole)
+                    hits = {"phone": true == whole, "viseme": vtrue == vis,
+                            **{k: vtrue == viseme_index(s) for k, s in streams.items()}}
+                    chance = chance_scores(true, fps, it.phones, visemes=vis)
+                    row = {"model": name, "id": it.id, "speaker": it.speaker,
+                           "split": "seen" if it.speaker in seen else "unseen", "part": it.part,
+                           "labels": LABELS[0] if it.independent else LABELS[1],
+                           "input_rate": str(rate), "rate_note": note,
+                           "seconds": round(len(y) / sr, 3), "frames": n,
+                           "phone_acc": float(hits["phone"].mean()),
+                           "phone_hits": int(hits["phone"].sum()),
+                           "viseme_acc": float(hits["viseme"].mean()),
+                           "viseme_hits": int(hits["viseme"].sum()),
+                           key: float(hits[delay_frames].mean()),
+                           "viseme_stream_hits": int(hits[delay_frames].sum()),
+                           "chance_viseme_hits": chance.viseme_hits / chance.n_shifts}
+                    files.append(row)
+                    if str(rate) == "native":
+                        curve_hits.setdefault(name, []).append((row, hits))
+                    bar.update()
     curve = []
     for name, pairs in curve_hits.items():
         for split, keep in SPLITS.items():

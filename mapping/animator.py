@@ -33,7 +33,7 @@ from groundwork.errors import ParameterError
 from mapping.checkpoint import rest_mups
 from mapping.features import (MFCC_SETTINGS, algorithmic_latency_s, hop_samples, mfcc,
                                window_dbfs, window_future)
-from mapping.recogniser import phone_stream
+from mapping.recogniser import phone_stream, progress_bars
 
 
 class FaceAnimator:
@@ -73,19 +73,25 @@ class FaceAnimator:
         does."""
         return self.mapping.check_expression(expression)
 
-    def mups(self, y: np.ndarray, sr: int, expression: str = "neutral") -> np.ndarray:
+    def mups(self, y: np.ndarray, sr: int, expression: str = "neutral", *,
+             progress: bool = False) -> np.ndarray:
         """MUPs (n_frames, A0 + Ak) of mono audio, with the silence rule applied (the mapping's
-        one audio → MUP entry point, :meth:`AudioMapping.predict_audio`)."""
-        return self.mapping.predict_audio(y, sr, expression)
+        one audio → MUP entry point, :meth:`AudioMapping.predict_audio`). ``progress``: the
+        recogniser front end, when the gate has one, prints its cost line and bar on stderr
+        (:func:`mapping.recogniser.feed`); the MUPs are the same either way."""
+        with progress_bars(progress):
+            return self.mapping.predict_audio(y, sr, expression)
 
     def markers(self, mups: np.ndarray, expression: str = "neutral") -> np.ndarray:
         """Markers (n_frames, 79, 2) in pixels from MUPs (Eq. 2 plus the neutral face)."""
         d = self.units.inverse_transform(mups, expression)
         return self.neutral[None] + unflatten(d)
 
-    def animate(self, y: np.ndarray, sr: int, expression: str = "neutral"):
-        """``(mups, markers)`` for mono audio ``y`` at ``sr`` Hz."""
-        mups = self.mups(y, sr, expression)
+    def animate(self, y: np.ndarray, sr: int, expression: str = "neutral", *,
+                progress: bool = False):
+        """``(mups, markers)`` for mono audio ``y`` at ``sr`` Hz (``progress``: see
+        :meth:`mups`)."""
+        mups = self.mups(y, sr, expression, progress=progress)
         return mups, self.markers(mups, expression)
 
 

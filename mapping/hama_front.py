@@ -37,7 +37,12 @@ to ``delay_frames`` frames past it: the look-ahead is a bound. At the end of the
 decode decides the rest. Every decision reads only the blocks fed, never how the
 caller cut its chunks, so offline (:func:`mapping.recogniser.recognise_windows`) and live give
 the same phones for any chunking. The cost is one model run on ``window_s`` of audio per
-``hop_frames`` frames (``bench/bench_streaming.py`` measures it).
+``hop_frames`` frames (``bench/bench_streaming.py`` measures it). That is also what lets a long
+recording show its progress: :func:`mapping.recogniser.recognise_windows` with ``progress``
+feeds the stream a second at a time under a bar, with one line of the cost measured on the
+first seconds (:func:`mapping.recogniser.feed`), and hears the same phones.
+:func:`whole_utterance` is one model run on all the audio, the offline reference only: it has
+no progress of its own (the passes over many recordings count recordings).
 """
 from __future__ import annotations
 

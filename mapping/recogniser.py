@@ -43,17 +43,28 @@ Every stream gets a fresh decoder (pocketsphinx's live cepstral mean carries ove
 utterance to the next in one decoder, which would make a phone depend on what was decoded
 before). Phones are the 39 ARPAbet phones plus silence (noise fillers are silence), as indices
 of the project's 44 classes (:data:`face_model.phones.PHONE_INDEX`).
+
+Hearing a long recording takes minutes (its cost grows with its length):
+:func:`recognise_windows` with ``progress`` (or inside :func:`progress_bars`) prints one line
+of the cost measured on the first seconds and a bar of the audio heard, on stderr
+(:func:`feed`); the phones are the same with it or without.
 """
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import hashlib
 import os
+import sys
+import time
 
 import numpy as np
 import soxr
 from pocketsphinx import Decoder, get_model_path
+from tqdm import tqdm
 
 from face_model.phones import PHONE_INDEX, PHONES
+from groundwork.audio import seconds_to_samples
 from groundwork.errors import ParameterError
 from mapping import hama_front
 
@@ -68,6 +79,13 @@ MIN_UTTERANCE_S = 5.0  # an utterance may end at a pause once it is this long (s
 PAUSE_S = 0.3  # silence at the end of the hypothesis that makes a pause (s)
 MAX_UTTERANCE_S = 30.0  # an utterance ends here without a pause (s)
 _SAMPLES_PER_DECODER_FRAME = RECOGNISER_RATE // RECOGNISER_FPS
+PROGRESS_STEP_S = 1.0  # seconds of audio fed between two updates of the progress bar
+COST_SAMPLE_S = 2.0  # seconds of audio whose cost is measured for the cost line
+# tqdm's bar of seconds of audio (total=samples, unit_scale=1 / sample rate)
+AUDIO_BAR = ("{l_bar}{bar}| {n:.1f}/{total:.1f} s [{elapsed}<{remaining}, "
+             "{rate_fmt}{postfix}]")
+# whether recognise_windows shows its bar when not told (progress_bars sets it for a block)
+_PROGRESS = contextvars.ContextVar("recogniser_progress", default=False)
 
 
 def new_decoder() -> Decoder:
@@ -286,21 +304,77 @@ def phone_stream(recogniser: str, sample_rate: int, fps: int = 30, delay_frames:
 
 
 def recognise_windows(y: np.ndarray, sample_rate: int, *, fps: int = 30, delay_frames: int = 3,
-                      back: int = 0, recogniser: str = "pocketsphinx") -> np.ndarray:
+                      back: int = 0, recogniser: str = "pocketsphinx",
+                      progress: bool | None = None) -> np.ndarray:
     """The window of phones (n_frames, back + 1 + delay_frames) of every frame of a whole
     utterance, exactly as the recogniser's stream fed the same audio live decides them;
-    ``ceil(n_samples / hop)`` frames. Column ``back`` is each frame's phone."""
+    ``ceil(n_samples / hop)`` frames. Column ``back`` is each frame's phone. ``progress``: a
+    cost line and a bar on stderr while the audio is heard (:func:`feed`; None: as
+    :func:`progress_bars` says, off by default); the windows are the same either way."""
     y = np.ascontiguousarray(y, dtype=np.float32)
     key = (recogniser, int(sample_rate), int(fps), int(delay_frames), int(back),
            hashlib.sha1(y.tobytes()).hexdigest())
     if key not in _HEARD:
         stream = phone_stream(recogniser, sample_rate, fps, delay_frames, back)
-        stream.push_windows(y)
-        stream.flush_windows()
+        feed(stream, y, sample_rate, name=recogniser,
+             progress=_PROGRESS.get() if progress is None else progress)
         if len(_HEARD) >= _HEARD_SIZE:
             _HEARD.pop(next(iter(_HEARD)))
         _HEARD[key] = stream.windows
     return _HEARD[key].copy()
+
+
+@contextlib.contextmanager
+def progress_bars(on: bool = True):
+    """Within the block, :func:`recognise_windows` called without ``progress`` shows its cost
+    line and bar when ``on`` (for a caller that reaches it through other code, e.g.
+    :meth:`mapping.checkpoint.AudioMapping.predict_audio`)."""
+    token = _PROGRESS.set(bool(on))
+    try:
+        yield
+    finally:
+        _PROGRESS.reset(token)
+
+
+def cost_line(name: str, audio_s: float, work_per_s: float, measured_s: float) -> str:
+    """One line of what hearing ``audio_s`` seconds of audio will cost at ``work_per_s``
+    seconds of work per second of audio, as measured on the first ``measured_s`` seconds."""
+    total = audio_s * work_per_s
+    about = f"{total:.0f} s" if total < 90 else f"{total / 60:.0f} min"
+    return (f"{name}: {audio_s:.1f} s of audio, ~{work_per_s:.2f} s of work per s of audio "
+            f"(about {about} on this machine, measured on the first {measured_s:.1f} s)")
+
+
+def feed(stream, y: np.ndarray, sample_rate: int, *, name: str = "phones",
+         progress: bool = False) -> None:
+    """Push all of mono audio ``y`` at ``sample_rate`` Hz into a phone stream (a
+    :class:`PhoneStream` or :class:`~mapping.hama_front.HamaStream`) and flush it.
+
+    With ``progress`` the audio goes in steps of :data:`PROGRESS_STEP_S` seconds under a bar on
+    stderr (seconds of audio heard), and once the first :data:`COST_SAMPLE_S` seconds are heard
+    one line (:func:`cost_line`) gives their measured cost per second of audio and the time the
+    whole will take at that rate. A stream decides from the blocks fed, never from how the
+    chunks were cut (the streams' docstrings), so the windows are those of one push of the whole
+    audio (tests/mapping/test_progress_front.py checks it)."""
+    if not progress:
+        stream.push_windows(y)
+        stream.flush_windows()
+        return
+    first = min(len(y), max(1, seconds_to_samples(COST_SAMPLE_S, sample_rate)))
+    step = max(1, seconds_to_samples(PROGRESS_STEP_S, sample_rate))
+    with tqdm(total=len(y), unit=" s of audio", unit_scale=1 / sample_rate, desc=name,
+              bar_format=AUDIO_BAR, file=sys.stderr) as bar:
+        t0 = time.perf_counter()
+        stream.push_windows(y[:first])
+        spent = time.perf_counter() - t0
+        bar.update(first)
+        if first:
+            bar.write(cost_line(name, len(y) / sample_rate, spent * sample_rate / first,
+                                first / sample_rate), file=sys.stderr)
+        for i in range(first, len(y), step):
+            stream.push_windows(y[i:i + step])
+            bar.update(min(step, len(y) - i))
+        stream.flush_windows()
 
 
 # the windows of the last utterances recognised, by recogniser, settings and audio: scoring a

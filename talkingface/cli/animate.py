@@ -6,11 +6,13 @@ mapping, and a run's voice-robust model when it has one).
 """
 from __future__ import annotations
 
+import sys
 import time
 from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from face_model.keyframes import KeyframeModel, write_keyframe_tracks
 from face_model.render import FaceRenderer
@@ -23,6 +25,7 @@ from talkingface.cli.live import MicrophoneStats, microphone_chunks, run_stream,
 from talkingface.stages.models import load_animator
 
 
+PASSES_BAR = "{desc}: {percentage:3.0f}%|{bar}| {n}/{total} passes [{elapsed}{postfix}]"
 CLIP_LEVEL = 0.999
 CLIP_WARN_FRACTION = 0.001
 
@@ -42,7 +45,14 @@ def animate_file(wav, out_mp4, *, expression: str = "neutral", model: str | None
                  markers_out=None, keyframes_out=None, runs_dir="runs",
                  progress: bool = True, overwrite: bool = False) -> dict:
     """WAV → MP4 (and optionally markers .npy and keyframe tracks); returns a summary. An
-    existing output file is replaced only with ``overwrite``."""
+    existing output file is replaced only with ``overwrite``.
+
+    With ``progress`` the passes report on stderr as they go: a bar over the two passes
+    (:func:`passes`: the audio to MUPs, then the render) names the audio's length and frames
+    and the pass under way; inside it the recogniser front end, when the model's gate has one,
+    prints its cost measured on the first seconds of audio and its bar
+    (:func:`mapping.recogniser.feed`), then the render shows its bar
+    (:func:`groundwork.movie.write_mp4`). The outputs are the same either way."""
     animator, tfmap = load_animator(model, runs_dir)
     animator.check_expression(expression)
     # every output and input is checked before the render, so a mistake costs no work
@@ -61,12 +71,19 @@ def animate_file(wav, out_mp4, *, expression: str = "neutral", model: str | None
                                  "run `talkingface replicate` for it")
         keyframes = KeyframeModel.load(kf_path)
     y, sr, warn = read_speech(wav)
+    desc, names = passes(animator, len(y), sr)
     t0 = time.perf_counter()
-    mups, markers = animator.animate(y, sr, expression)
-    renderer = FaceRenderer()
-    fps = animator.mapping.fps
-    write_mp4(out_mp4, (renderer.render(m) for m in markers), len(markers), renderer.size,
-              fps=fps, audio_path=wav, progress=progress)
+    with tqdm(total=len(names), desc=desc, bar_format=PASSES_BAR, file=sys.stderr,
+              disable=not progress) as bar:
+        bar.set_postfix_str(names[0])
+        mups, markers = animator.animate(y, sr, expression, progress=progress)
+        bar.update()
+        bar.set_postfix_str(names[1])
+        renderer = FaceRenderer()
+        fps = animator.mapping.fps
+        write_mp4(out_mp4, (renderer.render(m) for m in markers), len(markers), renderer.size,
+                  fps=fps, audio_path=wav, progress=progress)
+        bar.update()
     seconds = time.perf_counter() - t0
     if markers_out:
         with atomic_file(markers_out) as tmp, open(tmp, "wb") as f:
@@ -78,6 +95,18 @@ def animate_file(wav, out_mp4, *, expression: str = "neutral", model: str | None
     return {"frames": len(markers), "audio_s": duration, "seconds": seconds,
             "x_realtime": duration / seconds if seconds > 0 else float("inf"),
             "model": str(tfmap), "warning": warn}
+
+
+def passes(animator, n_samples: int, sr: int) -> tuple[str, list[str]]:
+    """What ``talkingface animate`` does with ``n_samples`` of audio at ``sr`` Hz: the
+    description of its bar (the audio's length and its frames, one per started 1 / fps s) and
+    the names of its two passes, in order."""
+    m = animator.mapping
+    n = -(-n_samples * m.fps // sr)
+    front = (f"the phones heard by {getattr(m.mapper, 'recogniser', 'pocketsphinx')}, "
+             if m.needs_phones else "")
+    return (f"animate {n_samples / sr:.1f} s of audio (~{n} frames at {m.fps} fps)",
+            [f"{front}the network", "the render"])
 
 
 def _streaming(model, expression, runs_dir):
@@ -95,15 +124,17 @@ def _summary(stats, tfmap, warn) -> dict:
 
 def stream_file(wav, *, expression: str = "neutral", model: str | None = None, runs_dir="runs",
                 chunk_s: float = 0.01, paced: bool = True, show: bool = False,
-                on_frame=None) -> dict:
+                on_frame=None, progress: bool = True) -> dict:
     """Play a WAV through the :class:`~mapping.animator.StreamingAnimator` in chunks of
     ``chunk_s`` seconds, paced in real time unless ``paced`` is False; returns the figures of
-    :func:`talkingface.cli.live.run_stream`."""
+    :func:`talkingface.cli.live.run_stream` (``progress``: its cost line and bar on stderr; the
+    frames are the same either way)."""
     stream, animator, tfmap = _streaming(model, expression, runs_dir)
     y, sr, warn = read_speech(wav)
     y = animator.mapping.at_model_rate(y, sr)
     stats = run_stream(stream, wav_chunks(y, stream.sr, chunk_s=chunk_s, paced=paced),
-                       show=show, on_frame=on_frame)
+                       show=show, on_frame=on_frame, progress=progress,
+                       total_samples=len(y), paced_input=paced)
     return _summary(stats, tfmap, warn)
 
 

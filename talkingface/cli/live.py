@@ -13,21 +13,31 @@ shows the face if asked and measures:
   ALSA null device delivers silence as fast as it is read), is reported as not paced and its
   latency is not claimed.
 
+With ``progress`` a stream of known length shows a bar of the audio streamed on stderr and,
+once :data:`COST_SAMPLE_S` seconds have been pushed, one line of the animator's measured work
+per second of audio and what the whole will take (:func:`cost_line`).
+
 The microphone is read with ``sounddevice`` (PortAudio; the Debian package ``libportaudio2``)
 in blocking reads of 16-bit samples at the mapping's sample rate, or at the device's own rate with streaming
 resampling (``soxr``) when the device refuses that rate.
 """
 from __future__ import annotations
 
+import sys
 import time
 from dataclasses import dataclass
 
 import numpy as np
 import soxr
+from tqdm import tqdm
 
 from face_model.render import FaceRenderer
 from groundwork.audio import seconds_to_samples
 from groundwork.errors import ParameterError
+from mapping.recogniser import AUDIO_BAR
+
+
+COST_SAMPLE_S = 2.0  # seconds of audio whose cost the cost line reports
 
 
 @dataclass
@@ -172,7 +182,20 @@ def microphone_chunks(sr: int, *, seconds: float | None, device=None, chunk_s: f
             yield np.ascontiguousarray(chunk, dtype=np.float32), now
 
 
-def run_stream(stream, chunks, *, show: bool = False, on_frame=None) -> StreamStats:
+def cost_line(audio_s: float, work_s: float, measured_s: float, paced: bool) -> str:
+    """One line of what streaming ``audio_s`` seconds will cost, from ``work_s`` seconds of the
+    animator's work on the first ``measured_s`` seconds of audio; a paced stream takes the
+    audio's own duration."""
+    per_s = work_s / measured_s
+    total = audio_s if paced else audio_s * per_s
+    about = f"{total:.0f} s" if total < 90 else f"{total / 60:.0f} min"
+    return (f"stream: {audio_s:.1f} s of audio, ~{per_s:.2f} s of work per s of audio "
+            f"(about {about}{', paced in real time' if paced else ''} on this machine, "
+            f"measured on the first {measured_s:.1f} s)")
+
+
+def run_stream(stream, chunks, *, show: bool = False, on_frame=None, progress: bool = False,
+               total_samples: int | None = None, paced_input: bool = False) -> StreamStats:
     """Push ``(chunk, capture_end_wall)`` pairs through ``stream``, then flush it; see the
     module text for the figures.
 
@@ -187,6 +210,14 @@ def run_stream(stream, chunks, *, show: bool = False, on_frame=None) -> StreamSt
         Show the face in a window as frames are emitted.
     on_frame : callable, optional
         Called with each emitted :class:`~mapping.animator.StreamFrame`.
+    progress : bool
+        A bar of the seconds of audio streamed and one cost line (:func:`cost_line`) on stderr;
+        the frames are the same either way.
+    total_samples : int, optional
+        The length of the audio at ``stream.sr`` Hz, when known (the bar's total; the cost
+        line needs it).
+    paced_input : bool
+        Whether the chunks come in real time (for the cost line only).
 
     Returns
     -------
@@ -198,14 +229,18 @@ def run_stream(stream, chunks, *, show: bool = False, on_frame=None) -> StreamSt
         renderer = FaceRenderer()
     fps, sr = stream.fps, stream.sr
     compute, emitted = [], []  # emitted: (frame index, wall time)
-    origin, n_samples = np.inf, 0
+    origin, n_samples_in = np.inf, 0
     t_first = None
+    work, cost_at = 0.0, seconds_to_samples(COST_SAMPLE_S, sr)  # the cost line's figures
+    bar = tqdm(total=total_samples, unit=" s of audio", unit_scale=1 / sr, desc="stream",
+               bar_format=AUDIO_BAR if total_samples else None, file=sys.stderr,
+               disable=not progress)
     try:
         for chunk, t_end in chunks:
             if t_first is None:
                 t_first = t_end - len(chunk) / sr
-            n_samples += len(chunk)
-            origin = min(origin, t_end - n_samples / sr)
+            n_samples_in += len(chunk)
+            origin = min(origin, t_end - n_samples_in / sr)
             c0 = time.perf_counter()
             out = stream.push(chunk)
             now = time.perf_counter()
@@ -213,12 +248,22 @@ def run_stream(stream, chunks, *, show: bool = False, on_frame=None) -> StreamSt
             for f in out:
                 emitted.append((f.index, now))
                 _deliver(f, on_frame, renderer)
+            if progress and cost_at is not None:
+                work += now - c0
+                if n_samples_in >= min(cost_at, total_samples or cost_at):
+                    if total_samples is not None:
+                        bar.write(cost_line(total_samples / sr, work, n_samples_in / sr,
+                                            paced_input), file=sys.stderr)
+                    cost_at = None
+            bar.update(len(chunk))
     except KeyboardInterrupt:
         pass  # Ctrl-C ends a microphone session; what was captured is still flushed
+    finally:
+        bar.close()
     for f in stream.flush():
         emitted.append((f.index, time.perf_counter()))
         _deliver(f, on_frame, renderer)
-    audio_s = n_samples / sr
+    audio_s = n_samples_in / sr
     wall_s = (time.perf_counter() - t_first) if t_first is not None else 0.0
     paced = audio_s > 0 and wall_s >= 0.8 * audio_s
     lat = np.array([t - (origin + k / fps) for k, t in emitted]) if emitted and paced else None
