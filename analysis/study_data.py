@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from groundwork.errors import ParameterError
+from groundwork.errors import ParameterError, first_few
 from study.columns import (ALLOWED_CODES, BLOCK_SIZES, COLUMNS, REQUIRED_COLUMNS, csv_text,
                            read_data_file)
 from study.data import Allocation, data_path, sidecar_path
@@ -147,21 +147,26 @@ def read_study(study_dir, *, allow_incomplete: bool = False) -> StudyData:
                   "and has no data file")
         incomplete.append(Incomplete(pid, 0, "", slot["status"], reason, analysed=False))
         problems.append(f"participant {pid} {reason} (0 of {N_TRIALS} judgments)")
-    for slot in _unrun_simulated(root, frames):  # a simulation cut between participants
-        reason = ("planned by the simulation (its allocation.csv has a slot per simulated "
-                  "participant) and not run: `talkingface study simulate` with the same "
-                  "settings goes on")
+    unrun = list(_unrun_simulated(root, frames))  # a simulation cut between participants
+    reason = ("planned by the simulation (its allocation.csv has a slot per simulated "
+              "participant) and not run: `talkingface study simulate` with the same "
+              "settings goes on")
+    for slot in unrun:
         incomplete.append(Incomplete(f"slot {slot}", 0, "", "free", reason, analysed=False))
-        problems.append(f"the participant of slot {slot} was {reason}")
+    if unrun:
+        who = ("the participant of slot" if len(unrun) == 1 else
+               f"the {len(unrun)} participants of slots")
+        problems.append(f"{who} {first_few(unrun, sep=', ')} {'was' if len(unrun) == 1 else 'were'} "
+                        f"{reason}")
     if incomplete and not allow_incomplete:
         raise ParameterError(
             f"{root} holds incomplete sessions, which are not analysed unless allowed: "
-            + "; ".join(problems) + ". Analyse the complete sessions alone with "
+            + first_few(problems) + ". Analyse the complete sessions alone with "
             "`talkingface analyze DIR --allow-incomplete` (allow_incomplete=True), or complete "
             "the sessions first (`talkingface study run --participant ID --resume`)")
     if not frames:
         raise ParameterError(f"{root}: no complete session to analyse (incomplete: "
-                             + "; ".join(i.describe() for i in incomplete) + ")")
+                             + first_few(i.describe() for i in incomplete) + ")")
     df = pd.concat(frames, ignore_index=True)
     seen: dict[str, str] = {}
     for pid, file in zip(df["participant_id"], df["file"]):

@@ -19,3 +19,11 @@ class CorpusError(TalkingFaceError):
 
 class NotFittedError(TalkingFaceError, AttributeError):
     """An estimator was used before ``fit`` was called."""
+
+
+def first_few(items, n: int = 3, sep: str = "; ") -> str:
+    """The first ``n`` of ``items`` joined by ``sep``, and how many more there are, for a message
+    of one line however many things it names (``"a; b; c; and 297 more"``)."""
+    items = [str(i) for i in items]
+    more = f"{sep}and {len(items) - n} more" if len(items) > n else ""
+    return sep.join(items[:n]) + more

@@ -142,6 +142,14 @@ class VoicesConfig:
 
 MAX_SEED = 2**31 - 1  # derived seeds add offsets; scikit-learn takes seeds < 2**32
 
+# The settings that name data outside the run (a folder or a file). Each is read and checked
+# before any stage runs, by the key of the stage that reads it (``Stage.inputs`` or
+# ``Stage.files``, called by ``talkingface.stages.preflight``), and refused in one line that
+# names the setting; a new one belongs here and there (tests/talkingface/
+# test_config.py finds the settings whose names say they name data).
+DATA_SETTINGS = ("corpus.source", "real_speaker.corpus", "synth.text_file", "ablations.grid",
+                 "ceiling.grid", "voices.grid")
+
 
 @dataclass(frozen=True)
 class Config:

@@ -7,7 +7,6 @@ line (``error: ...``) with exit status 2.
 from __future__ import annotations
 
 import argparse
-import errno
 import math
 import os
 import signal
@@ -29,6 +28,8 @@ from talkingface.cli import cache as cache_cli, faces as faces_cli, lab_server a
 from talkingface.cli.animate import animate_file, stream_file, stream_microphone
 from talkingface.cli.args import (config_args, corpus_arg, grid_args, grid_overrides,
                                   resolve_config, run_args, visual_source_arg)
+from talkingface.cli.errors import error_line, os_error_line
+from talkingface.cli.interrupts import INTERRUPTED, interrupts_for, end_after_interrupt
 from talkingface.cli.live import input_devices
 from talkingface.config import apply_overrides, dump_config, load_config
 from talkingface.experiments.log import (artifact_root, check_tracking, log_speech_eval_model,
@@ -439,40 +440,22 @@ def main(argv=None) -> int:
         return exc.code
     keep_freed_memory()  # every epoch's tensors reuse memory (groundwork.memory)
     try:
-        return args.func(args)
+        with interrupts_for(args.command):  # Ctrl-C: this process's, not its workers'
+            return args.func(args)
     except TalkingFaceError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(error_line(str(exc)), file=sys.stderr)
     except OSError as exc:  # a path that is missing, a folder, unreadable or not writable
-        if exc.errno in OUT_OF_ROOM:  # whatever file it was: what ran out is the news
-            where = f" writing {exc.filename}" if exc.filename else ""
-            print(f"error: {os.strerror(exc.errno)}{where}; nothing finished was replaced: "
-                  "free some space and run the command again", file=sys.stderr)
-            return 2
-        if exc.filename is None:
+        line = os_error_line(exc)
+        if line is None:  # no path to name: a bug
             raise
-        print(f"error: {exc.filename}: {_os_problem(exc)}", file=sys.stderr)
+        print(line, file=sys.stderr)
     except KeyboardInterrupt:
-        print("interrupted: finished stages and files are kept; unfinished ones were not "
-              "written under their names (a grid's finished tasks are: the same command goes "
-              "on from them)", file=sys.stderr)
+        print(INTERRUPTED, file=sys.stderr)
+        end_after_interrupt()
         return 130
     finally:
         release_all()  # the runs and sessions this command held
     return 2
-
-
-# A write that failed for want of room (a full disk, a quota): one line, whatever the file.
-OUT_OF_ROOM = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
-
-
-def _os_problem(exc: OSError) -> str:
-    """What went wrong with the path of ``exc``, in words (a file where a folder is needed is
-    "File exists" or "Not a directory" to the operating system)."""
-    if isinstance(exc, FileExistsError) and Path(exc.filename).is_file():
-        return "is a file; a folder is needed here"
-    if isinstance(exc, NotADirectoryError):
-        return "a part of this path is a file; a folder is needed there"
-    return exc.strerror or str(exc)
 
 
 def entry() -> None:

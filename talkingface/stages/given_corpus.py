@@ -14,7 +14,9 @@ it lists) and a SHA-256 of the other files taken (``corpus.json``, a corpus from
 ``quality/`` files): a changed corpus is copied again, with everything downstream of it; an
 unchanged one is reused. A corpus is read and hashed once per process however often
 its key is asked for, while its files keep their sizes and modification times
-(:func:`_signature`).
+(:func:`_signature`). The real speaker's corpus (``real_speaker.corpus``,
+:mod:`talkingface.stages.real_speaker`) is checked by the same :func:`check_folder`, under its
+own setting's name.
 
 Hard links share the files with the source folder: edit a given corpus by writing new files
 (as the project's writers do), never in place.
@@ -47,8 +49,8 @@ def source_folder(cfg) -> Path:
     return Path(cfg.corpus.source).expanduser().absolute()
 
 
-def _refuse(src: Path, problem: str) -> CorpusError:
-    return CorpusError(f"corpus.source {src}: {problem}")
+def _refuse(src: Path, problem: str, setting: str = "corpus.source") -> CorpusError:
+    return CorpusError(f"{setting} {src}: {problem}")
 
 
 def corpus_files(root: Path) -> list[Path]:
@@ -89,38 +91,46 @@ def _signature(root: Path) -> tuple | None:
 
 
 def check_source(cfg) -> dict:
-    """Validate the given corpus of ``cfg`` with :func:`face_model.corpus.load_corpus` and sum
-    it up: ``corpus_hash``, ``other_files`` (the hash of the files ``corpus_hash`` does not
-    read), ``expressions`` (with utterances, in manifest order), ``n_utterances``. Read once
-    per process while its files are unchanged.
+    """:func:`check_folder` of the given corpus of ``cfg`` (``corpus.source``)."""
+    return check_folder(source_folder(cfg), "corpus.source",
+                        also="or empty to synthesise the corpus")
+
+
+def check_folder(src: Path, setting: str, *, also: str = "") -> dict:
+    """Validate the corpus folder ``src``, which the config setting ``setting`` names, with
+    :func:`face_model.corpus.load_corpus` and sum it up: ``corpus_hash``, ``other_files`` (the
+    hash of the files ``corpus_hash`` does not read), ``expressions`` (with utterances, in
+    manifest order), ``n_utterances``. Read once per process while its files are unchanged
+    (a real speaker's corpus is checked before a run starts, then taken by its nested run).
+    ``also``: what else the setting allows, for the message of a folder not found.
 
     Raises
     ------
     CorpusError
-        One line naming the folder and the problem: not found, not a folder, or the reader's
-        refusal (naming the file).
+        One line naming the setting, the folder and the problem: not found, not a folder, or
+        the reader's refusal (naming the file).
     """
-    src = source_folder(cfg)
+    src = Path(src).expanduser().absolute()
     if not src.exists():
         raise _refuse(src, "folder not found; allowed: a corpus folder (manifest.csv, audio/, "
-                           "markers/, phones/) or empty to synthesise the corpus")
+                           "markers/, phones/)" + (f" {also}" if also else ""), setting)
     if not src.is_dir():
         raise _refuse(src, "is a file; allowed: a corpus folder (manifest.csv, audio/, "
-                           "markers/, phones/)")
+                           "markers/, phones/)", setting)
     sig = _signature(src)
-    found = _checked.get((src, sig)) if sig is not None else None
+    found = _checked.get((src.resolve(), sig)) if sig is not None else None
     if found is None:
         try:
             corpus = load_corpus(src)
             corpus_files(src)
         except CorpusError as exc:
-            raise _refuse(src, f"not a valid corpus: {exc}") from None
+            raise _refuse(src, f"not a valid corpus: {exc}", setting) from None
         expressions = list(dict.fromkeys(u.expression for u in corpus.utterances))
         found = {"corpus_hash": corpus_hash(src), "other_files": _other_files_hash(src),
                  "expressions": expressions, "n_utterances": len(corpus)}
         del corpus
         if sig is not None and _signature(src) == sig:  # unchanged while it was read
-            _checked[(src, sig)] = found
+            _checked[(src.resolve(), sig)] = found
     return dict(found)
 
 

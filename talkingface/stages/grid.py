@@ -220,7 +220,8 @@ class GridStage:
 
     def grid_file(self, paths, cfg) -> list:
         """``[grid file]`` (its contents join the stage's key), ``[]`` for no grid; a missing or
-        malformed grid (:attr:`load` refuses it) is refused here, before the run is touched.
+        malformed grid (:attr:`load` refuses it) is refused here, before the run is touched, in
+        a line that begins with the setting (``ablations.grid: ...``).
         ``paths`` (the run's :class:`talkingface.paths.RunPaths`) is not read: this is the
         stage's ``files``."""
         path = self.grid_path(cfg)
@@ -229,7 +230,10 @@ class GridStage:
         if not path.is_file():
             raise ParameterError(f"{self.what} {path} not found ({self.name}.grid: default, "
                                  "none or a grid file)")
-        self.load(path, cfg)
+        try:
+            self.load(path, cfg)
+        except ParameterError as exc:  # the file's own problem, under the setting that names it
+            raise ParameterError(f"{self.name}.grid: {exc}") from None
         return [path]
 
     def children(self, cfg) -> dict:

@@ -40,7 +40,7 @@ from face_model.alignment import align_markers
 from face_model.corpus import load_corpus
 from face_model.motion_units import MotionUnits
 from groundwork.atomic import atomic_file
-from groundwork.errors import CorpusError, ParameterError
+from groundwork.errors import CorpusError
 from mapping.animator import FaceAnimator
 from mapping.checkpoint import AudioMapping
 from mapping.peers import PEERS, peer_versions
@@ -48,12 +48,15 @@ from talkingface.paths import RunPaths
 from talkingface.stages.base import read_done
 from talkingface.stages.face_scoring import (RealClip, clips_from_corpus, model_neutrals,
                                              predicted_markers, score_model, score_peer)
+from talkingface.stages.given_corpus import check_folder
 from talkingface.stages.models import find_model
 from talkingface.stages.training import utterance_test_ids
 
 BUILTIN = Path(face_model.__file__).resolve().parent / "real_faces" / "grid-s1"
 PAPER_VARIANCE = 0.9756
 NESTED = "real"  # runs/<name>/real: the nested run
+SETTING = "real_speaker.corpus"  # the setting that names the corpus, in messages
+ALSO = "made by `talkingface corpus from-video`, builtin (GRID s1) or empty (off)"
 MODELS = ("speaker_model", "synthetic_model")
 # 2: speech frames, closures on /p b m/, chance, peers, input rates, units on training sentences
 SCORING_VERSION = 2
@@ -78,15 +81,21 @@ def real_speaker_applies(cfg) -> bool:
 
 def real_inputs(paths, cfg) -> dict:
     """The real corpus's content (its manifest's hash) and the scoring rules' version
-    (:data:`SCORING_VERSION`) join the stage's key."""
+    (:data:`SCORING_VERSION`) join the stage's key. The corpus is validated here, by the one
+    reader (:func:`talkingface.stages.given_corpus.check_folder`: about a second for GRID s1's
+    196 clips, once per process), so that a bad ``real_speaker.corpus`` is refused, naming the
+    setting, before a run starts rather than when the stage reaches it.
+
+    Raises
+    ------
+    CorpusError
+        ``real_speaker.corpus <folder>: ...``: not found, not a folder, or the reader's refusal.
+    """
     src = real_corpus(cfg)
     if src is None:
         return {}
-    manifest = src / "manifest.csv"
-    if not manifest.is_file():
-        raise ParameterError(f"real_speaker.corpus {src}: no manifest.csv (a corpus folder is "
-                             "needed, e.g. one made by `talkingface corpus from-video`)")
-    return {"real_corpus": hashlib.sha256(manifest.read_bytes()).hexdigest(),
+    check_folder(src, SETTING, also=ALSO)
+    return {"real_corpus": hashlib.sha256((src / "manifest.csv").read_bytes()).hexdigest(),
             "scoring": SCORING_VERSION}
 
 
@@ -144,6 +153,7 @@ def _score_all(clips, speaker, synthetic, corpus, rate, out: Path) -> dict:
 def evaluate_real_speaker(paths: RunPaths, cfg, runner) -> dict:
     """The stage (``runner``: :func:`talkingface.stages.run`, for the nested run)."""
     src = real_corpus(cfg)
+    check_folder(src, SETTING, also=ALSO)  # as the key found it (cached): refused under this setting's name
     out = paths.stage("real_speaker")
     nested = RunPaths.at(paths.root / NESTED, cache_dir=paths.cache)
     sub_cfg = dataclasses.replace(cfg, corpus=dataclasses.replace(cfg.corpus,

@@ -101,7 +101,7 @@ def train_voices(paths: RunPaths, cfg) -> dict:
         if key not in own:
             data = build_dataset(own_corpus, units, n_mfcc=m.n_mfcc, deltas=m.deltas,
                                  recognise_context=key[2], window_align=m.window_align,
-                                 mel_fmax_hz=m.mel_fmax_hz,
+                                 mel_fmax_hz=m.mel_fmax_hz, progress=True,
                                  cache=ArrayCache(paths.cache))
             own[key] = (data, split_masks(
                 data, "utterance", train_fraction=cfg.mapping.train_fraction,

@@ -25,6 +25,7 @@ from pathlib import Path
 import imageio_ffmpeg
 import numpy as np
 
+from face_model.face_match import MAX_FACE_MISFIT
 from groundwork import modelfile
 from groundwork.owner import lock_path
 
@@ -376,6 +377,8 @@ def add_bad_inputs(root: Path) -> None:
     # -- a tracking store that is not a database
     (root / "bad_mlflow.db").write_bytes(b"not a database " * 100)
     add_bad_videos(root)
+    for part in PARTS:
+        part.add_inputs(root)
 
 
 GRID = Path(__file__).resolve().parents[1] / "data" / "grid"
@@ -402,6 +405,7 @@ def add_bad_videos(root: Path) -> None:
     (folder("v_corrupt") / "clip.mpg").write_bytes(bytes(range(256)) * 40)
     shutil.copy(GRID / "video" / "bbbf8p.mpg",
                 folder("v_mismatch", "place green with q nine again soon") / "clip.mpg")
+    shutil.copy(GRID / "video" / "bbbf8p.mpg", folder("v_grid_as_s00"))  # a real face, not s00's
 
 
 # -- the cases -------------------------------------------------------------------------------
@@ -434,6 +438,8 @@ CASES = [
      ["--workers", "0"]),
     (["evaluate-face", "--model", TFMAP, "a_folder"], ["a_folder", "no videos"]),
     (["evaluate-face", "--model", TFMAP, "v_noface"], ["v_noface/clip.mpg", "no face"]),
+    (["evaluate-face", "--model", TFMAP, "--speaker", "s00", "v_grid_as_s00"],
+     ["s00", "bbbf8p", "another face", f"{MAX_FACE_MISFIT:.1f} %"]),
     # -- command-line values: wrong type (argparse), out of range, contradictory
     (["synth", "--out", "new1", "--sentences", "abc"], ["--sentences", "abc"]),
     (["synth", "--out", "new1", "--sentences", "-1"], ["-1"]),
@@ -803,3 +809,10 @@ ACCEPTED = [
     (["stream", "float.wav", "--fast", "--model", "R"], "a float32 WAV"),
     (["stream", "pcm8k.wav", "--fast", "--model", "R"], "another sample rate"),
 ]
+
+# The table's parts kept in modules of their own (each: ``CASES`` and ``add_inputs(root)``); they
+# import the shared settings above, so they are imported after them.
+from tests.talkingface import bad_input_faces, bad_input_outputs, bad_input_settings  # noqa: E402
+
+PARTS = (bad_input_faces, bad_input_outputs, bad_input_settings)
+CASES += [case for part in PARTS for case in part.CASES]
