@@ -73,6 +73,7 @@ from face_model.phones import BILABIALS, PHONES
 from groundwork.audio import read_wav, resample
 from mapping.animator import FaceAnimator, StreamingAnimator
 from mapping.features import algorithmic_latency_s
+from mapping.hearing import Windows
 
 NATIVE = "native"
 RATES = (NATIVE, 16000, 8000)  # the input rates every score is given at
@@ -278,6 +279,20 @@ def score_file(animator: FaceAnimator, item, synth: SynthConfig, seed: int, *, s
                              reference=ref, threshold=threshold),
         n_frames=n, tracks={"opening": opening, "reference": ref, "true": true,
                             "gated": gated, "visemes": visemes, "fps": fps})
+
+
+def model_jobs(mapping, items, rates=(NATIVE,)) -> list:
+    """The recordings :func:`score_model` has ``mapping``'s recogniser front end hear (each
+    rate of ``rates`` and recording of ``items``, at the model's rate, as
+    :meth:`mapping.checkpoint.AudioMapping.recognised_phones` hears them): jobs of
+    :func:`mapping.hearing.hear_all`; none for a model whose gate reads no recogniser."""
+    m = mapping.mapper
+    if not mapping.needs_phones or getattr(m, "gate_front_end", "") == "labels":
+        return []
+    return [Windows(mapping.at_model_rate(*rate_audio(it, rate)[:2]), mapping.sample_rate,
+                    mapping.fps, m.context_forward, m.context_back,
+                    getattr(m, "recogniser", "pocketsphinx"))
+            for rate in rates for it in items]
 
 
 def synth_of(mapping) -> tuple[SynthConfig, int]:

@@ -25,6 +25,7 @@ pocketsphinx — with the speakers and recordings behind each row and speaker-le
 from __future__ import annotations
 
 import sys
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -37,10 +38,12 @@ from analysis.speech_scores import (chance_scores, fit_frames, label_frames, pho
                                     viseme_index)
 from face_model.phones import PHONE_INDEX
 from groundwork.audio import resample
+from groundwork.cache import content_key
 from groundwork.errors import ParameterError
 from mapping import hama_front
 from mapping.recogniser import (RECOGNISER_FPS as FRAMES_PER_S, RECOGNISER_NAME,
-                                RECOGNISER_RATE as SAMPLE_RATE, new_decoder, phone_index, to_pcm16)
+                                RECOGNISER_RATE as SAMPLE_RATE, audio_digest, heard_entry,
+                                new_decoder, phone_index, to_pcm16)
 
 LOOKAHEAD_FRAMES = (0, 1, 2, 3, 4, 5, 6)  # the look-ahead curve, video frames (0–200 ms)
 LABELS = ("independent", "aligned")  # the test part by where its labels came from
@@ -123,9 +126,16 @@ class PhoneRecogniser:
 def recognised(recogniser: str, y: np.ndarray, sr: int, fps: int = 30) -> tuple:
     """``(whole-utterance phones, {look-ahead frames: streaming phones})`` of one recording by
     ``recogniser`` (pocketsphinx | hama), per video frame; audio at another rate than 16 kHz is
-    resampled to it first (as each front end does live)."""
+    resampled to it first (as each front end does live). Read from (and written to) the cache
+    of :func:`mapping.recogniser.hearing_cache` when one is set (:func:`recognised_key`)."""
     if recogniser not in NAMES:
         raise ParameterError(f"unknown recogniser {recogniser!r}; allowed: {', '.join(NAMES)}")
+    job = Recognised(recogniser, np.asarray(y, np.float32), int(sr), int(fps))
+    arrays = heard_entry(job.key(), job.compute, job.names)
+    return arrays["whole"], {k: arrays[f"stream_{k}"] for k in LOOKAHEAD_FRAMES}
+
+
+def _recognised_now(recogniser: str, y: np.ndarray, sr: int, fps: int) -> tuple:
     if sr != SAMPLE_RATE:
         y, sr = resample(np.asarray(y, np.float32), sr_in=int(sr), sr_out=SAMPLE_RATE), \
             SAMPLE_RATE
@@ -136,6 +146,53 @@ def recognised(recogniser: str, y: np.ndarray, sr: int, fps: int = 30) -> tuple:
     n = int(np.ceil(len(y) * fps / sr))
     return (hama_front.whole_utterance(y, n, fps),
             hama_front.labels_at_delays(y, sr, fps, LOOKAHEAD_FRAMES))
+
+
+# bump when what :func:`recognised` gives for the same audio changes (its entries are then
+# heard again)
+RECOGNISED_VERSION = 1
+
+
+@dataclass(frozen=True, eq=False)
+class Recognised:
+    """One recording for :func:`recognised` (a job of :func:`mapping.hearing.hear_all`): mono
+    float32 ``y`` at ``sr`` Hz, heard by ``recogniser`` at ``fps``."""
+
+    recogniser: str
+    y: np.ndarray = field(repr=False)
+    sr: int
+    fps: int = 30
+    names = ("whole", *(f"stream_{k}" for k in LOOKAHEAD_FRAMES))
+
+    @property
+    def seconds(self) -> float:
+        return len(self.y) / self.sr
+
+    def key(self) -> str:
+        """The SHA-256 of the audio (:func:`mapping.recogniser.audio_digest`), the
+        recogniser's name and version, ``fps``, the look-aheads and
+        :data:`RECOGNISED_VERSION`."""
+        return content_key("recognised", RECOGNISED_VERSION, NAMES[self.recogniser],
+                           audio_digest(self.y, self.sr),
+                           {"fps": self.fps, "lookahead_frames": list(LOOKAHEAD_FRAMES)})
+
+    def compute(self) -> dict:
+        whole, streams = _recognised_now(self.recogniser, self.y, self.sr, self.fps)
+        return {"whole": np.asarray(whole),
+                **{f"stream_{k}": np.asarray(streams[k]) for k in LOOKAHEAD_FRAMES}}
+
+
+def recogniser_jobs(items, *, recognisers=tuple(NAMES), rates=("native",),
+                    fps: int = 30) -> list[Recognised]:
+    """The :class:`Recognised` jobs :func:`recogniser_scores` hears (each recogniser, rate
+    and recording), for :func:`mapping.hearing.hear_all`."""
+    out = []
+    for recogniser in recognisers:
+        for rate in rates:
+            for it in items:
+                y, sr, _ = rate_audio(it, rate)
+                out.append(Recognised(recogniser, np.asarray(y, np.float32), int(sr), int(fps)))
+    return out
 
 
 def recogniser_scores(items, seen=frozenset(), *, delay_s: float = 0.1, fps: int = 30,

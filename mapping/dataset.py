@@ -13,6 +13,7 @@ labels). Splits give, per utterance, a boolean mask of its training frames:
 from __future__ import annotations
 
 import zlib
+from contextlib import nullcontext
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -26,7 +27,8 @@ from mapping.augment import augment, retime_labels, retime_targets, rir_bank
 from mapping.config import AugmentSettings
 from mapping.features import FEATURES_VERSION, audio_features, hop_samples
 from mapping.filterbank import check_mel_fmax
-from mapping.recogniser import fit_length, recognise_windows, recogniser_name
+from mapping.recogniser import (fit_length, hearing_cache, recognise_windows,
+                                recogniser_name)
 
 SPLITS = ("random_frames", "utterance")
 
@@ -85,9 +87,11 @@ def build_dataset(corpus, units, *, n_mfcc: int = 10, deltas: bool = False,
     utterance's frames. ``window_align``: the MFCC window's alignment
     (:func:`mapping.features.aligned`). ``mel_fmax_hz``: the mel filterbank's upper edge, Hz
     (0: sr/2; :func:`mapping.filterbank.check_mel_fmax`), kept in each utterance. ``cache``: a
-    :class:`groundwork.cache.ArrayCache` that keeps the features and the recognised phones of
-    a corpus, by its content and the settings, for every later call (a grid's tasks, later
-    runs).
+    :class:`groundwork.cache.ArrayCache` that keeps the features of a corpus (one entry, by
+    its content and the settings) and the recognised phones of each recording (one entry per
+    recording, by its audio and the settings: :func:`mapping.recogniser.windows_key`; filled
+    on every core beforehand by :func:`mapping.hearing.hear_all`) for every later call (a
+    grid's tasks, later runs).
     """
     alignment = alignment or units.metadata_.get("alignment", "similarity")
     defs = corpus_deformations(corpus, model=alignment, neutrals=_fitted_neutrals(corpus, units))
@@ -103,12 +107,13 @@ def build_dataset(corpus, units, *, n_mfcc: int = 10, deltas: bool = False,
                                                     mel_fmax_hz=mel_fmax_hz))
     heard = {}
     if recognise_context is not None:
-        heard = _per_utterance(
-            corpus, cache, ("recognised", recogniser_name(*recognise_context[2:]),
-                            tuple(recognise_context)),
-            lambda u: recognised_windows(u.audio, u.sample_rate, u.fps, recognise_context,
-                                         u.n_frames), desc="recognising phones" if progress
-            else None)
+        recogniser_name(*recognise_context[2:])  # an unknown recogniser is refused first
+        # one entry per recording (mapping.hearing fills them); no cache: the caller's, if any
+        with nullcontext() if cache is None else hearing_cache(cache):
+            heard = {u.utt_id: recognised_windows(u.audio, u.sample_rate, u.fps,
+                                                  recognise_context, u.n_frames)
+                     for u in tqdm(corpus.utterances, desc="recognising phones", unit="utt",
+                                   disable=not progress)}
     out = []
     for u in corpus.utterances:
         out.append(UttData(u.utt_id, u.speaker, u.expression, u.text, feats[u.utt_id],

@@ -48,6 +48,13 @@ Hearing a long recording takes minutes (its cost grows with its length):
 :func:`recognise_windows` with ``progress`` (or inside :func:`progress_bars`) prints one line
 of the cost measured on the first seconds and a bar of the audio heard, on stderr
 (:func:`feed`); the phones are the same with it or without.
+
+What a recogniser heard is kept twice: in memory for the last utterances (``_HEARD``), and,
+inside :func:`hearing_cache`, in the content-keyed cache (:mod:`groundwork.cache`, kind
+:data:`HEARD_KIND`), one entry per recording keyed by :func:`windows_key` — the SHA-256 of the
+audio's float32 bytes and rate (:func:`audio_digest`), the recogniser's name and version, every
+setting the windows depend on and :data:`HEARD_VERSION` — so the same audio in two corpora, two
+stages or two runs is heard once (:mod:`mapping.hearing` fills the entries on every core).
 """
 from __future__ import annotations
 
@@ -65,6 +72,7 @@ from tqdm import tqdm
 
 from face_model.phones import PHONE_INDEX, PHONES
 from groundwork.audio import seconds_to_samples
+from groundwork.cache import content_key
 from groundwork.errors import ParameterError
 from mapping import hama_front
 
@@ -86,6 +94,13 @@ AUDIO_BAR = ("{l_bar}{bar}| {n:.1f}/{total:.1f} s [{elapsed}<{remaining}, "
              "{rate_fmt}{postfix}]")
 # whether recognise_windows shows its bar when not told (progress_bars sets it for a block)
 _PROGRESS = contextvars.ContextVar("recogniser_progress", default=False)
+# the content-keyed cache (groundwork.cache.ArrayCache) recognise_windows reads and fills, when
+# one is set (hearing_cache)
+_CACHE = contextvars.ContextVar("recogniser_cache", default=None)
+HEARD_KIND = "heard"  # the cache's kind of entries of what a recogniser heard
+# bump when what an entry holds changes for the same audio and settings (a stream's rule, the
+# windows' layout): every entry keyed with the old value is then heard again
+HEARD_VERSION = 1
 
 
 def new_decoder() -> Decoder:
@@ -310,18 +325,83 @@ def recognise_windows(y: np.ndarray, sample_rate: int, *, fps: int = 30, delay_f
     utterance, exactly as the recogniser's stream fed the same audio live decides them;
     ``ceil(n_samples / hop)`` frames. Column ``back`` is each frame's phone. ``progress``: a
     cost line and a bar on stderr while the audio is heard (:func:`feed`; None: as
-    :func:`progress_bars` says, off by default); the windows are the same either way."""
+    :func:`progress_bars` says, off by default); the windows are the same either way. Read
+    from (and written to) the cache of :func:`hearing_cache` when one is set."""
     y = np.ascontiguousarray(y, dtype=np.float32)
-    key = (recogniser, int(sample_rate), int(fps), int(delay_frames), int(back),
-           hashlib.sha1(y.tobytes()).hexdigest())
+    key = windows_key(y, sample_rate, fps=fps, delay_frames=delay_frames, back=back,
+                      recogniser=recogniser)
     if key not in _HEARD:
-        stream = phone_stream(recogniser, sample_rate, fps, delay_frames, back)
-        feed(stream, y, sample_rate, name=recogniser,
-             progress=_PROGRESS.get() if progress is None else progress)
+        def make() -> dict:
+            return {"windows": hear_windows(y, sample_rate, fps=fps, delay_frames=delay_frames,
+                                            back=back, recogniser=recogniser,
+                                            progress=progress)}
+
+        windows = heard_entry(key, make, ("windows",))["windows"]
         if len(_HEARD) >= _HEARD_SIZE:
             _HEARD.pop(next(iter(_HEARD)))
-        _HEARD[key] = stream.windows
+        _HEARD[key] = windows
     return _HEARD[key].copy()
+
+
+def hear_windows(y: np.ndarray, sample_rate: int, *, fps: int = 30, delay_frames: int = 3,
+                 back: int = 0, recogniser: str = "pocketsphinx",
+                 progress: bool | None = None) -> np.ndarray:
+    """:func:`recognise_windows` heard now: a fresh stream fed all of ``y``, no memo, no
+    cache (what an entry of the cache holds)."""
+    stream = phone_stream(recogniser, sample_rate, fps, delay_frames, back)
+    feed(stream, np.ascontiguousarray(y, dtype=np.float32), sample_rate, name=recogniser,
+         progress=_PROGRESS.get() if progress is None else progress)
+    return stream.windows
+
+
+def audio_digest(y: np.ndarray, sample_rate: int) -> str:
+    """The SHA-256 of mono audio's float32 bytes and its rate (Hz): what a cache key of heard
+    audio names it by."""
+    h = hashlib.sha256(np.ascontiguousarray(y, dtype=np.float32).tobytes())
+    h.update(f"/{int(sample_rate)} Hz".encode("ascii"))
+    return h.hexdigest()
+
+
+def windows_key(y: np.ndarray, sample_rate: int, *, fps: int = 30, delay_frames: int = 3,
+                back: int = 0, recogniser: str = "pocketsphinx") -> str:
+    """The cache key of :func:`recognise_windows`' windows of audio ``y``: its
+    :func:`audio_digest`, the recogniser's name and version (:func:`recogniser_name`), ``fps``,
+    ``delay_frames``, ``back`` and :data:`HEARD_VERSION`."""
+    return content_key("windows", HEARD_VERSION, recogniser_name(recogniser),
+                       audio_digest(y, sample_rate),
+                       {"fps": int(fps), "delay_frames": int(delay_frames), "back": int(back)})
+
+
+@contextlib.contextmanager
+def hearing_cache(cache):
+    """Within the block, :func:`recognise_windows` (and :func:`heard_entry`) read and fill the
+    content-keyed cache ``cache`` (a :class:`groundwork.cache.ArrayCache`; None: none)."""
+    token = _CACHE.set(cache)
+    try:
+        yield cache
+    finally:
+        _CACHE.reset(token)
+
+
+def active_cache():
+    """The cache of the enclosing :func:`hearing_cache` block (None outside one)."""
+    return _CACHE.get()
+
+
+def heard_entry(key: str, make, names) -> dict:
+    """The arrays ``make()`` gives (``{name: ndarray}``, holding every one of ``names``), read
+    from the entry ``key`` of :data:`HEARD_KIND` in the :func:`active_cache` or made once into
+    it; with no cache, ``make()``'s. An entry that cannot be read, or lacks one of ``names``,
+    is made again."""
+    cache = _CACHE.get()
+    if cache is None:
+        return make()
+    arrays = cache.get_or_make(HEARD_KIND, key, make)
+    if not set(names) <= set(arrays):  # written by other code under the same key: replace it
+        arrays = make()
+        with contextlib.suppress(OSError):
+            cache.put(HEARD_KIND, key, arrays)
+    return arrays
 
 
 @contextlib.contextmanager

@@ -20,6 +20,7 @@ from analysis.speech_set import SET_DIR
 from data_synth.generate import synthesize_corpus
 from face_model.corpus import load_corpus
 from groundwork.atomic import check_output_file
+from groundwork.cache import ArrayCache
 from groundwork.errors import TalkingFaceError
 from groundwork.memory import keep_freed_memory
 from groundwork.owner import acquire, release_all
@@ -40,7 +41,8 @@ from talkingface.experiments.processes import check_free
 from talkingface.paths import RunPaths
 from talkingface.stages import run
 from talkingface.stages.foundation import fit_units_folder
-from talkingface.stages.speech_eval import evaluate_models, find_models, output_files
+from talkingface.stages.speech_eval import (evaluate_models, find_models, model_cache,
+                                              output_files)
 
 
 def cmd_synth(args) -> int:
@@ -263,7 +265,11 @@ def cmd_evaluate_speech(args) -> int:
     for path in (files["results"], files["per_file"], files["json"]):
         check_output_file(path, "--out", overwrite=args.overwrite)
     res = evaluate_models(models, args.out, set_dir=args.set_dir, targets=cfg.targets,
-                          progress=lambda msg: print(msg, file=sys.stderr))
+                          progress=lambda msg: print(msg, file=sys.stderr),
+                          cache=ArrayCache(model_cache(args.model)), workers=0)
+    passes = res["recogniser_passes"]
+    print(f"recognisers: {passes['heard']} recordings heard, {passes['reused']} read from the "
+          "cache", file=sys.stderr)
     key = res["stream_key"]
     cols = (("viseme_acc", "viseme"), ("chance_viseme_acc", "chance"), (key, "stream"),
             ("bilabial_closed_frac", "p b m"), ("chance_bilabial_closed_frac", "chance"),

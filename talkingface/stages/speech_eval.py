@@ -32,18 +32,23 @@ files named after it: ``FILE``, ``<stem>_per_file.csv``, ``<stem>.json``, ``<ste
 from __future__ import annotations
 
 import json
+from contextlib import nullcontext
 from pathlib import Path
 
 from analysis.config import TargetsConfig
-from analysis.speech_eval import NATIVE, RATES, opening_figure, score_model, synth_of, \
-    training_speakers
+from analysis.speech_eval import NATIVE, RATES, model_jobs, opening_figure, score_model, \
+    synth_of, training_speakers
 from analysis.speech_peers import peer_scores
 from analysis.speech_pooling import SPLITS, compare, per_speaker, summarise
-from analysis.speech_recogniser import NAMES, lookahead_figure, recogniser_scores
+from analysis.speech_recogniser import NAMES, lookahead_figure, recogniser_jobs, \
+    recogniser_scores
 from analysis.speech_set import MANIFEST, SET_DIR, load_speech_set, read_manifest
 from face_model.motion_units import MotionUnits
+from groundwork.cache import ArrayCache
 from groundwork.errors import ParameterError
 from mapping.checkpoint import AudioMapping
+from mapping.hearing import hear_all
+from mapping.recogniser import hearing_cache
 from talkingface.paths import RunPaths
 from talkingface.stages.base import read_done, write_csv
 from talkingface.stages.models import model_units
@@ -110,7 +115,7 @@ def _split_ids(per_file: list) -> dict:
 def evaluate_models(models: dict, out_csv, *, set_dir=None, recogniser: bool = True,
                     peers: bool = True, rates=RATES, default_model: str | None = None,
                     all_rates: bool = False, targets: TargetsConfig = TargetsConfig(),
-                    progress=None) -> dict:
+                    progress=None, cache=None, workers: int = 0) -> dict:
     """Score every ``models`` entry (name → ``(tfmap, motion_units.npz, training corpus folder
     or None)``) on the set at ``set_dir`` (default: the shipped set) at the native rate, and
     ``default_model`` (every model with ``all_rates``: each costs a full pass per rate) at each
@@ -120,23 +125,52 @@ def evaluate_models(models: dict, out_csv, *, set_dir=None, recogniser: bool = T
     (:func:`analysis.speech_eval.training_speakers`); the recognisers and peers take the
     splits of ``default_model`` (default: the first model), the model every comparison is made
     against. The streaming column is at
-    ``targets.lookahead_ms``. Returns what the JSON file holds."""
+    ``targets.lookahead_ms``. ``cache`` (a :class:`groundwork.cache.ArrayCache`): every
+    recording each model's recogniser front end and the recognisers hear is heard first, on
+    ``workers`` processes (0: all cores; :func:`mapping.hearing.hear_all`), into the cache,
+    and the scores read it (the result's ``recogniser_passes`` counts recordings heard and
+    reused); None: heard one by one while scoring. The figures are the same either way.
+    Returns what the JSON file holds."""
     files = output_files(out_csv)
     files["results"].parent.mkdir(parents=True, exist_ok=True)
     set_dir = SET_DIR if set_dir is None else set_dir
     items = load_speech_set(set_dir)
     key = stream_key(targets.lookahead_ms)
     default_model = default_model if default_model in models else next(iter(models), None)
+    mappings = {name: AudioMapping.load(tfmap) for name, (tfmap, _, _) in models.items()}
+    rates_of = {name: rates if all_rates or name == default_model else (NATIVE,)
+                for name in models}
+    passes = None
+    if cache is not None:
+        if progress:
+            progress("hearing the recordings (each recogniser front end, the recognisers)")
+        jobs = [j for name, mp in mappings.items() for j in model_jobs(mp, items, rates_of[name])]
+        if recogniser:
+            jobs += recogniser_jobs(items)
+        passes = hear_all(jobs, cache, workers=workers, desc="hearing the speech set")
+    with hearing_cache(cache) if cache is not None else nullcontext():
+        res = _score(models, mappings, rates_of, items, files, key, default_model, set_dir,
+                     recogniser=recogniser, peers=peers, rates=rates, targets=targets,
+                     progress=progress)
+    if passes is not None:
+        res["recogniser_passes"] = passes.as_dict()
+    files["json"].write_text(json.dumps(res, indent=1, default=float))
+    return res
+
+
+def _score(models, mappings, rates_of, items, files, key, default_model, set_dir, *,
+           recogniser, peers, rates, targets, progress) -> dict:
+    """:func:`evaluate_models`' scores and files, the recordings heard or read as they come."""
     per_file, train_by, stream_by, default_synth = [], {}, {}, None
     figure_item = next((it for it in items if it.id == FIGURE_RECORDING), items[0])
     for name, (tfmap, units, corpus) in models.items():
         if progress:
-            n_rates = len(rates) if all_rates or name == default_model else 1
-            progress(f"scoring {name} on {len(items)} recordings at {n_rates} input rate(s)")
-        mapping = AudioMapping.load(tfmap)
+            progress(f"scoring {name} on {len(items)} recordings at {len(rates_of[name])} "
+                     "input rate(s)")
+        mapping = mappings[name]
         train_by[name] = training_speakers(corpus) if corpus is not None else frozenset()
         scores = score_model(name, mapping, MotionUnits.load(units), items, train_by[name],
-                             rates=rates if all_rates or name == default_model else (NATIVE,),
+                             rates=rates_of[name],
                              lookahead_s=targets.lookahead_ms / 1000,
                              check_item=figure_item)
         stream_by[name] = scores.stream
@@ -187,7 +221,6 @@ def evaluate_models(models: dict, out_csv, *, set_dir=None, recogniser: bool = T
               "rates_summary": summary_all, "per_speaker": speakers,
               "comparisons": comparisons, "per_file": native,
               "models": {n: str(m[0]) for n, m in models.items()}}
-    files["json"].write_text(json.dumps(result, indent=1, default=float))
     return result
 
 
@@ -233,6 +266,19 @@ def find_models(model: str, runs_dir="runs") -> dict:
     return run_models(RunPaths.create(model, runs_dir=runs_dir))
 
 
+def model_cache(model: str, runs_dir="runs") -> Path:
+    """The content-keyed cache of ``--model`` (as :func:`find_models` reads it): the cache of
+    the run it belongs to (:attr:`talkingface.paths.RunPaths.cache`)."""
+    p = Path(model)
+    if p.suffix == ".tfmap":
+        run = model_units(p).parent.parent
+    elif p.is_dir():
+        run = p
+    else:
+        run = Path(runs_dir) / model
+    return RunPaths.at(run).cache
+
+
 def evaluate_speech(paths: RunPaths, cfg) -> dict:
     """The run's mapping model(s) and its voice-robust models (stage ``voices``, each with the
     corpus it was trained on) on the real-speech set (stage ``speech_eval``); the comparisons
@@ -243,6 +289,8 @@ def evaluate_speech(paths: RunPaths, cfg) -> dict:
     chosen = (read_done(paths.stage("voices")) or {}).get("model")
     default = f"voices-{chosen}" if chosen else f"{cfg.mapping.method}_utterance"
     res = evaluate_models(models, paths.stage("speech_eval") / "results.csv",
-                          default_model=default, targets=cfg.targets)
+                          default_model=default, targets=cfg.targets,
+                          cache=ArrayCache(paths.cache), workers=0)
     return {"summary": res["summary"], "seen_speakers": res["seen_speakers"],
-            "training_speakers": res["training_speakers"], "models": res["models"]}
+            "training_speakers": res["training_speakers"], "models": res["models"],
+            "recogniser_passes": res["recogniser_passes"]}

@@ -18,6 +18,7 @@ from __future__ import annotations
 import csv
 import json
 import time
+from contextlib import nullcontext
 from functools import partial
 from pathlib import Path
 
@@ -29,6 +30,8 @@ from groundwork.cache import ArrayCache
 from mapping.checkpoint import AudioMapping, rest_mups
 from mapping.dataset import build_dataset, held_out_utterances
 from mapping.experiment import SPLIT_SEED_OFFSET, recognise_context, run_experiment
+from mapping.hearing import corpus_jobs, hear_all
+from mapping.recogniser import hearing_cache
 from talkingface.config import to_dict
 from talkingface.executor import map_tasks
 from talkingface.paths import RunPaths
@@ -71,12 +74,17 @@ def train_and_evaluate(corpus_dir: Path, units_path: Path, out_dir: Path, cfg, *
     units = MotionUnits.load(units_path)
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    data = build_dataset(corpus, units, n_mfcc=m.n_mfcc, deltas=m.deltas,
-                         recognise_context=recognise_context(m), window_align=m.window_align,
-                         mel_fmax_hz=m.mel_fmax_hz, progress=progress, cache=None if cache is None else ArrayCache(cache))
-    feature_seconds = time.perf_counter() - t0
-    trained = run_experiment(data, m, n_utterance=units.n_utterance, seed=cfg.seed,
-                             methods=methods, splits=splits, progress=progress, map_fn=map_fn)
+    store = None if cache is None else ArrayCache(cache)
+    # the recogniser's phones of the corpus and of the augmented copies: one cache entry each
+    with hearing_cache(store) if store is not None else nullcontext():
+        data = build_dataset(corpus, units, n_mfcc=m.n_mfcc, deltas=m.deltas,
+                             recognise_context=recognise_context(m),
+                             window_align=m.window_align, mel_fmax_hz=m.mel_fmax_hz,
+                             progress=progress, cache=store)
+        feature_seconds = time.perf_counter() - t0
+        trained = run_experiment(data, m, n_utterance=units.n_utterance, seed=cfg.seed,
+                                 methods=methods, splits=splits, progress=progress,
+                                 map_fn=map_fn)
     results = evaluate_experiment(trained, data, units)
     rows = table_rows(results)
     write_csv(out_dir / "tables.csv", rows)
@@ -166,5 +174,14 @@ def train(paths: RunPaths, cfg) -> dict:
     """The mapping and the baselines trained and evaluated on the run's training corpus."""
     map_fn = partial(map_tasks, scheduler=cfg.cluster.scheduler, workers=cfg.mapping.workers,
                      desc="training")
-    return train_and_evaluate(training_corpus(paths, cfg), paths.units_model, paths.mapping, cfg,
-                              cache=paths.cache, map_fn=map_fn)
+    corpus_dir = training_corpus(paths, cfg)
+    context = recognise_context(cfg.mapping)
+    passes = None
+    if context is not None:  # the recogniser front end: the corpus heard on every core first
+        passes = hear_all(corpus_jobs(load_corpus(corpus_dir), context), ArrayCache(paths.cache),
+                          workers=cfg.mapping.workers, desc="hearing the corpus")
+    record = train_and_evaluate(corpus_dir, paths.units_model, paths.mapping, cfg,
+                                cache=paths.cache, map_fn=map_fn)
+    if passes is not None:
+        record["recogniser_passes"] = passes.as_dict()
+    return record

@@ -40,6 +40,7 @@ from groundwork.errors import ParameterError
 from mapping.checkpoint import AudioMapping
 from mapping.dataset import build_dataset, split_masks
 from mapping.experiment import SPLIT_SEED_OFFSET, predict_utterance, recognise_context
+from mapping.hearing import corpus_jobs, hear_all
 from talkingface.paths import RunPaths
 from talkingface.stages.base import read_done, write_csv
 from talkingface.stages.child_runs import log_for
@@ -64,6 +65,28 @@ def _corpora(children: dict, cfg, paths: RunPaths, out: Path) -> dict:
     return where
 
 
+def hear_corpora(children: dict, corpora: dict, own_corpus, cache, *, workers: int = 0):
+    """Every distinct (corpus, recogniser context) the children's recogniser front ends and
+    :func:`in_domain_R` (the run's corpus ``own_corpus``) hear, heard into ``cache`` on
+    ``workers`` processes (0: all cores) before the children start, so that no child hears a
+    corpus on one core while the others wait (:func:`mapping.hearing.hear_all`; the augmented
+    copies a child draws are heard by the child). Returns the
+    :class:`~mapping.hearing.Passes`."""
+    loaded = {Path(own_corpus.root).resolve(): own_corpus}
+    needs = {}  # (corpus folder, context), in the children's order
+    for name, child in children.items():
+        context = recognise_context(child.mapping)
+        if context is not None:
+            needs[(Path(own_corpus.root).resolve(), context)] = True
+            needs[(Path(corpora[name]).resolve(), context)] = True
+    jobs = []
+    for folder, context in needs:
+        if folder not in loaded:
+            loaded[folder] = load_corpus(folder)
+        jobs += corpus_jobs(loaded[folder], context)
+    return hear_all(jobs, cache, workers=workers, desc="hearing the voices' corpora")
+
+
 def in_domain_R(tfmap: Path, data: list, masks: list, scale, units) -> dict:
     """Test R (Eq. 6) per expression and their mean of the model ``tfmap`` on the run's own
     corpus (``data``, its utterance-split ``masks``), as Table II measures it."""
@@ -82,13 +105,15 @@ def train_voices(paths: RunPaths, cfg) -> dict:
     out = paths.stage(VOICES.name)
     out.mkdir(parents=True, exist_ok=True)
     corpora = _corpora(children, cfg, paths, out / "corpora")
+    own_corpus = load_corpus(training_corpus(paths, cfg))
+    passes = hear_corpora(children, corpora, own_corpus, ArrayCache(paths.cache),
+                          workers=cfg.voices.workers)
     summaries = run_children({name: (corpora[name], paths.units_model, child)
                               for name, child in children.items()}, out,
                              scheduler=cfg.cluster.scheduler, workers=cfg.voices.workers,
                              desc="voice-robust models", cache=paths.cache,
                              log=log_for(VOICES.name), stage=VOICES.tag)
     units = MotionUnits.load(paths.units_model)
-    own_corpus = load_corpus(training_corpus(paths, cfg))
     own: dict = {}  # (n_mfcc, deltas) -> (data, masks, scale) of the run's corpus
     rows, models = [], {}
     for name, child in children.items():
@@ -119,7 +144,8 @@ def train_voices(paths: RunPaths, cfg) -> dict:
                      **in_domain_R(tfmap, *own[key], units),
                      "seconds": round(summaries[name]["seconds"], 1)})
     write_csv(out / "results.csv", rows)
-    return {"grid": str(VOICES.grid_path(cfg)), "model": model, "models": models, "rows": rows}
+    return {"grid": str(VOICES.grid_path(cfg)), "model": model, "models": models, "rows": rows,
+            "recogniser_passes": passes.as_dict()}
 
 
 def voices_models(paths: RunPaths) -> dict:
