@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 NAME ?= paper
 JOBS ?= 2
 
-.PHONY: setup replicate test bench lock ui server clean
+.PHONY: setup replicate test durations bench lock ui server clean
 
 setup:
 	@VENV=$(VENV) bash tools/setup.sh
@@ -13,11 +13,19 @@ setup:
 replicate: setup
 	$(PY) -m talkingface replicate --name $(NAME) --config configs/paper.yaml $(ARGS)
 
-# pytest exits 5 when it collected no test: that is a failure here, with a message.
+# pytest exits 5 when it collected no test: that is a failure here, with a message. The run ends
+# with its 15 slowest tests (setup, call or teardown), so a change sees what it costs; the order
+# and the spread over the workers come from tests/durations.json (tests/scheduling.py).
+PYTEST_TIMES := --durations=15 --durations-min=1
 test:
 	@VENV=$(VENV) bash tools/setup.sh test
-	@$(PY) -m pytest -n $(JOBS) -q $(ARGS); rc=$$?; \
+	@$(PY) -m pytest -n $(JOBS) -q $(PYTEST_TIMES) $(ARGS); rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "make test: pytest collected no tests" >&2; exit 1; fi; exit $$rc
+
+# Measure every test again and keep the figures that order the suite (tests/durations.json).
+durations:
+	@VENV=$(VENV) bash tools/setup.sh test
+	$(PY) -m pytest -n $(JOBS) -q $(PYTEST_TIMES) --save-durations tests/durations.json $(ARGS)
 
 bench: setup
 	$(PY) bench/bench_corpus.py

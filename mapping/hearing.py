@@ -11,7 +11,9 @@ e.g. :class:`Windows` (:func:`mapping.recogniser.recognise_windows`) or
 (``reused``), hears the rest (``heard``) in a pool of ``workers`` spawned processes of one
 thread each (:func:`groundwork.threads.limit_threads`; either recogniser works on one thread, so
 processes are what spread it over the cores), longest first, under a bar counting recordings on
-stderr, and writes each entry as it comes back. The code that then reads the phones
+stderr. Each worker makes its entry under the key's lock
+(:meth:`groundwork.cache.ArrayCache.get_or_make`), so two passes over the same recordings at the
+same time (two stages, two test workers) hear each recording once. The code that then reads the phones
 (``build_dataset``, the scores on real speech) runs inside
 :func:`mapping.recogniser.hearing_cache` and finds every entry: one key, one computation, so the
 arrays are the serial path's, byte for byte (tests/mapping/test_hearing.py).
@@ -31,6 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm import tqdm
 
+from groundwork.cache import ArrayCache
 from groundwork.threads import cores, limit_threads
 from mapping.recogniser import HEARD_KIND, hear_windows, windows_key
 
@@ -96,8 +99,12 @@ def _init_worker() -> None:
     limit_threads(1)  # one recording per process: the pool gives the parallelism
 
 
-def _compute(job) -> dict:
-    return job.compute()
+def _fill(root, key: str, job) -> bool:
+    """Make the entry ``key`` of the cache at ``root`` from ``job`` under the key's lock; True
+    when this call made it (False: another process made it while this one waited)."""
+    cache = ArrayCache(root)
+    cache.get_or_make(HEARD_KIND, key, job.compute)
+    return cache.misses == 1
 
 
 def hear_all(jobs, cache, *, workers: int = 0, progress: bool = True,
@@ -138,19 +145,25 @@ def hear_all(jobs, cache, *, workers: int = 0, progress: bool = True,
     with tqdm(total=len(unique), initial=passes.reused, desc=desc, unit="recording",
               file=sys.stderr, disable=not progress or not unique) as bar:
         bar.set_postfix_str(f"{passes.reused} from the cache", refresh=False)
+        made = 0
         if n <= 1:
             for key in order:
+                before = cache.misses
                 cache.get_or_make(HEARD_KIND, key, missing[key].compute)
+                made += cache.misses - before
                 bar.update()
-            return passes
-        pool = ProcessPoolExecutor(max_workers=n, initializer=_init_worker,
-                                   mp_context=multiprocessing.get_context("spawn"))
-        try:
-            futures = {pool.submit(_compute, missing[key]): key for key in order}
-            for fut in as_completed(futures):
-                arrays = fut.result()
-                cache.get_or_make(HEARD_KIND, futures[fut], lambda: arrays)
-                bar.update()
-        finally:  # on an error or Ctrl-C the recordings not started are not started
-            pool.shutdown(wait=True, cancel_futures=True)
-    return passes
+        else:
+            pool = ProcessPoolExecutor(max_workers=n, initializer=_init_worker,
+                                       mp_context=multiprocessing.get_context("spawn"))
+            try:
+                futures = [pool.submit(_fill, cache.root, key, missing[key]) for key in order]
+                for fut in as_completed(futures):
+                    made += fut.result()
+                    bar.update()
+            finally:  # on an error or Ctrl-C the recordings not started are not started
+                pool.shutdown(wait=True, cancel_futures=True)
+            cache.misses += made
+            cache.hits += len(missing) - made
+    # another process hearing the same recordings at the same time (two stages, two test
+    # workers) makes some of them: each entry is made once, under its key's lock
+    return Passes(heard=made, reused=passes.reused + len(missing) - made)

@@ -18,13 +18,16 @@
       ablations/     one folder per ablation setting and results.csv
       report/        figures and the summary the PDF is built from
     reports/<name>.pdf
-    cache/           what tasks, stages and runs share, by content (`talkingface cache clean`)
+    cache/           what tasks, stages and runs share, by content (`talkingface cache clean`);
+                     $TALKINGFACE_CACHE names another folder for every run (e.g. one cache for
+                     several working folders: the test suite shares one across its runs)
 
 Every stage folder holds the ``config.yaml`` it ran under and a ``done.json`` written last (see
 :mod:`talkingface.stages.base`).
 """
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,6 +37,9 @@ from groundwork.identifiers import check_identifier
 
 # 1-64 letters, digits, ._- starting with a letter or digit, and no ".." anywhere
 _NAME = re.compile(r"(?!.*\.\.)[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
+
+# the environment variable that names the cache folder of every run (default: cache/ beside runs/)
+CACHE_ENV = "TALKINGFACE_CACHE"
 
 STAGE_FOLDERS = ("corpus", "units", "keyframes", "tracking", "tracked", "mapping", "voices",
                  "speech_eval", "render", "stimuli", "study_data", "analysis", "ablations",
@@ -103,8 +109,12 @@ class RunPaths:
     def cache(self) -> Path:
         """The content-keyed cache beside ``runs/`` (:mod:`groundwork.cache`): what tasks,
         stages and runs share (a corpus's features, its recognised phones); ``cache_dir`` when
-        set."""
-        return self.cache_dir if self.cache_dir is not None else self.root.parent.parent / "cache"
+        set, else the folder ``$TALKINGFACE_CACHE`` names (:data:`CACHE_ENV`) when set. An
+        entry's key is its content, so sharing one folder between runs changes no result."""
+        if self.cache_dir is not None:
+            return self.cache_dir
+        given = os.environ.get(CACHE_ENV, "").strip()
+        return Path(given) if given else self.root.parent.parent / "cache"
 
     @property
     def config(self) -> Path:

@@ -28,6 +28,9 @@ from face_model.corpus import load_corpus  # noqa: E402
 from groundwork.memory import keep_freed_memory  # noqa: E402
 from groundwork.owner import release_all  # noqa: E402
 from talkingface.config import Config  # noqa: E402
+from talkingface.paths import CACHE_ENV  # noqa: E402
+from tests.scheduling import (CostFirstScheduling, DurationRecorder,  # noqa: E402
+                              order_items, recorded_costs)
 
 # The test workers share the cores: each sets its torch and BLAS threads so that workers x
 # threads <= cores (groundwork.threads; tiny networks run many times slower when threads compete).
@@ -45,27 +48,34 @@ SEED = Config().seed
 SMALL_N_SENTENCES = 4
 
 
-# Run first: the first users of the folders made once per test run (``build_once``), so that
-# they are ready before the other tests that read them, then the longest single tests.
-# pytest-xdist's load scheduling hands each worker a block of consecutive tests and the rest as
-# workers free up: a long test near the end of the collection would run alone while the other
-# worker has nothing left to do; started first, the other worker takes the short tests
-# meanwhile. Only the order changes.
-RUN_FIRST = (
-    "tests/study/test_stimuli.py::test_every_stimulus_of_the_design_in_sync_with_its_audio",
-    "tests/talkingface/test_visual_source.py::test_train_on_tracked_mups",
-    "tests/talkingface/test_cli_pipeline.py::test_replicate_writes_runs_report_and_mlflow",
-    "tests/analysis/test_perception_report.py::test_a_study_report_from_data_alone",
-    "tests/talkingface/test_train_ablate.py::test_ui_front_page_answers_http_200",
-    "tests/talkingface/test_grid_cluster.py::"
-    "test_a_worker_killed_mid_grid_leaves_one_child_per_setting_and_seed",
-)
+# The content-keyed cache of every run the tests make (the recognisers' passes over the
+# real-speech set, a corpus's features): one folder for the whole session and the sessions after
+# it (talkingface.paths.CACHE_ENV; `make clean` removes it). Entries are keyed by content, so
+# sharing them changes no result; the tests of the cache itself use folders of their own.
+os.environ.setdefault(CACHE_ENV, str(REPO_ROOT / "cache"))
+
+
+def pytest_addoption(parser):
+    parser.addoption("--save-durations", metavar="FILE", default=None,
+                     help="write each test's measured seconds to FILE (tests/durations.json "
+                          "orders the suite: tests/scheduling.py)")
+
+
+def pytest_configure(config):
+    path = config.getoption("--save-durations")
+    if path and not hasattr(config, "workerinput"):  # the controller sees every report
+        config.pluginmanager.register(DurationRecorder(path), "talkingface-durations")
 
 
 def pytest_collection_modifyitems(session, config, items):
-    rank = {nodeid: i for i, nodeid in enumerate(RUN_FIRST)}
-    first = sorted((it for it in items if it.nodeid in rank), key=lambda it: rank[it.nodeid])
-    items[:] = first + [it for it in items if it.nodeid not in rank]
+    """The costliest tests first, the readers of shared folders after (tests/scheduling.py)."""
+    items[:] = order_items(items, recorded_costs())
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """Tests handed out one at a time in the collection's order (tests/scheduling.py)."""
+    return CostFirstScheduling(config, log)
 
 
 @pytest.fixture(autouse=True)
@@ -139,9 +149,17 @@ def build_once(tmp_path_factory, name: str, build) -> Path:
         if not done.is_file():
             shutil.rmtree(out, ignore_errors=True)
             out.mkdir(parents=True)
+            with open(builds_log(shared, name), "a") as f:  # who made it: tests/test_shared_runs.py
+                f.write(f"{os.environ.get('PYTEST_XDIST_WORKER', 'main')} {os.getpid()}\n")
             build(out)
             done.touch()
     return out
+
+
+def builds_log(shared: Path, name: str) -> Path:
+    """The file where :func:`build_once` notes each time it starts making ``name`` (one line:
+    the worker and its process)."""
+    return shared / f"{name}.builds"
 
 
 @pytest.fixture(scope="session")
@@ -183,3 +201,21 @@ def small_run_dir(tmp_path_factory):
             build_run(folder, main)
 
     return build_once(tmp_path_factory, "small_run", build)
+
+
+@pytest.fixture(scope="session")
+def full_run_dir(tmp_path_factory):
+    """A working folder with the small full replication ``runs/tiny`` (every stage, the real
+    speaker, two voice-robust models, four ceiling steps; ``reports/tiny.pdf``; MLflow's store
+    ``mlflow.db`` and ``mlartifacts/``), made once per test run (:func:`build_once`) by the
+    command line (tests/talkingface/full_run.py). Read-only: tests copy what they change."""
+    from talkingface.cli.main import main
+    from tests.talkingface.full_run import build_full_run
+
+    def build(folder):
+        with pytest.MonkeyPatch.context() as mp:
+            mp.chdir(folder)
+            mp.delenv("MLFLOW_TRACKING_URI", raising=False)
+            build_full_run(folder, main)
+
+    return build_once(tmp_path_factory, "full_run", build)

@@ -13,34 +13,7 @@ from talkingface.cli.main import main
 # these settings (small_run_dir in tests/conftest.py).
 from tests.talkingface.bad_input_cases import QUICK as SMALL_RUN
 
-# the real-speaker stage (GRID s1, 196 sentences) runs in test_replicate_writes_runs_report_and_mlflow
-TINY = ["--set", "synth.n_sentences=3", "--set", "synth.workers=2", "--set", "real_speaker.corpus=''"]
-# the tracker's evaluation on 3 utterances (one per expression; 6 by default) and two training
-# seeds per ceiling step (3 by default): every stage and its bookkeeping, with less work
-SMALLER = ["--set", "tracker.n_utterances=3", "--set", "ceiling.seeds=2"]
-# four ceiling steps, small: the run's, one nuisance off (its own corpus), the tracked MUPs
-# (a tracked copy of the run's corpus), the oracle
-CEILING_GRID = """base:
-  mapping.splits: [random_frames, utterance]
-  mapping.baselines: []
-  mapping.train.max_epochs: 40
-children:
-  ours: {}
-  no-brow-motion: {synth.brow_px: 0}
-  tracked: {mapping.visual_source: tracked}
-  oracle: {mapping.gate_front_end: labels, mapping.mlp_input: phones}
-"""
-# two voice-robust configurations, small: the run's voice, and three engines with CMVN
-VOICES_GRID = """model: many
-base:
-  mapping.splits: [utterance]
-  mapping.baselines: []
-children:
-  one: {}
-  many:
-    synth.voices: [espeak:en-us+f3, flite:awb, festival:kal_diphone]
-    mapping.cmvn: meanvar
-"""
+from tests.talkingface.full_run import TINY
 
 
 @pytest.fixture
@@ -54,12 +27,12 @@ def pdf_text(path) -> str:
     return "\n".join(page.extract_text() for page in PdfReader(path).pages)
 
 
-def test_replicate_writes_runs_report_and_mlflow(workdir, capsys):
-    (workdir / "voices.yaml").write_text(VOICES_GRID)
-    (workdir / "ceiling.yaml").write_text(CEILING_GRID)
-    assert main(["replicate", "--name", "tiny", *TINY, *SMALLER, "--ablations", "none",
-                 "--voices", "voices.yaml", "--set", "ceiling.grid=ceiling.yaml",
-                 "--set", "real_speaker.corpus=builtin"]) == 0
+def test_replicate_writes_runs_report_and_mlflow(full_run_dir, monkeypatch):
+    """The whole replication, small (``full_run_dir``, tests/conftest.py: every stage, the
+    real speaker GRID s1, two voice-robust models, four ceiling steps, MLflow): what needs a
+    real run is that the stages hand each other real files and the report cites them."""
+    workdir = full_run_dir
+    monkeypatch.chdir(workdir)  # read only: find_model looks for runs/ here
     run = workdir / "runs" / "tiny"
     for p in ("config.yaml", "corpus/manifest.csv", "corpus/done.json", "units/motion_units.npz",
               "units/variance.csv", "report/summary.json", "report/mu_variance.png"):

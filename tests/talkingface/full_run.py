@@ -1,0 +1,48 @@
+"""The small full replication the suite shares (``full_run_dir`` in tests/conftest.py, made once
+per test session): every stage of ``talkingface replicate`` on a tiny corpus, with the built-in
+real speaker (GRID s1, 196 sentences), two voice-robust models, four ceiling steps and MLflow in
+the folder's own store."""
+from __future__ import annotations
+
+from pathlib import Path
+
+# 3 sentences; the real-speaker stage (GRID s1, 196 sentences) only where a test asks for it
+TINY = ["--set", "synth.n_sentences=3", "--set", "synth.workers=2",
+        "--set", "real_speaker.corpus=''"]
+# the tracker's evaluation on 3 utterances (one per expression; 6 by default) and two training
+# seeds per ceiling step (3 by default): every stage and its bookkeeping, with less work
+SMALLER = ["--set", "tracker.n_utterances=3", "--set", "ceiling.seeds=2"]
+# four ceiling steps, small: the run's, one nuisance off (its own corpus), the tracked MUPs
+# (a tracked copy of the run's corpus), the oracle
+CEILING_GRID = """base:
+  mapping.splits: [random_frames, utterance]
+  mapping.baselines: []
+  mapping.train.max_epochs: 40
+children:
+  ours: {}
+  no-brow-motion: {synth.brow_px: 0}
+  tracked: {mapping.visual_source: tracked}
+  oracle: {mapping.gate_front_end: labels, mapping.mlp_input: phones}
+"""
+# two voice-robust configurations, small: the run's voice, and three engines with CMVN
+VOICES_GRID = """model: many
+base:
+  mapping.splits: [utterance]
+  mapping.baselines: []
+children:
+  one: {}
+  many:
+    synth.voices: [espeak:en-us+f3, flite:awb, festival:kal_diphone]
+    mapping.cmvn: meanvar
+"""
+
+
+def build_full_run(root: Path, main) -> Path:
+    """Make the run ``tiny`` (and ``reports/tiny.pdf``, ``mlflow.db``, ``mlartifacts/``) with
+    ``main`` (the CLI entry point) in ``root``, the current folder."""
+    (root / "voices.yaml").write_text(VOICES_GRID)
+    (root / "ceiling.yaml").write_text(CEILING_GRID)
+    assert main(["replicate", "--name", "tiny", *TINY, *SMALLER, "--ablations", "none",
+                 "--voices", "voices.yaml", "--set", "ceiling.grid=ceiling.yaml",
+                 "--set", "real_speaker.corpus=builtin"]) == 0
+    return root
