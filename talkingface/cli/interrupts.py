@@ -14,6 +14,15 @@ from a blocking call. The command then ends its workers the way it ends them on 
 Dask cluster closes with its context, a pool is terminated), and :func:`end_after_interrupt`
 closes, without a word, a Dask cluster cut while it started.
 
+An interrupt raised where Python cannot pass it on is not lost: in an ``os.fork`` hook (a pool
+forking a worker runs logging's, for one), a finaliser or a weak reference's callback, Python
+reports a ``KeyboardInterrupt`` as "unraisable" ("Exception ignored in ...", with a traceback)
+and drops it. While the block is active, ``sys.unraisablehook`` takes such a one without a word
+and has the waiting thread raise it again in the main thread, as for a new Ctrl-C, so that it
+surfaces in the next ordinary code (the hook cannot raise it itself: Python would raise it in
+the hook, which drops it too); one still waiting when the block ends is raised as it ends.
+Other unraisable exceptions go to the hook there was before, which is put back on exit.
+
 A worker that never sees the Ctrl-C must not outlive the command. Spawned workers (Dask's, a
 spawn pool's) end by themselves when the command has gone (Dask's watch their parent; a pool's
 read EOF). A forked worker shares the command's pipes and locks and would wait for ever (a pool
@@ -37,8 +46,10 @@ import time
 from collections.abc import Iterator
 from multiprocessing import resource_tracker
 
-# The commands that start worker processes (Dask, process pools, the speech synthesis pool).
-WORKER_COMMANDS = ("replicate", "train", "track", "ablate", "synth", "units")
+# The commands that start worker processes (Dask, process pools, the speech synthesis pool,
+# the pool that hears recordings).
+WORKER_COMMANDS = ("replicate", "train", "track", "ablate", "synth", "units",
+                   "evaluate-speech")
 INTERRUPTED = ("interrupted: finished stages and files are kept; unfinished ones were not "
                "written under their names (a grid's finished tasks are: the same command goes "
                "on from them)")
@@ -73,26 +84,47 @@ def interrupts_for_this_process() -> Iterator[None]:
         return
     _start_resource_tracker()
     main_id = threading.main_thread().ident
+    owner = os.getpid()
     old_wake = signal.signal(_WAKE, _no_op)
     old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     was_active, _keep["active"] = _keep["active"], True
     stop = threading.Event()
+    dropped = threading.Event()  # an interrupt Python dropped, not raised again yet
 
     def wait_for_ctrl_c() -> None:  # SIGINT is blocked here too (inherited): sigwait takes it
         while True:
             signal.sigwait({signal.SIGINT})
             if stop.is_set():
                 return
+            dropped.clear()  # raised again now, with this one
             _thread.interrupt_main(signal.SIGINT)  # KeyboardInterrupt at the next bytecode
             with contextlib.suppress(ProcessLookupError, OSError):
                 signal.pthread_kill(main_id, _WAKE)  # ... or now, out of a blocking call
 
     waiter = threading.Thread(target=wait_for_ctrl_c, name="ctrl-c", daemon=True)
+    old_hook = sys.unraisablehook
+
+    def keep_interrupts(unraisable) -> None:
+        """A ``KeyboardInterrupt`` Python could not raise, raised again (module docstring)."""
+        if not (isinstance(unraisable.exc_type, type)
+                and issubclass(unraisable.exc_type, KeyboardInterrupt)
+                and os.getpid() == owner and threading.get_ident() == main_id):
+            old_hook(unraisable)
+            return
+        try:
+            _raise_again(dropped, stop, waiter)
+        except KeyboardInterrupt:  # another one, raised here: kept the same way
+            _raise_again(dropped, stop, waiter)
+
     waiter.start()
-    ended = False
+    sys.unraisablehook = keep_interrupts
+    ended = interrupted = False
     try:
         yield
         ended = True
+    except KeyboardInterrupt:
+        interrupted = True
+        raise
     finally:
         stop.set()
         with contextlib.suppress(ProcessLookupError, OSError):
@@ -102,6 +134,20 @@ def interrupts_for_this_process() -> Iterator[None]:
             _keep["active"] = was_active
         signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)
         signal.signal(_WAKE, old_wake)
+        if sys.unraisablehook is keep_interrupts:
+            sys.unraisablehook = old_hook
+        if dropped.is_set() and not interrupted:  # dropped, and the waiter has gone
+            raise KeyboardInterrupt
+
+
+def _raise_again(dropped: threading.Event, stop: threading.Event,
+                 waiter: threading.Thread) -> None:
+    """Have the waiting thread raise a dropped interrupt again in the main thread (as for a
+    Ctrl-C); once the block is ending, it raises it as it ends (``dropped``)."""
+    dropped.set()
+    if not stop.is_set():
+        with contextlib.suppress(ProcessLookupError, OSError):
+            signal.pthread_kill(waiter.ident, signal.SIGINT)
 
 
 def _start_resource_tracker() -> None:

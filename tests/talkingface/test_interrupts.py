@@ -5,7 +5,9 @@ line that refuses a study simulation cut between participants (one line, bounded
 participants the simulation planned).
 
 The Ctrl-C tests run the real command line in a process of its own, and send SIGINT to its whole
-process group, as a terminal's Ctrl-C does: the command and every process it started get it.
+process group, as a terminal's Ctrl-C does: the command and every process it started get it. An
+interrupt that lands where Python cannot raise it (an ``os.fork`` hook, a finaliser) is raised
+again, without a word, in a script of its own (its fork hooks stay out of the test process).
 """
 from __future__ import annotations
 
@@ -19,6 +21,8 @@ import sys
 import threading
 import time
 from pathlib import Path
+
+import textwrap
 
 import pytest
 
@@ -125,6 +129,91 @@ def test_ctrl_c_prints_one_line_and_leaves_no_worker(tmp_path, command, marker):
     run = tmp_path / "runs" / "t"
     assert sorted(p.name for p in run.glob(".*")) == (
         [".ablations.partial"] if command[0] == "ablate" else [])
+
+
+# -- an interrupt Python would drop ----------------------------------------------------------
+# The interrupt raised where Python reports it as "unraisable" and drops it: in a hook that
+# os.fork runs in the parent (as logging's, when a pool forks a worker while a Ctrl-C is
+# raised), or in a finaliser. LOOP bounds the ordinary code run after it: far more than it takes
+# (the waiting thread raises it again as soon as it holds the GIL, within the switch interval).
+LOOP = 10**9
+LAND = {
+    "fork hook": """
+        def land():
+            if not landed:
+                landed.append(1)
+                raise KeyboardInterrupt
+        os.register_at_fork(after_in_parent=land)
+        pid = os.fork()
+        if pid == 0:
+            os._exit(0)
+        os.waitpid(pid, 0)
+        assert landed
+    """,
+    "finaliser": """
+        class Cut:
+            def __del__(self):
+                landed.append(1)
+                raise KeyboardInterrupt
+        Cut()
+        assert landed
+    """,
+}
+THEN = {
+    "ordinary code": f"""
+        total = 0
+        for i in range({LOOP}):
+            total += i
+        print("loop finished")
+    """,
+    "block end": "",  # the block ends at once: raised as it ends, if not by then
+}
+
+
+def _script(body: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    return subprocess.run([sys.executable, "-c", textwrap.dedent(body)], env=env,
+                          capture_output=True, text=True, timeout=HANG_GUARD_S, cwd=REPO)
+
+
+@pytest.mark.parametrize("then", THEN)
+@pytest.mark.parametrize("where", LAND)
+def test_an_interrupt_python_drops_is_raised_again_without_a_word(where, then):
+    body = ("import os\nimport sys\n"
+            "from talkingface.cli.interrupts import interrupts_for_this_process\n"
+            "landed = []\nbefore = sys.unraisablehook\ntry:\n"
+            "    with interrupts_for_this_process():\n"
+            + textwrap.indent(textwrap.dedent(LAND[where] + THEN[then]), " " * 8)
+            + "    print('not interrupted')\n"
+            "except KeyboardInterrupt:\n"
+            "    print('interrupted', sys.unraisablehook is before)\n")
+    done = _script(body)
+    assert done.returncode == 0, done.stderr
+    # once, where ordinary code runs next: not at the block's end, not never
+    assert done.stdout.splitlines() == ["interrupted True"], done.stdout + done.stderr
+    assert "Traceback" not in done.stderr and "Exception ignored" not in done.stderr, done.stderr
+
+
+def test_other_unraisable_exceptions_reach_the_hook_there_was():
+    done = _script("""
+        import sys
+        from talkingface.cli.interrupts import interrupts_for_this_process
+        seen = []
+        def before(unraisable):
+            seen.append((unraisable.exc_type.__name__, str(unraisable.exc_value)))
+        sys.unraisablehook = before
+        class Broken:
+            def __del__(self):
+                raise ValueError("in a finaliser")
+        with interrupts_for_this_process():
+            assert sys.unraisablehook is not before
+            Broken()
+        assert sys.unraisablehook is before
+        print(seen)
+    """)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[('ValueError', 'in a finaliser')]", done.stdout + done.stderr
+    assert done.stderr == ""
 
 
 # -- a study simulation cut between participants --------------------------------------------
