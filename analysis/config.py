@@ -1,16 +1,17 @@
-"""The project's targets, owned by ``analysis`` (section ``targets`` of the run config).
+"""The settings owned by ``analysis``: the project's targets (section ``targets`` of the run
+config) and the part of the real-speech set the evaluation scores (section ``speech_set``).
 
 One table of targets, stated once before a run and quoted from here by every table that
 compares a figure with its target (the real-speech section, the real-speaker section, the
 first page). They are the bars the project set itself for real data; a figure short of its
-target is reported as short, never tuned toward it. ``talkingface.config`` composes this
-section; ``configs/paper.yaml`` mirrors it.
+target is reported as short, never tuned toward it. ``talkingface.config`` composes these
+sections; ``configs/paper.yaml`` mirrors them.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
-from groundwork.settings import check_fields, fraction, number
+from groundwork.settings import check_fields, fraction, integer, number
 
 
 @dataclass(frozen=True)
@@ -43,6 +44,21 @@ class TargetsConfig:
     def rows(self) -> list[tuple[str, float, str]]:
         """``(key, value, what it bounds)`` for the report's table of targets, in field order."""
         return [(f.name, getattr(self, f.name), TARGET_TEXT[f.name]) for f in fields(self)]
+
+
+@dataclass(frozen=True)
+class SpeechSetConfig:
+    """Which recordings of the real-speech set (``analysis/real_speech/``) the ``speech_eval``
+    stage and ``talkingface evaluate-speech`` score
+    (:func:`analysis.speech_set.subset_rows`)."""
+
+    # 0: every recording; N >= 1: the first N recordings of each speaker in each part (dev,
+    # test), in manifest order (a speaker with fewer gives all it has): a quick look, e.g. a
+    # small replication, not the set's figures
+    per_speaker: int = integer(0, ge=0)
+
+    def __post_init__(self):
+        check_fields(self)
 
 
 TARGET_TEXT = {

@@ -158,6 +158,22 @@ def _reasons(rows: list) -> str:
     return (" †: no interval (" + "; ".join(notes) + ").") if notes else ""
 
 
+def set_part_text(info: dict) -> str:
+    """The sentence that says the figures come from a part of the set, from speech_eval's
+    results.json ``info`` (``recordings``, ``speakers`` and ``speech_set``: the setting
+    ``speech_set.per_speaker`` and how many recordings the set lists); empty when every
+    recording was scored (or the file predates the setting)."""
+    chosen = info.get("speech_set") or {}
+    k, total = chosen.get("per_speaker") or 0, chosen.get("set_recordings")
+    n = len(info.get("recordings") or [])
+    if not k or not total or n >= total:
+        return ""
+    return (f"<b>A part of the set:</b> this run scored {n} of {total} recordings (the first "
+            f"{k} of each speaker and part, speech_set.per_speaker = {k}) of "
+            f"{len(info.get('speakers') or [])} speakers; every figure below is of that part, "
+            "not of the whole set. ")
+
+
 def speech_section(rep, speech_dir: Path, voices_rows: list, *, table_ii_R: float | None,
                    default_model: str | None, given_corpus: bool = False,
                    targets: TargetsConfig = TargetsConfig()) -> None:
@@ -181,8 +197,9 @@ def speech_section(rep, speech_dir: Path, voices_rows: list, *, table_ii_R: floa
     shown = [s for s, _ in SPLITS if any(r["split"] == s and r.get("files") not in ("", "0")
                                          for r in results)]
     rep.paragraph(
-        ("Every model above was trained on the given corpus's speech. " if given_corpus else
-         "Every model above was trained on synthetic speech. ")
+        set_part_text(info)
+        + ("Every model above was trained on the given corpus's speech. " if given_corpus else
+           "Every model above was trained on synthetic speech. ")
         + "Here each one animates recordings of real people that no one in this project made "
         "(analysis/real_speech/, with its sources and licences), scored against their phone "
         "labels: the gate's viseme accuracy, whether the inner lips meet on /p b m/, and the r "

@@ -51,7 +51,7 @@ from face_model.corpus import read_manifest as read_manifest_rows
 from face_model.forced_align import ALIGNER_NAME, tidy_segments
 from face_model.phones import phone_class
 from groundwork.audio import read_wav, resample
-from groundwork.errors import CorpusError
+from groundwork.errors import CorpusError, ParameterError
 
 SET_DIR = Path(__file__).resolve().parent / "real_speech"
 MANIFEST = "manifest.csv"
@@ -237,8 +237,35 @@ def _load_item(set_dir: Path, row: dict) -> SpeechItem:
                       native_sr=int(native_sr))
 
 
-def load_speech_set(set_dir=SET_DIR, ids=None) -> list[SpeechItem]:
-    """Every recording of the set (or those in ``ids``), loaded and checked (see
+def subset_rows(rows: list, per_speaker: int = 0) -> list:
+    """The first ``per_speaker`` of ``rows`` (manifest rows, :func:`read_manifest`) of each
+    speaker in each part, in their order; every row when ``per_speaker`` is 0 (the setting
+    ``speech_set.per_speaker``, :class:`analysis.config.SpeechSetConfig`). A speaker and part
+    with fewer rows gives all it has, so every speaker and part of ``rows`` is kept.
+
+    Raises
+    ------
+    ParameterError
+        ``per_speaker`` not an integer >= 0.
+    """
+    if isinstance(per_speaker, bool) or not isinstance(per_speaker, int) or per_speaker < 0:
+        raise ParameterError(f"speech_set.per_speaker is {per_speaker!r}; allowed: an integer "
+                             ">= 0 (0: every recording)")
+    if per_speaker == 0:
+        return list(rows)
+    taken: dict = {}
+    out = []
+    for r in rows:
+        group = (r["speaker"], r.get("part") or "test")
+        if taken.get(group, 0) < per_speaker:
+            taken[group] = taken.get(group, 0) + 1
+            out.append(r)
+    return out
+
+
+def load_speech_set(set_dir=SET_DIR, ids=None, per_speaker: int = 0) -> list[SpeechItem]:
+    """Every recording of the set (or those in ``ids``; of those, the first ``per_speaker``
+    of each speaker and part when it is not 0: :func:`subset_rows`), loaded and checked (see
     :func:`read_manifest` and :func:`read_labels`); errors name the file."""
     set_dir = Path(set_dir)
     rows = read_manifest(set_dir)
@@ -247,4 +274,4 @@ def load_speech_set(set_dir=SET_DIR, ids=None) -> list[SpeechItem]:
         if unknown:
             raise CorpusError(f"{set_dir / MANIFEST}: no recordings {unknown}")
         rows = [r for r in rows if r["id"] in set(ids)]
-    return [_load_item(set_dir, r) for r in rows]
+    return [_load_item(set_dir, r) for r in subset_rows(rows, per_speaker)]

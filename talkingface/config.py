@@ -7,7 +7,8 @@ that belong to the pipeline and the command line: ``corpus`` (a given corpus ins
 synthetic one), ``mlflow`` (where runs are logged), ``ablations`` (the grid
 ``replicate`` trains as child runs, and its seeds), ``cluster`` (where grid tasks run),
 ``ceiling`` (the steps toward the ceiling) and ``voices`` (the grid of voice-robust models);
-``targets`` (:mod:`analysis.config`) holds the project's targets on real data, stated once.
+``targets`` (:mod:`analysis.config`) holds the project's targets on real data, stated once, and
+``speech_set`` (:mod:`analysis.config`) the part of the real-speech set the evaluation scores.
 It composes, loads, validates and dumps them.
 
 ``configs/paper.yaml`` mirrors the defaults. A YAML file may set any subset of keys;
@@ -29,7 +30,7 @@ from pathlib import Path
 
 import yaml
 
-from analysis.config import TargetsConfig
+from analysis.config import SpeechSetConfig, TargetsConfig
 from data_synth.config import SynthConfig
 from face_model.config import TrackerConfig, UnitsConfig
 from groundwork.errors import ParameterError
@@ -167,6 +168,7 @@ class Config:
     voices: VoicesConfig = field(default_factory=VoicesConfig)
     ceiling: CeilingConfig = field(default_factory=CeilingConfig)
     targets: TargetsConfig = field(default_factory=TargetsConfig)
+    speech_set: SpeechSetConfig = field(default_factory=SpeechSetConfig)
 
     def __post_init__(self):
         check_fields(self)

@@ -265,8 +265,14 @@ def cmd_evaluate_speech(args) -> int:
     for path in (files["results"], files["per_file"], files["json"]):
         check_output_file(path, "--out", overwrite=args.overwrite)
     res = evaluate_models(models, args.out, set_dir=args.set_dir, targets=cfg.targets,
+                          per_speaker=cfg.speech_set.per_speaker,
                           progress=lambda msg: print(msg, file=sys.stderr),
                           cache=ArrayCache(model_cache(args.model)), workers=0)
+    part = res["speech_set"]
+    if part["per_speaker"]:
+        print(f"a part of the set: {len(res['recordings'])} of {part['set_recordings']} "
+              f"recordings (the first {part['per_speaker']} of each speaker and part; "
+              "speech_set.per_speaker)", file=sys.stderr)
     passes = res["recogniser_passes"]
     print(f"recognisers: {passes['heard']} recordings heard, {passes['reused']} read from the "
           "cache", file=sys.stderr)

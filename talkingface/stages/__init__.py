@@ -61,7 +61,7 @@ STAGES = {s.name: s for s in (
           upstream=_TRAINING_INPUTS),
     _grid_stage(VOICES, train_voices, config=("seed", "synth", "units", "mapping"),
                 speed_only=("synth.workers", "mapping.workers"), applies=synthesised),
-    Stage("speech_eval", evaluate_speech, config=("targets.lookahead_ms",),
+    Stage("speech_eval", evaluate_speech, config=("targets.lookahead_ms", "speech_set"),
           upstream=("corpus", "units", "mapping", "voices"), files=set_files),
     Stage("render", render_held_out, upstream=("corpus", "keyframes", "mapping")),
     Stage("stimuli", make_stimuli, config=("seed", "synth"), speed_only=("synth.workers",),

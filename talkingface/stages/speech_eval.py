@@ -24,7 +24,10 @@ files named after it: ``FILE``, ``<stem>_per_file.csv``, ``<stem>.json``, ``<ste
                     same unseen test recordings, with paired speaker-level intervals
     lookahead.csv   per recogniser × split × look-ahead (0–200 ms): streaming viseme accuracy
     lookahead.png   that curve on the unseen test speakers, both kinds of labels
-    results.json    the rows above, with the set, each model's training speakers, the
+    results.json    the rows above, with the set (``recordings``: the ids scored;
+                    ``speech_set``: ``per_speaker``, the setting ``speech_set.per_speaker``
+                    they were picked by, 0 for every recording, and ``set_recordings``, how many
+                    the set's manifest lists), each model's training speakers, the
                     speakers and recording ids of every split row, and whether each model's
                     live output equals its offline output
     opening_<model>.png  predicted vs reference lip opening on one real sentence with its phones
@@ -39,10 +42,11 @@ from analysis.config import TargetsConfig
 from analysis.speech_eval import NATIVE, RATES, model_jobs, opening_figure, score_model, \
     synth_of, training_speakers
 from analysis.speech_peers import peer_scores
-from analysis.speech_pooling import SPLITS, compare, per_speaker, summarise
+from analysis.speech_pooling import SPLITS, compare, summarise
+from analysis.speech_pooling import per_speaker as speaker_rows
 from analysis.speech_recogniser import NAMES, lookahead_figure, recogniser_jobs, \
     recogniser_scores
-from analysis.speech_set import MANIFEST, SET_DIR, load_speech_set, read_manifest
+from analysis.speech_set import MANIFEST, SET_DIR, load_speech_set, read_manifest, subset_rows
 from face_model.motion_units import MotionUnits
 from groundwork.cache import ArrayCache
 from groundwork.errors import ParameterError
@@ -58,8 +62,10 @@ FIGURE_RECORDING = "slt_a0009"  # a real sentence with hand-checked (HTS) labels
 
 
 def set_files(paths, cfg) -> list:
-    """The evaluation set's files (the stage is made again when one changes)."""
-    rows = read_manifest(SET_DIR)
+    """The evaluation set's files the stage scores (its manifest, and the audio and labels of
+    the recordings ``speech_set.per_speaker`` picks): the stage is made again when one changes,
+    or when the setting picks others."""
+    rows = subset_rows(read_manifest(SET_DIR), cfg.speech_set.per_speaker)
     return [SET_DIR / MANIFEST] + [SET_DIR / r[k] for r in rows for k in ("wav", "labels")]
 
 
@@ -115,7 +121,7 @@ def _split_ids(per_file: list) -> dict:
 def evaluate_models(models: dict, out_csv, *, set_dir=None, recogniser: bool = True,
                     peers: bool = True, rates=RATES, default_model: str | None = None,
                     all_rates: bool = False, targets: TargetsConfig = TargetsConfig(),
-                    progress=None, cache=None, workers: int = 0) -> dict:
+                    per_speaker: int = 0, progress=None, cache=None, workers: int = 0) -> dict:
     """Score every ``models`` entry (name → ``(tfmap, motion_units.npz, training corpus folder
     or None)``) on the set at ``set_dir`` (default: the shipped set) at the native rate, and
     ``default_model`` (every model with ``all_rates``: each costs a full pass per rate) at each
@@ -124,8 +130,10 @@ def evaluate_models(models: dict, out_csv, *, set_dir=None, recogniser: bool = T
     recording is *seen* for a model when its speaker is one of that model's training speakers
     (:func:`analysis.speech_eval.training_speakers`); the recognisers and peers take the
     splits of ``default_model`` (default: the first model), the model every comparison is made
-    against. The streaming column is at
-    ``targets.lookahead_ms``. ``cache`` (a :class:`groundwork.cache.ArrayCache`): every
+    against. The streaming column is at ``targets.lookahead_ms``. ``per_speaker`` (the
+    setting ``speech_set.per_speaker``): 0 scores every recording of the set, N the first N
+    of each speaker and part (:func:`analysis.speech_set.subset_rows`); the JSON file says
+    which (``speech_set``). ``cache`` (a :class:`groundwork.cache.ArrayCache`): every
     recording each model's recogniser front end and the recognisers hear is heard first, on
     ``workers`` processes (0: all cores; :func:`mapping.hearing.hear_all`), into the cache,
     and the scores read it (the result's ``recogniser_passes`` counts recordings heard and
@@ -134,7 +142,8 @@ def evaluate_models(models: dict, out_csv, *, set_dir=None, recogniser: bool = T
     files = output_files(out_csv)
     files["results"].parent.mkdir(parents=True, exist_ok=True)
     set_dir = SET_DIR if set_dir is None else set_dir
-    items = load_speech_set(set_dir)
+    items = load_speech_set(set_dir, per_speaker=per_speaker)
+    n_set = len(read_manifest(set_dir))
     key = stream_key(targets.lookahead_ms)
     default_model = default_model if default_model in models else next(iter(models), None)
     mappings = {name: AudioMapping.load(tfmap) for name, (tfmap, _, _) in models.items()}
@@ -152,6 +161,7 @@ def evaluate_models(models: dict, out_csv, *, set_dir=None, recogniser: bool = T
         res = _score(models, mappings, rates_of, items, files, key, default_model, set_dir,
                      recogniser=recogniser, peers=peers, rates=rates, targets=targets,
                      progress=progress)
+    res["speech_set"] = {"per_speaker": per_speaker, "set_recordings": n_set}
     if passes is not None:
         res["recogniser_passes"] = passes.as_dict()
     files["json"].write_text(json.dumps(res, indent=1, default=float))
@@ -200,7 +210,7 @@ def _score(models, mappings, rates_of, items, files, key, default_model, set_dir
     summary_all = summarise(per_file, key)
     native = [r for r in per_file if r["input_rate"] == NATIVE]
     summary = [r for r in summary_all if r["input_rate"] == NATIVE]
-    speakers = per_speaker(native, key)
+    speakers = speaker_rows(native, key)
     comparisons = _comparisons(native, default_model, others, key)
     write_csv(files["results"], summary)
     write_csv(files["per_file"], native)
@@ -282,7 +292,8 @@ def model_cache(model: str, runs_dir="runs") -> Path:
 def evaluate_speech(paths: RunPaths, cfg) -> dict:
     """The run's mapping model(s) and its voice-robust models (stage ``voices``, each with the
     corpus it was trained on) on the real-speech set (stage ``speech_eval``); the comparisons
-    are made against the run's default model (the voices stage's pick, else the mapping)."""
+    are made against the run's default model (the voices stage's pick, else the mapping); the
+    recordings are those ``speech_set.per_speaker`` picks."""
     models = run_models(paths)
     for name, (tfmap, corpus) in voices_models(paths).items():
         models[f"voices-{name}"] = (tfmap, paths.units_model, corpus)
@@ -290,7 +301,9 @@ def evaluate_speech(paths: RunPaths, cfg) -> dict:
     default = f"voices-{chosen}" if chosen else f"{cfg.mapping.method}_utterance"
     res = evaluate_models(models, paths.stage("speech_eval") / "results.csv",
                           default_model=default, targets=cfg.targets,
+                          per_speaker=cfg.speech_set.per_speaker,
                           cache=ArrayCache(paths.cache), workers=0)
     return {"summary": res["summary"], "seen_speakers": res["seen_speakers"],
+            "speech_set": {**res["speech_set"], "recordings": len(res["recordings"])},
             "training_speakers": res["training_speakers"], "models": res["models"],
             "recogniser_passes": res["recogniser_passes"]}

@@ -14,7 +14,7 @@ from analysis.speech_eval import phone_frames, viseme_index
 from analysis.speech_set import load_speech_set
 from face_model.phones import BILABIALS, PHONE_INDEX, PHONES
 from groundwork.errors import ParameterError
-from mapping import hama_front
+from mapping import hama_front, recogniser
 from mapping.hama_front import (HAMA_RATE, HamaStream, labels_at_delays,
                                 output_classes, whole_utterance)
 from mapping.recogniser import (RECOGNISERS, phone_stream, recogniser_name,
@@ -74,6 +74,8 @@ def model_runs(monkeypatch, decode_cache):
         return decode_cache["outputs"][key]
 
     monkeypatch.setattr(hama_front, "log_posteriors", log_posteriors)
+    # what this process heard before (in any module) is heard again here, through the counter
+    monkeypatch.setattr(recogniser, "_HEARD", {})
     return decode_cache
 
 

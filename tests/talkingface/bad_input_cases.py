@@ -31,9 +31,11 @@ from groundwork.owner import lock_path
 
 TINY = ["--set", "synth.n_sentences=3", "--set", "synth.workers=2", "--set", "mlflow.enabled=false",
         "--set", "real_speaker.corpus=''"]  # the real-speaker stage: test_cli_pipeline
+# the real-speech set's first 2 recordings of each speaker and part (21 of 354, all 12 speakers:
+# analysis.speech_set.subset_rows): the speech_eval stage and its bookkeeping, with less work
 QUICK = [*TINY, "--set", "mapping.baselines=[linear]", "--set", "mapping.train.max_epochs=20",
          "--set", "study.n_participants=4", "--set", "voices.grid=none",
-         "--set", "ceiling.grid=none", "--ablations", "none"]
+         "--set", "ceiling.grid=none", "--set", "speech_set.per_speaker=2", "--ablations", "none"]
 RUN = QUICK[:-2]  # the run's settings, for the commands without --ablations
 
 TFMAP = "runs/R/mapping/gated_mlp_utterance.tfmap"  # the run's own model (never damaged)

@@ -53,6 +53,11 @@ CASES: list = [
     (_replicate("--set", "voices.grid=grid.yaml"), ["voices.grid", "grid.yaml", "'model'"]),
     (["train", "--name", "G", *RUN, "--set", "corpus.source=rs_nan_corpus"],
      ["corpus.source", "rs_nan_corpus", "NaN"]),
+    # -- speech_set.per_speaker: how many recordings of each speaker and part are scored
+    (_replicate("--set", "speech_set.per_speaker=-1"),
+     ["speech_set.per_speaker", "-1", "an integer >= 0"]),
+    (["evaluate-speech", "--model", "R", "--out", "ev_subset/results.csv", "--set",
+      "speech_set.per_speaker=x"], ["speech_set.per_speaker", "'x'", "an integer"]),
     # -- a message that would list a thousand participants: one line, its advice kept
     (["analyze", "sd_cut_many", "--out", "an_new"],
      ["sd_cut_many", "holds incomplete sessions", "--allow-incomplete"]),

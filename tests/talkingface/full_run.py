@@ -9,9 +9,11 @@ from pathlib import Path
 # 3 sentences; the real-speaker stage (GRID s1, 196 sentences) only where a test asks for it
 TINY = ["--set", "synth.n_sentences=3", "--set", "synth.workers=2",
         "--set", "real_speaker.corpus=''"]
-# the tracker's evaluation on 3 utterances (one per expression; 6 by default) and two training
-# seeds per ceiling step (3 by default): every stage and its bookkeeping, with less work
-SMALLER = ["--set", "tracker.n_utterances=3", "--set", "ceiling.seeds=2"]
+# the tracker's evaluation on 3 utterances (one per expression; 6 by default), two training
+# seeds per ceiling step (3 by default) and the real-speech set's first 2 recordings of each
+# speaker and part (21 of 354, every speaker): every stage and its bookkeeping, with less work
+SMALLER = ["--set", "tracker.n_utterances=3", "--set", "ceiling.seeds=2",
+           "--set", "speech_set.per_speaker=2"]
 # four ceiling steps, small: the run's, one nuisance off (its own corpus), the tracked MUPs
 # (a tracked copy of the run's corpus), the oracle
 CEILING_GRID = """base:

@@ -209,6 +209,7 @@ BAD_VALUES = [
     ('real_speaker.corpus=" grid"', "' grid'"),
     ("targets.viseme_accuracy=1.5", "1.5"),
     ("targets.frame_cost_p99_ms=0", "0.0"),
+    ("speech_set.per_speaker=-1", "-1"),
 ]
 
 
