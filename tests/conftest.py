@@ -79,6 +79,19 @@ def pytest_xdist_make_scheduler(config, log):
 
 
 @pytest.fixture(autouse=True)
+def _tracking_uri_as_it_was():
+    """``mlflow.set_tracking_uri`` (a command that logs, run in-process) also sets
+    ``$MLFLOW_TRACKING_URI`` for the whole process: put back as it was after each test, so a
+    later test's command does not log to a server an earlier test stopped."""
+    before = os.environ.get("MLFLOW_TRACKING_URI")
+    yield
+    if before is None:
+        os.environ.pop("MLFLOW_TRACKING_URI", None)
+    else:
+        os.environ["MLFLOW_TRACKING_URI"] = before
+
+
+@pytest.fixture(autouse=True)
 def _release_held_folders():
     """What a test that calls the run layer directly (not through the CLI, which releases at
     its end) left held: released after each test (groundwork.owner)."""

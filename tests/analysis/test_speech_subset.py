@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import csv
 import json
-import shutil
 
 import pytest
 
@@ -18,8 +17,7 @@ from talkingface.config import load_config
 from talkingface.paths import RunPaths
 from talkingface.stages import speech_eval as stage
 from talkingface.stages.base import DONE, fingerprint, stage_key
-from talkingface.stages.foundation import fit_units_folder
-from talkingface.stages.training import train_and_evaluate
+from tests.talkingface.test_evaluate_speech import tiny_trained_run
 
 TINY = ["mapping.baselines=[]", "mapping.splits=[utterance]", "mapping.train.max_epochs=8",
         "mapping.min_class_frames=20", "mlflow.enabled=false", "voices.grid=none"]
@@ -110,15 +108,7 @@ def cut_set(tmp_path_factory):
 @pytest.fixture(scope="module")
 def tiny_run(small_corpus_dir, tmp_path_factory):
     """runs/t with the small corpus, its Motion Units and a mapping trained for a few epochs."""
-    root = tmp_path_factory.mktemp("speech_subset")
-    paths = RunPaths.create("t", runs_dir=root / "runs")
-    cfg = load_config(None, TINY)
-    shutil.copytree(small_corpus_dir, paths.corpus)
-    fit_units_folder(paths.corpus, paths.units, cfg)
-    res = train_and_evaluate(paths.corpus, paths.units_model, paths.mapping, cfg, progress=False)
-    (paths.mapping / DONE).write_text(json.dumps({"fingerprint": "test",
-                                                  "models": res["models"]}))
-    return paths
+    return tiny_trained_run(tmp_path_factory.mktemp("speech_subset"), small_corpus_dir)
 
 
 def test_the_stage_scores_exactly_the_first_two_of_each_speaker(tiny_run, cut_set,

@@ -25,17 +25,24 @@ TINY = ["mapping.baselines=[]", "mapping.splits=[utterance]", "mapping.train.max
         "mapping.min_class_frames=20", "mlflow.enabled=false"]
 
 
-@pytest.fixture(scope="module")
-def run_dir(small_corpus_dir, tmp_path_factory):
-    """runs/t with the small corpus, its Motion Units and a mapping trained for a few epochs."""
-    root = tmp_path_factory.mktemp("speech_eval")
+def tiny_trained_run(root: Path, corpus_dir: Path) -> RunPaths:
+    """runs/t under ``root`` with the corpus ``corpus_dir``, its Motion Units and a mapping
+    trained for a few epochs (:data:`TINY`)."""
     paths = RunPaths.create("t", runs_dir=root / "runs")
     cfg = load_config(None, TINY)
-    shutil.copytree(small_corpus_dir, paths.corpus)
+    shutil.copytree(corpus_dir, paths.corpus)
     fit_units_folder(paths.corpus, paths.units, cfg)
     res = train_and_evaluate(paths.corpus, paths.units_model, paths.mapping, cfg, progress=False)
     (paths.mapping / DONE).write_text(json.dumps({"fingerprint": "test",
                                                   "models": res["models"]}))
+    return paths
+
+
+@pytest.fixture(scope="module")
+def run_dir(small_corpus_dir, tmp_path_factory):
+    """runs/t with the small corpus, its Motion Units and a mapping trained for a few epochs."""
+    root = tmp_path_factory.mktemp("speech_eval")
+    tiny_trained_run(root, small_corpus_dir)
     return root
 
 
