@@ -29,7 +29,7 @@ from groundwork.memory import keep_freed_memory  # noqa: E402
 from groundwork.owner import release_all  # noqa: E402
 from talkingface.config import Config  # noqa: E402
 from talkingface.paths import CACHE_ENV  # noqa: E402
-from tests.scheduling import (CostFirstScheduling, DurationRecorder,  # noqa: E402
+from tests.scheduling import (DurationRecorder, FileScheduling,  # noqa: E402
                               order_items, recorded_costs)
 
 # The test workers share the cores: each sets its torch and BLAS threads so that workers x
@@ -68,14 +68,15 @@ def pytest_configure(config):
 
 
 def pytest_collection_modifyitems(session, config, items):
-    """The costliest tests first, the readers of shared folders after (tests/scheduling.py)."""
+    """The files that make the shared folders first, then the costliest files
+    (tests/scheduling.py)."""
     items[:] = order_items(items, recorded_costs())
 
 
 @pytest.hookimpl(optionalhook=True)
 def pytest_xdist_make_scheduler(config, log):
-    """Tests handed out one at a time in the collection's order (tests/scheduling.py)."""
-    return CostFirstScheduling(config, log)
+    """Whole files handed out in the collection's order (tests/scheduling.py)."""
+    return FileScheduling(config, log)
 
 
 @pytest.fixture(autouse=True)

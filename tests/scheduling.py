@@ -1,31 +1,31 @@
-"""The suite's order and its spread over the pytest-xdist workers: the costliest tests first, one
-at a time to whichever worker is free, so that the workers finish together.
+"""The suite's order and its spread over the pytest-xdist workers: whole test files, the costliest
+first, each to whichever worker is free, so that the workers finish together.
 
-Order (:func:`order_items`, the same in every worker, so the collections agree):
+A file's tests stay together on one worker (xdist's load-scope scheduling, by module, or by class
+for test methods): its module-scoped fixtures — a server, a browser, a trained run — are made once
+per file, not once per test as they would be if its tests were dealt out one by one between
+other files' tests. The order of the files (:func:`order_items`, the same in every worker, so the
+collections agree):
 
-1. :data:`BUILD_FIRST`: the first reader of each folder shared by the whole session
-   (``build_once`` in tests/conftest.py), which makes it: the workers start on them at once;
-2. every test that reads no shared folder, costliest first;
-3. the tests that read a shared folder (:data:`SHARED_FIXTURES` among their fixtures),
-   costliest first: by the time a worker reaches them the folders are made, so no worker waits
-   on another's build (and their recorded costs are their own work, not a wait);
-4. :data:`RUN_LAST`: the check that each shared folder was made once in the session.
+1. the files of :data:`BUILD_FIRST`, the first reader of each folder shared by the whole session
+   (``build_once`` in tests/conftest.py), that reader first in its file: the workers start on
+   them at once, so the shared folders are made before the files that read them come up;
+2. every other file, the costliest first;
+3. the file of :data:`RUN_LAST`: the check that each shared folder was made once this session.
 
-A test's cost is what it took in a measured run of the suite, ``tests/durations.json`` (setup,
-call and teardown; tests under :data:`MIN_RECORDED_S` are left out and count 0, keeping their
-collection order, which keeps a module's tests together). The file is written by
-``make durations`` (``pytest --save-durations FILE``); a stale file costs balance, never a
-result. :class:`CostFirstScheduling` hands the tests out in that order, one at a time (each
-worker holds two: the one it runs and the next), instead of xdist's default first blocks of a
-quarter of the suite per worker, which would give one worker all the costly tests at the head of
-the order.
+Within a file the tests keep their collection order. A file's cost is the sum of its tests' in a
+measured run of the suite, ``tests/durations.json`` (setup, call and teardown; tests under
+:data:`MIN_RECORDED_S` are left out and count 0). The file is written by ``make durations``
+(``pytest --save-durations FILE``); a stale file costs balance, never a result.
+:class:`FileScheduling` hands out the files in that order (xdist would otherwise reorder them by
+their number of tests).
 """
 from __future__ import annotations
 
 import json
 from pathlib import Path
 
-from xdist.scheduler import LoadScheduling
+from xdist.scheduler import LoadScopeScheduling
 
 DURATIONS = Path(__file__).with_name("durations.json")
 MIN_RECORDED_S = 1.0  # tests faster than this are not recorded (they count 0)
@@ -49,56 +49,36 @@ def recorded_costs(path: Path = DURATIONS) -> dict:
         return {}
 
 
+def _file(nodeid: str) -> str:
+    return nodeid.split("::", 1)[0]
+
+
 def order_items(items: list, costs: dict) -> list:
-    """``items`` in the order of the module docstring (a stable sort: ties keep their order)."""
-    first = {nodeid: i for i, nodeid in enumerate(BUILD_FIRST)}
-    last = {nodeid: i for i, nodeid in enumerate(RUN_LAST)}
+    """``items`` in the order of the module docstring (stable: ties keep their order)."""
+    first = {_file(n): i for i, n in enumerate(BUILD_FIRST)}
+    last = {_file(n) for n in RUN_LAST}
+    cost: dict = {}
+    for it in items:
+        f = _file(it.nodeid)
+        cost[f] = cost.get(f, 0.0) + costs.get(it.nodeid, 0.0)
 
-    def group(item) -> int:
-        if item.nodeid in first:
-            return 0
-        if item.nodeid in last:
-            return 3
-        return 2 if set(SHARED_FIXTURES) & set(getattr(item, "fixturenames", ())) else 1
+    def file_key(f: str) -> tuple:
+        if f in first:
+            return (0, first[f])
+        return (2, 0.0) if f in last else (1, -cost[f])
 
-    def key(item):
-        g = group(item)
-        if g == 0:
-            return (g, first[item.nodeid])
-        if g == 3:
-            return (g, last[item.nodeid])
-        return (g, -costs.get(item.nodeid, 0.0))
-
-    return sorted(items, key=key)
+    rank = {f: i for i, f in enumerate(sorted(cost, key=file_key))}
+    builds = set(BUILD_FIRST)
+    return sorted(items, key=lambda it: (rank[_file(it.nodeid)], it.nodeid not in builds))
 
 
-class CostFirstScheduling(LoadScheduling):
-    """xdist's load scheduling, handing out the tests in the collection's order one at a time
-    (see the module docstring)."""
+class FileScheduling(LoadScopeScheduling):
+    """xdist's load-scope scheduling in the collection's order of files (see the module
+    docstring)."""
 
     def __init__(self, config, log=None):
+        config.option.loadscopereorder = False  # keep order_items' order
         super().__init__(config, log)
-        self.maxschedchunk = 1  # refills of one test; a worker keeps two (LoadScheduling)
-
-    def schedule(self) -> None:
-        assert self.collection_is_completed
-        if self.collection is not None:  # a node added later: fill it as any other
-            for node in self.nodes:
-                self.check_schedule(node)
-            return
-        if not self._check_nodes_have_same_collection():
-            self.log("**Different tests collected, aborting run**")
-            return
-        self.collection = next(iter(self.node2collection.values()))
-        self.pending[:] = range(len(self.collection))
-        # two tests each, dealt in turn: the costliest to different workers
-        for _ in range(2):
-            for node in self.nodes:
-                if self.pending:
-                    self._send_tests(node, 1)
-        if not self.pending:
-            for node in self.nodes:
-                node.shutdown()
 
 
 class DurationRecorder:

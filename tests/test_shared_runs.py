@@ -52,19 +52,26 @@ def test_two_workers_asking_at_once_get_one_build(tmp_path):
     assert len(builds_log(base, "thing").read_text().splitlines()) == 1
 
 
-def _item(nodeid, fixtures=()):
-    return SimpleNamespace(nodeid=nodeid, fixturenames=list(fixtures))
+def _item(nodeid):
+    return SimpleNamespace(nodeid=nodeid)
 
 
-def test_the_order_starts_the_builds_then_the_costliest_then_the_readers():
-    items = [_item("a::short"), _item(RUN_LAST[0]), _item("b::reader", ["small_run_dir"]),
-             _item("c::long"), _item(BUILD_FIRST[1], ["small_run_dir"]),
-             _item("d::long_reader", ["full_run_dir"]), _item(BUILD_FIRST[0], ["full_run_dir"]),
-             _item("e::other")]
-    costs = {"c::long": 50.0, "a::short": 2.0, "d::long_reader": 30.0, "b::reader": 1.0}
+def test_the_order_starts_the_builds_then_the_costliest_files_each_whole():
+    build_full, build_small = BUILD_FIRST[0], BUILD_FIRST[1]
+    full_file, small_file = build_full.split("::")[0], build_small.split("::")[0]
+    items = [_item("a.py::short"), _item(RUN_LAST[0]), _item("b.py::one"),
+             _item(f"{small_file}::other"), _item("c.py::long"), _item(build_small),
+             _item("b.py::two"), _item(f"{full_file}::reader"), _item(build_full),
+             _item("c.py::short"), _item("d.py::free")]
+    costs = {"c.py::long": 50.0, "c.py::short": 1.0, "a.py::short": 2.0, "b.py::one": 30.0,
+             "b.py::two": 30.0}
     assert [it.nodeid for it in order_items(items, costs)] == [
-        BUILD_FIRST[0], BUILD_FIRST[1], "c::long", "a::short", "e::other", "d::long_reader",
-        "b::reader", RUN_LAST[0]]
+        build_full, f"{full_file}::reader",  # the builders' files, each builder first
+        build_small, f"{small_file}::other",
+        "b.py::one", "b.py::two",  # 60 s: the costliest file, whole
+        "c.py::long", "c.py::short",  # 51 s
+        "a.py::short", "d.py::free",  # 2 s, 0 s
+        RUN_LAST[0]]
     assert set(SHARED) == set(SHARED_FIXTURES)
 
 
