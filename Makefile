@@ -36,6 +36,7 @@ bench: setup
 	$(PY) bench/bench_import.py
 	$(PY) bench/bench_grid.py
 	$(PY) bench/bench_profile.py
+	$(PY) bench/bench_hearing.py
 
 ui: setup
 	$(PY) -m talkingface ui
