@@ -17,7 +17,7 @@ from talkingface.config import load_config
 from talkingface.paths import RunPaths
 from talkingface.stages import speech_eval as stage
 from talkingface.stages.base import DONE, fingerprint, stage_key
-from tests.talkingface.test_evaluate_speech import tiny_trained_run
+from tests.talkingface.test_evaluate_speech import set_of, tiny_trained_run
 
 TINY = ["mapping.baselines=[]", "mapping.splits=[utterance]", "mapping.train.max_epochs=8",
         "mapping.min_class_frames=20", "mlflow.enabled=false", "voices.grid=none"]
@@ -72,20 +72,9 @@ def test_the_setting_refuses_a_bad_value_in_one_line(value, message):
 
 
 def _cut_set(root, keep) -> tuple:
-    """A copy of the shipped set's manifest cut to the rows ``keep`` accepts, its folders
-    linked, two levels below a link to face_model/ (the GRID rows read their audio through
-    ``../../face_model``); returns (folder, rows)."""
-    (root / "b" / "set").mkdir(parents=True)
-    (root / "face_model").symlink_to(SET_DIR.parents[1] / "face_model")
-    out = root / "b" / "set"
-    for sub in SET_DIR.iterdir():
-        if sub.is_dir():
-            (out / sub.name).symlink_to(sub)
-    rows = [r for r in read_manifest(SET_DIR) if keep(r)]
-    with open(out / "manifest.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    """The shipped set cut to the rows ``keep`` accepts (``set_of`` of
+    tests/talkingface/test_evaluate_speech.py); returns (folder, rows)."""
+    out = set_of(root, keep)
     return out, read_manifest(out)
 
 

@@ -46,7 +46,7 @@ def run_dir(small_corpus_dir, tmp_path_factory):
     return root
 
 
-def _set_of(tmp_path, keep) -> Path:
+def set_of(tmp_path, keep) -> Path:
     """A copy of the shipped set's manifest cut to the rows ``keep`` accepts, its folders
     linked, two levels below a link to face_model/ (the GRID rows read their audio through
     ``../../face_model``)."""
@@ -68,7 +68,7 @@ def _set_of(tmp_path, keep) -> Path:
 @pytest.fixture
 def small_set(tmp_path):
     """The shipped set cut down to two recordings (one ARCTIC, one pocketsphinx)."""
-    return _set_of(tmp_path, lambda r: r["id"] in ("slt_a0009", "ps_goforward"))
+    return set_of(tmp_path, lambda r: r["id"] in ("slt_a0009", "ps_goforward"))
 
 
 @pytest.fixture
@@ -76,7 +76,7 @@ def mixed_set(tmp_path):
     """ARCTIC slt, praatio's bobby, a pocketsphinx test recording and two GRID s1 sentences:
     four speakers."""
     grid = iter(range(2))
-    return _set_of(tmp_path, lambda r: r["id"] in ("slt_a0009", "praatio_bobby",
+    return set_of(tmp_path, lambda r: r["id"] in ("slt_a0009", "praatio_bobby",
                                                     "ps_goforward")
                    or (r["speaker"] == "grid-s1" and next(grid, None) is not None))
 
