@@ -1,6 +1,7 @@
-"""Shared fixtures: small synthetic corpora (one per test worker), the default-size corpus and a
-small finished run (each built once per test run, even with pytest-xdist), plus seeded random
-generators.
+"""Shared fixtures: small synthetic corpora (one per test worker), the default-size corpus, a
+quick finished run and the full small replication (each built once per test run, even with
+pytest-xdist: ``build_once``), plus seeded random generators; the suite's order and its spread
+over the workers (tests/scheduling.py), and one cache for every run the tests make.
 
 Every corpus fixture is read-only for the tests: a test that damages a corpus copies it first
 (``corpus_copy``), and the loaded corpora have their arrays marked read-only.
