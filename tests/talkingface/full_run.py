@@ -1,10 +1,14 @@
 """The small full replication the suite shares (``full_run_dir`` in tests/conftest.py, made once
-per test session): every stage of ``talkingface replicate`` on a tiny corpus, with the built-in
-real speaker (GRID s1, 196 sentences), two voice-robust models, four ceiling steps and MLflow in
-the folder's own store."""
+per test session): every stage of ``talkingface replicate`` on a tiny corpus, with a real
+speaker (every 4th of the built-in GRID s1's 196 sentences, given as a corpus folder), two
+voice-robust models, four ceiling steps and MLflow in the folder's own store."""
 from __future__ import annotations
 
+import csv
+import shutil
 from pathlib import Path
+
+from talkingface.stages.real_speaker import BUILTIN
 
 # 3 sentences; the real-speaker stage (GRID s1, 196 sentences) only where a test asks for it
 TINY = ["--set", "synth.n_sentences=3", "--set", "synth.workers=2",
@@ -41,12 +45,39 @@ children:
 """
 
 
+# every 4th sentence of the built-in real speaker (49 of 196): the stage trains all seven
+# methods on both splits and scores every peer at three rates, a quarter of the work; the
+# built-in folder itself is read by tests/talkingface/test_real_speaker_scoring.py
+REAL_EVERY = 4
+
+
+def real_speaker_part(dst: Path, every: int = REAL_EVERY) -> Path:
+    """Copy every ``every``-th sentence of the built-in real speaker (manifest order) with its
+    audio, markers, phones and quality files, ``corpus.json`` and ``NOTICE.md`` to ``dst``: a
+    corpus folder in the layout ``real_speaker.corpus`` takes."""
+    with open(BUILTIN / "manifest.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    keep = rows[::every]
+    for row in keep:
+        for column in ("audio", "markers", "phones", "quality"):
+            (dst / row[column]).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(BUILTIN / row[column], dst / row[column])
+    with open(dst / "manifest.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(keep)
+    for name in ("corpus.json", "NOTICE.md"):
+        shutil.copy2(BUILTIN / name, dst / name)
+    return dst
+
+
 def build_full_run(root: Path, main) -> Path:
     """Make the run ``tiny`` (and ``reports/tiny.pdf``, ``mlflow.db``, ``mlartifacts/``) with
     ``main`` (the CLI entry point) in ``root``, the current folder."""
     (root / "voices.yaml").write_text(VOICES_GRID)
     (root / "ceiling.yaml").write_text(CEILING_GRID)
+    real_speaker_part(root / "grid-s1-part")
     assert main(["replicate", "--name", "tiny", *TINY, *SMALLER, "--ablations", "none",
                  "--voices", "voices.yaml", "--set", "ceiling.grid=ceiling.yaml",
-                 "--set", "real_speaker.corpus=builtin"]) == 0
+                 "--set", "real_speaker.corpus=grid-s1-part"]) == 0
     return root

@@ -28,9 +28,10 @@ def pdf_text(path) -> str:
 
 
 def test_replicate_writes_runs_report_and_mlflow(full_run_dir, monkeypatch):
-    """The whole replication, small (``full_run_dir``, tests/conftest.py: every stage, the
-    real speaker GRID s1, two voice-robust models, four ceiling steps, MLflow): what needs a
-    real run is that the stages hand each other real files and the report cites them."""
+    """The whole replication, small (``full_run_dir``, tests/conftest.py: every stage, a real
+    speaker (a quarter of GRID s1's sentences), two voice-robust models, four ceiling steps,
+    MLflow): what needs a real run is that the stages hand each other real files and the
+    report cites them."""
     workdir = full_run_dir
     monkeypatch.chdir(workdir)  # read only: find_model looks for runs/ here
     run = workdir / "runs" / "tiny"
@@ -49,7 +50,7 @@ def test_replicate_writes_runs_report_and_mlflow(full_run_dir, monkeypatch):
     assert "Utterance MUs (neutral speech)" in text and "97.56 %" in text
     # the paper's pipeline on the built-in real speaker, scored against the real lips
     real = json.loads((run / "real_speaker" / "summary.json").read_text())
-    assert real["corpus"]["utterances"] == 196 and real["test_utterances"]
+    assert real["corpus"]["utterances"] == 49 and real["test_utterances"]
     assert (run / "real" / "mapping" / "tables.csv").is_file()
     assert "A real speaker (GRID s1)" in text and "Cooke" in text
     speaker_r = real["face_scores"]["speaker_model"]["pooled"]["r_speech"]

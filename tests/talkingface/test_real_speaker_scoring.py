@@ -73,3 +73,21 @@ def test_clips_of_another_face_scored_as_a_training_speaker_are_refused(small_co
     # a speaker the model was not trained on has no neutral to compare: scored without LVE
     unseen = score_model(animator, grid, training_corpus=load_corpus(BUILTIN))
     assert unseen.pooled["lve_clips"] == 0
+
+
+def test_the_default_real_speaker_is_the_built_in_corpus_of_196_sentences(tmp_path):
+    """``real_speaker.corpus: builtin`` (the default) names the shipped GRID s1 folder, which the
+    one corpus reader takes whole (the suite's full replication reads a quarter of it, copied
+    by tests/talkingface/full_run.py, whose manifest is every 4th row of this one)."""
+    from talkingface.config import Config
+    from talkingface.stages.given_corpus import check_folder
+    from talkingface.stages.real_speaker import real_corpus
+    from tests.talkingface.full_run import real_speaker_part
+
+    assert Config().real_speaker.corpus == "builtin" and real_corpus(Config()) == BUILTIN
+    whole = check_folder(BUILTIN, "real_speaker.corpus")
+    assert whole["n_utterances"] == 196
+    part = real_speaker_part(tmp_path / "part")
+    assert check_folder(part, "real_speaker.corpus")["n_utterances"] == 49
+    assert [u.utt_id for u in load_corpus(part).utterances] == \
+        [u.utt_id for u in load_corpus(BUILTIN).utterances][::4]
