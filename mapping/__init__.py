@@ -7,14 +7,19 @@ Every mapping method has one interface: ``fit(data, masks)`` on a list of
 Methods take explicit hyper-parameters; :func:`~mapping.experiment.make_mapper` builds them from
 the ``mapping`` config section (:class:`~mapping.config.MappingConfig`).
 """
-from mapping.baselines import BASELINES, Baseline
-from mapping.config import AugmentSettings, MappingConfig, TrainSettings
-from mapping.dataset import SPLITS, UttData, build_dataset, split_masks, training_copies
-from mapping.experiment import METHODS, TrainedMethod, make_mapper, run_experiment
-from mapping.features import (MFCC_SETTINGS, ContextFeatures, FeatureNormalizer, audio_features,
-                              mfcc, stack_context)
-from mapping.gated_mlp import GatedMLP
-from mapping.normalize import CMVN_MODES, CepstralNormalizer
+from groundwork.lazy import lazy_exports
+
+_EXPORTS = {
+    "mapping.baselines": ["BASELINES", "Baseline"],
+    "mapping.config": ["AugmentSettings", "MappingConfig", "TrainSettings"],
+    "mapping.dataset": ["SPLITS", "UttData", "build_dataset", "split_masks", "training_copies"],
+    "mapping.experiment": ["METHODS", "TrainedMethod", "make_mapper", "run_experiment"],
+    "mapping.features": ["MFCC_SETTINGS", "ContextFeatures", "FeatureNormalizer",
+                         "audio_features", "mfcc", "stack_context"],
+    "mapping.gated_mlp": ["GatedMLP"],
+    "mapping.normalize": ["CMVN_MODES", "CepstralNormalizer"],
+}
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
 
 __all__ = ["BASELINES", "CMVN_MODES", "METHODS", "MFCC_SETTINGS", "SPLITS", "AugmentSettings",
            "Baseline", "CepstralNormalizer", "ContextFeatures", "FeatureNormalizer", "GatedMLP",
