@@ -3,8 +3,12 @@ keyboard fed by injected key presses, audio through the sounddevice backend on A
 device ($HOME/.asoundrc in a temporary home, so PsychoPy's prefs never touch the real one).
 
 Sessions run the command line in subprocesses (``talkingface study run``), as a lab would, on a
-small stimulus set made from the small synthetic corpus (no trained model). Frame timing is
-recorded but never asserted: Xvfb has no vsync.
+small stimulus set made from the small synthetic corpus (no trained model): 0.2 s videos and
+WAVs, so that the trials' real-time playback is short (decoding, frame choice by elapsed time and
+audio on the onset flip are the same for any length). Frame timing is recorded but never
+asserted: Xvfb has no vsync. Commands refused before any window or sound opens run the same
+``main`` in the test's process (:func:`in_process`): a new Python process would only add the
+command line's start-up; one refusal per kind of check still runs as its own process.
 """
 from __future__ import annotations
 
@@ -38,7 +42,7 @@ REPO = Path(__file__).resolve().parents[2]
 ARTIFACTS = Path(__file__).resolve().parent / "artifacts"
 SEED = Config().seed
 KEYS = dict(zip(RESPONSES, Config().study.keys))
-N_FRAMES = 20  # ~0.67 s videos; the sentences' audio is cut to 0.7 s
+N_FRAMES = 6  # 0.2 s videos; the sentences' audio is cut to the same length
 FAST = ["--set", "study.fixation_s=0.02", "--set", "study.iti_s=0.02"]
 NO_PRACTICE = ["--set", "study.practice=false"]
 XVFB = ["xvfb-run", "-a", "-s", "-screen 0 1024x768x24"]
@@ -49,7 +53,8 @@ TIMEOUT = 240
 @pytest.fixture(scope="session")
 def stimuli_dir(small_corpus, tmp_path_factory):
     """Every stimulus the design needs: short silent MP4s of corpus utterances (the two faces
-    start at different frames, so they differ), 0.7 s WAVs, markers and a manifest."""
+    start at different frames, so they differ), WAVs of the same length, markers and a
+    manifest."""
     out = tmp_path_factory.mktemp("stimuli")
     renderer = FaceRenderer(mesh=False)
     rows = []
@@ -68,8 +73,8 @@ def stimuli_dir(small_corpus, tmp_path_factory):
         calm = small_corpus[f"s00_neutral_{i:03d}"]
         wav = out / "audio" / f"{stimulus_id('none', 'none', a)}.wav"
         wav.parent.mkdir(parents=True, exist_ok=True)
-        write_wav(wav, np.asarray(calm.audio[:int(0.7 * calm.sample_rate)], np.float64),
-                  calm.sample_rate)
+        write_wav(wav, np.asarray(calm.audio[:int(N_FRAMES / FPS * calm.sample_rate)],
+                                  np.float64), calm.sample_rate)
         rows.append(row(stimulus_id("none", "none", a), "audio", "none", "none", a, wav=wav))
         for e in EXPRESSIONS:
             utt = small_corpus[f"s00_{e}_{i:03d}"]
@@ -115,14 +120,40 @@ def script(tmp_path_factory):
     return path, table
 
 
+def study_run(study, stimuli, pid, *extra):
+    """The arguments of ``talkingface study run``."""
+    return ["study", "run", "--participant", pid, "--study-dir", str(study), "--stimuli",
+            str(stimuli), *extra]
+
+
 def command(study, stimuli, pid, *extra):
-    return [sys.executable, "-m", "talkingface.cli.main", "study", "run", "--participant", pid,
-            "--study-dir", str(study), "--stimuli", str(stimuli), *extra]
+    return [sys.executable, "-m", "talkingface.cli.main", *study_run(study, stimuli, pid, *extra)]
 
 
 def run_cli(args, env, cwd, *, xvfb=True):
     return subprocess.run([*XVFB, *args] if xvfb else args, env=env, cwd=cwd,
                           capture_output=True, text=True, timeout=TIMEOUT)
+
+
+@pytest.fixture
+def in_process(monkeypatch, capsys):
+    """``in_process(args, cwd, unset=())``: the command line's ``main(args)`` run in this
+    process in the folder ``cwd`` (and without the environment variables ``unset``), for a
+    command refused before any window or sound opens; returns its exit status and what it
+    printed, as :func:`run_cli` does."""
+    from talkingface.cli.main import main
+
+    def call(args, cwd, *, unset=()):
+        capsys.readouterr()
+        with monkeypatch.context() as mp:
+            mp.chdir(cwd)
+            for name in unset:
+                mp.delenv(name, raising=False)
+            code = main([str(a) for a in args])
+        out = capsys.readouterr()
+        return SimpleNamespace(returncode=code, stdout=out.out, stderr=out.err)
+
+    return call
 
 
 def snapshot(folder: Path) -> dict:
@@ -312,7 +343,8 @@ def test_screenshot_of_a_bimodal_trial(sessions):
 
 
 # --- (2) a session killed mid-block is resumed in the same order ------------------------
-def test_killed_session_resumes_in_the_same_order(sessions, stimuli_dir, env, script, tmp_path):
+def test_killed_session_resumes_in_the_same_order(sessions, stimuli_dir, env, script, tmp_path,
+                                                   in_process):
     study, pid, kept, n_kept = sessions.killed
     path = data_path(study, pid)
     assert 10 <= n_kept < N_TRIALS
@@ -321,8 +353,8 @@ def test_killed_session_resumes_in_the_same_order(sessions, stimuli_dir, env, sc
 
     # (3) an interrupted session is not continued without --resume, and nothing changes
     files = snapshot(study)
-    res = run_cli(command(study, stimuli_dir, pid, "--inject", str(script[0]), *FAST),
-                  env, tmp_path, xvfb=False)
+    res = in_process(study_run(study, stimuli_dir, pid, "--inject", str(script[0]), *FAST),
+                     tmp_path)
     assert res.returncode == 2 and "interrupted session" in res.stderr and "--resume" in \
         res.stderr, res.stderr
     assert snapshot(study) == files
@@ -344,27 +376,26 @@ def test_killed_session_resumes_in_the_same_order(sessions, stimuli_dir, env, sc
 
 # --- (3) refusals: clear messages, exit 2, nothing written or changed ---------------------
 @pytest.mark.parametrize("pid", ["../x", "", "P 01"])
-def test_bad_participant_ids_are_refused(stimuli_dir, env, tmp_path, pid):
+def test_bad_participant_ids_are_refused(stimuli_dir, tmp_path, in_process, pid):
     study = tmp_path / "study_data"
-    res = run_cli(command(study, stimuli_dir, pid), env, tmp_path, xvfb=False)
+    res = in_process(study_run(study, stimuli_dir, pid), tmp_path)
     assert res.returncode == 2
     assert f"error: participant id {pid!r} is not allowed" in res.stderr
     assert not study.exists()
 
 
-def test_refusals_change_nothing(sessions, stimuli_dir, env, tmp_path):
+def test_refusals_change_nothing(sessions, stimuli_dir, tmp_path, in_process):
     study, out = sessions.study, sessions.out
     pid = out["SR"][0]
     files = snapshot(study)
     for extra in ([], ["--resume"]):
-        res = run_cli(command(study, stimuli_dir, pid, *extra), env, tmp_path, xvfb=False)
+        res = in_process(study_run(study, stimuli_dir, pid, *extra), tmp_path)
         assert res.returncode == 2 and "has a complete session" in res.stderr, res.stderr
-    res = run_cli(command(study, stimuli_dir, "P99", "--resume"), env, tmp_path, xvfb=False)
+    res = in_process(study_run(study, stimuli_dir, "P99", "--resume"), tmp_path)
     assert res.returncode == 2 and "no session to resume" in res.stderr, res.stderr
-    res = run_cli(command(study, tmp_path / "nowhere", "P99"), env, tmp_path, xvfb=False)
+    res = in_process(study_run(study, tmp_path / "nowhere", "P99"), tmp_path)
     assert res.returncode == 2 and "manifest.csv: manifest not found" in res.stderr, res.stderr
-    res = run_cli(command(study, stimuli_dir, "P99", "--seed", str(SEED + 1)), env, tmp_path,
-                  xvfb=False)
+    res = in_process(study_run(study, stimuli_dir, "P99", "--seed", str(SEED + 1)), tmp_path)
     assert res.returncode == 2 and f"was made with seed {SEED}" in res.stderr, res.stderr
     assert snapshot(study) == files
 
@@ -372,10 +403,11 @@ def test_refusals_change_nothing(sessions, stimuli_dir, env, tmp_path):
 # --- a refused session takes no slot and leaves no lock, folder or traceback -----------------
 @pytest.mark.parametrize("case", ["no display", "no audio device"])
 def test_a_refused_session_takes_no_slot_and_leaves_nothing_behind(stimuli_dir, env, tmp_path,
-                                                                   case):
+                                                                   in_process, case):
     """No display (DISPLAY unset) and no audio device (the PTB backend cannot play on ALSA's
     null device, FIELD_NOTES.md) are found before the allocation slot is claimed: the list,
-    its log and the folder stay byte for byte as they were, and the error is one line."""
+    its log and the folder stay byte for byte as they were, and the error is one line (the
+    whole stderr of the command's own process, for no display)."""
     study = tmp_path / "study_data"
     alloc = Allocation(study)
     alloc.create(4, SEED)
@@ -401,8 +433,8 @@ def test_a_refused_session_takes_no_slot_and_leaves_nothing_behind(stimuli_dir, 
     assert not list(study.rglob("*.lock")) or \
         [q.name for q in study.rglob("*.lock")] == [".allocation.lock"]
     if case == "no display":  # a study folder that is not there yet is not created either
-        res = run_cli(command(tmp_path / "fresh", stimuli_dir, "P03"), headless, tmp_path,
-                      xvfb=False)
+        res = in_process(study_run(tmp_path / "fresh", stimuli_dir, "P03"), tmp_path,
+                         unset=("DISPLAY", "WAYLAND_DISPLAY"))
         assert res.returncode == 2 and "no display" in res.stderr
         assert not (tmp_path / "fresh").exists()
 
