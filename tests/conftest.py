@@ -32,6 +32,7 @@ from talkingface.config import Config  # noqa: E402
 from talkingface.paths import CACHE_ENV  # noqa: E402
 from tests.scheduling import (DurationRecorder, FileScheduling,  # noqa: E402
                               order_items, recorded_costs)
+pytest_plugins = ["tests.browser_session"]  # one Chromium per session (tests/browser_session.py)
 
 # The test workers share the cores: each sets its torch and BLAS threads so that workers x
 # threads <= cores (groundwork.threads; tiny networks run many times slower when threads compete).

@@ -152,8 +152,12 @@ def cmd_ui(args) -> int:
     check_installed()  # the app below is registered in this environment
     # MLflow's server with this project's app: a browser that has not chosen MLflow's GenAI
     # or model-training view opens experiments on their runs table (talkingface/experiments/mlflow_app.py)
+    # one web worker and no job runner (MLflow's GenAI jobs), as `talkingface server`: MLflow's
+    # default four workers and its runner each import MLflow at start, which doubled the wait
+    # for the first page on 2 cores (tests/talkingface/test_ui_landing.py)
     cmd = [sys.executable, "-m", "mlflow", "server", "--backend-store-uri", uri,
-           "--host", "127.0.0.1", "--port", str(args.port), "--app-name", APP_NAME]
+           "--host", "127.0.0.1", "--port", str(args.port), "--workers", "1",
+           "--app-name", APP_NAME]
     if uri.startswith("sqlite:"):
         cmd += ["--default-artifact-root", artifact_root()]
     base = f"http://127.0.0.1:{args.port}"
@@ -163,7 +167,7 @@ def cmd_ui(args) -> int:
                                 args=(base, cfg.mlflow.experiment, up))
     announce.start()
     try:
-        return serve(cmd)
+        return serve(cmd, env={**os.environ, "MLFLOW_SERVER_ENABLE_JOB_EXECUTION": "false"})
     finally:
         up.set()  # the server stopped: no link to wait for
         announce.join(timeout=15)
@@ -185,10 +189,11 @@ def _print_link_when_up(base: str, experiment: str, stop: threading.Event) -> No
         return
 
 
-def serve(cmd: list) -> int:
-    """Run a server process until it exits; SIGTERM or SIGINT to this process is passed on to
-    it (its own workers stop with it) and waited for, so nothing is left running."""
-    proc = subprocess.Popen(cmd)
+def serve(cmd: list, env: dict | None = None) -> int:
+    """Run a server process (environment ``env``, else this one's) until it exits; SIGTERM or
+    SIGINT to this process is passed on to it (its own workers stop with it) and waited for,
+    so nothing is left running."""
+    proc = subprocess.Popen(cmd, env=env)
 
     def forward(signum, frame):
         if proc.poll() is None:
@@ -384,8 +389,9 @@ def _run_commands(sub) -> None:
     s.set_defaults(func=cmd_evaluate_speech)
 
     s = sub.add_parser("ui", help="start the MLflow UI on 127.0.0.1 against the same store "
-                       "(it opens experiments on their runs table) and print the link to the "
-                       "runs of the experiment (mlflow.experiment)")
+                       "(it opens experiments on their runs table; one web worker, no job "
+                       "runner) and print the link to the runs of the experiment "
+                       "(mlflow.experiment)")
     s.add_argument("--port", type=int, default=5000)
     s.add_argument("--config", metavar="FILE")
     s.add_argument("--set", dest="overrides", action="append", default=[])

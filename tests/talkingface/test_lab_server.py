@@ -1,7 +1,9 @@
 """The lab's tracking server (``talkingface server``): PostgreSQL and MLflow from one folder, made
-on the first start and reused after, nothing left running after a stop; bad input refused in one
-line; and an ablation logged to it through the project's own command, compared in the MLflow UI
-in a real (headless) browser.
+on the first start and reused after, nothing left running after a stop, the links it prints
+opening on the runs table in a real (headless) browser; bad input refused in one line; and an
+ablation logged to it through the project's own command, compared in the MLflow UI in that
+browser (one Chromium per test session, in a fresh profile's state for each use:
+tests/browser_session.py).
 
 Everything is started by the tests themselves, on free ports: ``make test`` installs PostgreSQL,
 Chromium, chromedriver, psycopg and selenium (``bash tools/setup.sh test``).
@@ -22,6 +24,8 @@ import sys
 import tempfile
 import threading
 import time
+import urllib.error
+import urllib.request
 from pathlib import Path
 
 import psutil
@@ -29,9 +33,13 @@ import pytest
 
 from groundwork.errors import TalkingFaceError
 from talkingface.cli.main import main
+from talkingface.cli.lab_server import EXPERIMENT
+from talkingface.experiments.mlflow_app import (WORKFLOW_KEY, grid_link_text, link_text,
+                                                pipeline_url)
 from talkingface.experiments.server import PG_SEARCH, lab_server, postgres_bin, warn_trusting
-from tests.talkingface.browser import (alive, alive_processes, headless_chromium,
+from tests.talkingface.browser import (alive, alive_processes, local_storage,
                                        processes_mentioning, save_png, wait_gone)
+from tests.talkingface.test_ui_landing import KIND, ML, RUNS, STAGE, assert_runs_table
 
 METRIC = "test.utterance.R"
 
@@ -82,8 +90,15 @@ def _one_error_line(capsys) -> str:
     return lines[0]
 
 
-def test_server_makes_its_database_once_reuses_it_and_leaves_nothing_running(lab_folder,
-                                                                              capsys):
+def test_server_makes_its_database_once_reuses_it_and_leaves_nothing_running(
+        lab_folder, capsys, fresh_browser):
+    """The server's whole life on one folder: made on the first start (PostgreSQL with a
+    password, MLflow uploading into the folder), a second server refused, everything stopped;
+    then the command a lab runs reuses the database, prints the links to the project's runs
+    (the landing checks of tests/talkingface/test_ui_landing.py: a fresh browser opens its
+    printed link and MLflow's bare link on the runs table), accepts the host names it was
+    given and no others, and stops on SIGTERM with nothing left running. (One start of each
+    kind for all of it: each costs 10-40 s on 2 cores.)"""
     from mlflow import MlflowClient
 
     port, db_port = _free_ports(2)
@@ -111,9 +126,16 @@ def test_server_makes_its_database_once_reuses_it_and_leaves_nothing_running(lab
         assert allowed.stdout.strip() == "1", allowed
         assert not warn_trusting(lab_folder / "pgdata")  # no line of it trusts anyone
 
+        # the project's experiment (tagged as model training) with two of the pipeline's runs
+        # (tagged with their stage), and a run with a file
         client = MlflowClient(server.uri)
-        exp = client.create_experiment("lab", tags={"mlflow.experimentKind":
-                                                    "custom_model_development"})
+        exp = client.create_experiment(EXPERIMENT, tags=KIND)
+        runs = {}
+        for name in RUNS:
+            landing = client.create_run(exp, run_name=name, tags=STAGE)
+            client.log_metric(landing.info.run_id, METRIC, 0.5)
+            client.set_terminated(landing.info.run_id)
+            runs[name] = landing.info.run_id
         run = client.create_run(exp, run_name="before-restart")
         client.log_metric(run.info.run_id, METRIC, 0.625)
         note = lab_folder.parent / "note.txt"
@@ -127,6 +149,7 @@ def test_server_makes_its_database_once_reuses_it_and_leaves_nothing_running(lab
         # a second server on the same folder is refused, and leaves the first one alone
         other, other_db = _free_ports(2)
         postmaster = (lab_folder / "pgdata" / "postmaster.pid").read_text().split()[0]
+        capsys.readouterr()
         assert main(["server", "--folder", str(lab_folder), "--port", str(other),
                      "--db-port", str(other_db)]) == 2
         assert f"--folder {lab_folder}: its PostgreSQL is already running" in \
@@ -139,34 +162,80 @@ def test_server_makes_its_database_once_reuses_it_and_leaves_nothing_running(lab
     assert alive(processes_mentioning(str(lab_folder))) == []
     assert _port_free(port) and _port_free(db_port)
 
-    # again, as the command a lab runs (with MLflow's job runner too: more processes to stop),
-    # until SIGTERM, as a process manager stops it
+    # again, as the command a lab runs (with MLflow's job runner too: more processes to stop;
+    # with a host name colleagues use), until SIGTERM, as a process manager stops it
+    env = {**_env_with_repo(), "HOME": str(lab_folder.parent)}
+    env.pop("MLFLOW_TRACKING_URI", None)
     proc = subprocess.Popen([sys.executable, "-m", "talkingface", "server", "--folder",
                              str(lab_folder), "--port", str(port), "--db-port", str(db_port),
-                             "--jobs"], cwd=lab_folder.parent, env=_env_with_repo(),
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                             "--jobs", "--allowed-hosts", "mlflow.lab.example"],
+                            cwd=lab_folder.parent, env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, start_new_session=True)
     lines = _output_lines(proc)
     try:
         banner = _read_until(lines, "server: its UI:")
+        line = banner.splitlines()[-1]
+        grids = _read_until(lines, "server: its grids' runs:", timeout=30).splitlines()[-1]
+        base = f"http://127.0.0.1:{port}"
         assert "reusing the database" in banner  # the same cluster and database
-        assert f"export MLFLOW_TRACKING_URI=http://127.0.0.1:{port}" in banner
-        assert f"--set mlflow.uri=http://127.0.0.1:{port}" in banner
-        client = MlflowClient(f"http://127.0.0.1:{port}")
+        assert f"export MLFLOW_TRACKING_URI={base}" in banner
+        assert f"--set mlflow.uri={base}" in banner
+        # the link to the project's runs, and the one to its grids' runs
+        assert line == (f"server: its UI: {pipeline_url(base, exp)} (the runs of experiment "
+                        f"'{EXPERIMENT}': the pipeline's own runs, newest first; a grid's "
+                        "parent run holds its answer); Ctrl-C here stops the server and its "
+                        "database")
+        assert grids == f"server: its grids' runs: {grid_link_text(base, exp)}"
+        client = MlflowClient(base)
         again = client.get_run(run.info.run_id)
         assert again.info.run_name == "before-restart"
         assert again.data.metrics[METRIC] == 0.625
         assert [a.path for a in client.list_artifacts(run.info.run_id)] == ["note.txt"]
         procs = processes_mentioning(str(lab_folder))
-        assert "mlflow.server.jobs" in " ".join(" ".join(p.cmdline()) for p in procs)
+        cmdlines = " ".join(" ".join(p.cmdline()) for p in procs)
+        assert "mlflow.server.jobs" in cmdlines and "--app-name talkingface" in cmdlines
+        # the names listed are accepted (with the port a browser adds), others are not
+        api = f"{base}/api/2.0/mlflow/experiments/search?max_results=1"
+        assert _get(api, f"mlflow.lab.example:{port}") == 200
+        assert _get(api, "mlflow.lab.example") == 200
+        assert _get(api, f"127.0.0.1:{port}") == 200
+        assert _get(api, f"elsewhere.example:{port}") == 403
+        with fresh_browser() as driver:
+            driver.get(line.split()[3])  # the printed link
+            assert_runs_table(driver, exp, runs)
+            assert local_storage(driver, WORKFLOW_KEY) == ML
+        with fresh_browser() as driver:
+            driver.get(f"{base}/#/experiments/{exp}")  # the link MLflow's client prints
+            assert_runs_table(driver, exp, runs)
+            save_png(driver, _shots(lab_folder.parent), "ui_landing_lab_server.png")
         proc.send_signal(signal.SIGTERM)
-        assert _read_until(lines, "server: stopped (SIGTERM)", timeout=120)
-        assert proc.wait(timeout=120) == 0
+        assert _read_until(lines, "server: stopped (SIGTERM)", timeout=180)
+        assert proc.wait(timeout=180) == 0
         assert wait_gone(procs) == []
+        assert alive(processes_mentioning(str(lab_folder))) == []
         assert _port_free(port) and _port_free(db_port)
     finally:
         if proc.poll() is None:  # a failed test: let the command stop what it started
             proc.terminate()
-            proc.wait(timeout=120)
+            proc.wait(timeout=180)
+    # a link to the front page, and why, when the store has no such experiment yet
+    assert link_text(base, "other", None) == (
+        f"{base}/ (no experiment 'other' in the store yet: it is listed there once a command "
+        "logs its first run)")
+
+
+def _get(url: str, host: str) -> int:
+    """The HTTP status of a GET of ``url`` sent with the Host header ``host``."""
+    try:
+        with urllib.request.urlopen(urllib.request.Request(url, headers={"Host": host}),
+                                    timeout=30) as r:
+            return r.status
+    except urllib.error.HTTPError as exc:
+        return exc.code
+
+
+def _shots(default: Path) -> Path:
+    return Path(os.environ.get("TALKINGFACE_TEST_ARTIFACTS") or default)
 
 
 def _env_with_repo() -> dict:
@@ -365,7 +434,8 @@ def _compare_page(driver, uri: str, run_ids: list, experiment_id: str, wait_s: f
 
 
 def test_an_ablation_logged_to_the_server_compares_in_the_browser(lab_folder, tmp_path,
-                                                                  monkeypatch, capsys):
+                                                                  monkeypatch, capsys,
+                                                                  fresh_browser):
     from mlflow import MlflowClient
     from PIL import Image
 
@@ -402,7 +472,7 @@ def test_an_ablation_logged_to_the_server_compares_in_the_browser(lab_folder, tm
         assert len(list((lab_folder / "artifacts").rglob("tables.csv"))) == len(children)
 
         ids = [c.info.run_id for c in children]
-        with headless_chromium(width=700 + 330 * len(ids), height=1000) as driver:
+        with fresh_browser(width=700 + 330 * len(ids), height=1000) as driver:
             names, values = _compare_page(driver, server.uri, ids, exp.experiment_id)
             shot = save_png(driver, shots, "lab_server_compare_runs.png")
         assert names == [c.info.run_name for c in children]

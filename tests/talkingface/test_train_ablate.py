@@ -1,12 +1,8 @@
-"""The train and ablate commands, the logged pyfunc model, the MLflow UI, and the paper's
-mapping against the linear and VQ baselines on held-out sentences."""
+"""The train and ablate commands, the logged pyfunc model, and the paper's mapping against the
+linear and VQ baselines on held-out sentences. (``talkingface ui`` as a user starts it, its
+front page and its stop: tests/talkingface/test_ui_landing.py, on one server for all the UI
+tests.)"""
 import csv
-import os
-import socket
-import subprocess
-import sys
-import time
-import urllib.request
 from pathlib import Path
 
 import numpy as np
@@ -228,51 +224,3 @@ def test_bad_grids_are_refused_with_the_file_and_the_problem(workdir, capsys, gr
     assert str(grid) in str(err.value)
     assert main(["ablate", "--grid", str(workdir / "missing.yaml"), "--name", "m", *TINY]) == 2
     assert "ablation grid" in capsys.readouterr().err
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def test_ui_front_page_answers_http_200(workdir):
-    port = _free_port()
-    repo = str(Path(__file__).resolve().parents[2])
-    env = {**os.environ, "HOME": str(workdir),
-           "PYTHONPATH": os.pathsep.join(filter(None, [repo, os.environ.get("PYTHONPATH")]))}
-    proc = subprocess.Popen([sys.executable, "-m", "talkingface", "ui", "--port", str(port)],
-                            cwd=workdir, env=env, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL, start_new_session=True)
-    try:
-        status = None
-        for _ in range(240):  # the server needs a few seconds to start; poll for up to ~2 min
-            try:
-                with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=2) as r:
-                    status = r.status
-                    body = r.read(2000).decode(errors="replace")
-                break
-            except OSError:
-                if proc.poll() is not None:
-                    break
-                time.sleep(0.5)
-        assert status == 200
-        assert "mlflow" in body.lower()
-        # SIGTERM to `talkingface ui` alone (as a process manager stops it) stops the server
-        # and its workers too: nothing of its process group is left running
-        proc.terminate()
-        assert proc.wait(timeout=60) is not None
-        for _ in range(120):
-            try:
-                os.killpg(proc.pid, 0)
-            except ProcessLookupError:
-                break
-            time.sleep(0.5)
-        else:
-            raise AssertionError("the MLflow server outlived `talkingface ui`")
-    finally:
-        try:
-            os.killpg(proc.pid, 9)
-        except ProcessLookupError:
-            pass
-        proc.wait(timeout=30)

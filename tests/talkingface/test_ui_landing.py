@@ -1,5 +1,7 @@
-"""The MLflow UI that ``talkingface ui`` and ``talkingface server`` start opens experiments on
-their runs table, in a real (headless) browser with a fresh profile: from the front page, from
+"""The MLflow UI that ``talkingface ui`` starts (as a user starts it: one server for this module,
+which also proves it serves MLflow's front page and stops whole on SIGTERM) opens experiments on
+their runs table, in a real (headless) browser in a fresh profile's state (one Chromium per
+test session, cleared for each use: tests/browser_session.py): from the front page, from
 the bare ``#/experiments/<id>`` link MLflow's client prints, and from the link the command
 prints. A browser whose user chose MLflow's GenAI view keeps it.
 
@@ -20,7 +22,6 @@ import contextlib
 import os
 import queue
 import re
-import shutil
 import signal
 import socket
 import subprocess
@@ -28,7 +29,6 @@ import sys
 import tempfile
 import threading
 import time
-import urllib.error
 import urllib.parse
 import urllib.request
 from pathlib import Path
@@ -42,11 +42,10 @@ from talkingface.cli.main import _print_link_when_up, main
 from talkingface.experiments.mlflow_app import (ASSISTANT_KEY, DEFAULT_WORKFLOW_SCRIPT, NEWEST_FIRST_FLAT,
                                     PIPELINE_FILTER, RUN_NAME, WORKFLOW_KEY, create_app,
                                     find_experiment, grid_filter, grid_link_text, grid_url,
-                                    link_text, pipeline_url, runs_url, with_default_workflow)
-from talkingface.experiments.server import lab_server
-from tests.talkingface.browser import (alive, alive_processes, click, displayed_with_text,
-                                       headless_chromium, local_storage, page_headings,
-                                       processes_mentioning, save_png, set_local_storage,
+                                    pipeline_url, runs_url, with_default_workflow)
+from tests.talkingface.browser import (alive_processes, click, displayed_with_text,
+                                       local_storage, page_headings, processes_mentioning,
+                                       save_png, set_local_storage,
                                        wait_gone, wait_until)
 
 REPO = Path(__file__).resolve().parents[2]
@@ -117,16 +116,32 @@ def _read_until(lines: queue.Queue, marker: str, timeout: float = START_S) -> tu
     raise AssertionError(f"no line {marker!r}; the output: {''.join(seen)[-3000:]}")
 
 
+def _group_gone(pgid: int, timeout: float = 60.0) -> bool:
+    """Wait up to ``timeout`` s until no process of group ``pgid`` is left (zombies count)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            os.killpg(pgid, 0)
+        except ProcessLookupError:
+            return True
+        time.sleep(0.1)
+    return False
+
+
 def _stop(proc, procs, port: int) -> None:
-    """SIGTERM to the command (as a process manager stops it), which stops its server: then
-    nothing of it runs and its port is free; whatever a failure left is killed."""
+    """SIGTERM to the command alone (as a process manager stops it), which stops its server
+    and its workers too: then nothing of its process group runs, nor any of ``procs``, and its
+    port is free; whatever a failure left is killed."""
     try:
         if proc.poll() is None:
             proc.send_signal(signal.SIGTERM)
         proc.wait(timeout=180)
+        assert _group_gone(proc.pid), "the MLflow server outlived `talkingface ui`"
         assert wait_gone(procs, timeout=60) == []
         assert _port_free(port)
     finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
         for p in alive_processes(procs):
             with contextlib.suppress(psutil.Error):
                 p.kill()
@@ -161,19 +176,21 @@ def store(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def ui(store):
-    """``talkingface ui`` on ``store`` (a free port), until the tests of this module are done;
-    then stopped by SIGTERM, with nothing of it left running."""
+    """``talkingface ui`` as a user starts it, in the store's folder (its default store there:
+    ``./mlflow.db``; MLflow's server with one web worker and no job runner), on a free port,
+    until the tests of this module are done; then stopped by SIGTERM to the command alone, as a
+    process manager stops it, with nothing of its process group left running and its port
+    free (:func:`_stop`)."""
     port, = _free_ports(1)
-    proc = subprocess.Popen([sys.executable, "-m", "talkingface", "ui", "--port", str(port),
-                             "--set", f"mlflow.uri={store.uri}"], cwd=store.folder,
-                            env=_env(store.folder), stdout=subprocess.PIPE,
+    proc = subprocess.Popen([sys.executable, "-m", "talkingface", "ui", "--port", str(port)],
+                            cwd=store.folder, env=_env(store.folder), stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
     lines = _output_lines(proc)
     procs = []
     try:
         link_line, output = _read_until(lines, "MLflow UI: ")
         grid_line, _ = _read_until(lines, "MLflow UI: ", timeout=30)
-        procs = processes_mentioning(str(store.folder))  # the command, MLflow and its workers
+        procs = processes_mentioning(str(store.folder))  # MLflow's server and its workers
         yield SimpleNamespace(base=f"http://127.0.0.1:{port}", port=port, output=output,
                               link_line=link_line, grid_line=grid_line, procs=procs)
     finally:
@@ -255,10 +272,10 @@ def test_ui_prints_its_address_and_the_link_to_the_runs(ui, store):
     assert any("--app-name talkingface" in c for c in cmdlines), cmdlines
 
 
-def test_a_fresh_browser_goes_from_the_front_page_to_the_runs(ui, store):
+def test_a_fresh_browser_goes_from_the_front_page_to_the_runs(ui, store, fresh_browser):
     from selenium.webdriver.common.by import By
 
-    with headless_chromium() as driver:
+    with fresh_browser() as driver:
         driver.get(f"{ui.base}/")
         link = wait_until(driver, lambda d: next(
             (a for a in d.find_elements(By.CSS_SELECTOR,
@@ -273,7 +290,7 @@ def test_a_fresh_browser_goes_from_the_front_page_to_the_runs(ui, store):
         save_png(driver, _shots(), "ui_landing_from_front_page.png")
 
 
-def test_the_experiment_link_mlflow_prints_opens_the_runs(ui, store, capsys):
+def test_the_experiment_link_mlflow_prints_opens_the_runs(ui, store, capsys, fresh_browser):
     from mlflow import MlflowClient
 
     # a run logged through the UI's server: MLflow's client prints its links, as after any run
@@ -285,17 +302,17 @@ def test_the_experiment_link_mlflow_prints_opens_the_runs(ui, store, capsys):
     assert printed, "MLflow printed no experiment link"
     assert printed.group(1) == f"{ui.base}/#/experiments/{store.experiment_id}"
     runs = {**store.runs, "landing-gamma": run.info.run_id}
-    with headless_chromium() as driver:
+    with fresh_browser() as driver:
         driver.get(printed.group(1))
         assert_runs_table(driver, store.experiment_id, runs)
         assert local_storage(driver, WORKFLOW_KEY) == ML
         save_png(driver, _shots(), "ui_landing_from_mlflow_link.png")
 
 
-def test_the_link_ui_prints_opens_the_runs(ui, store):
+def test_the_link_ui_prints_opens_the_runs(ui, store, fresh_browser):
     printed = ui.link_line.split()[2]
     assert printed == pipeline_url(ui.base, store.experiment_id)
-    with headless_chromium() as driver:
+    with fresh_browser() as driver:
         driver.get(printed)
         assert_runs_table(driver, store.experiment_id, store.runs)
         search = driver.find_element("css selector", "input[placeholder*='metrics.rmse']")
@@ -303,18 +320,18 @@ def test_the_link_ui_prints_opens_the_runs(ui, store):
         # MLflow's assistant (an LLM chat) does not open by itself over a quarter of the page
         assert not _assistant_open(driver)
     # (as MLflow opens it in a browser that says it has not done so yet)
-    with headless_chromium() as driver:
+    with fresh_browser() as driver:
         set_local_storage(driver, f"{ui.base}/health", {ASSISTANT_KEY: "false"})
         driver.get(printed)
         wait_until(driver, _assistant_open, "MLflow's assistant panel, opened by itself")
 
 
-def test_a_browser_that_chose_genai_keeps_it(ui, store):
+def test_a_browser_that_chose_genai_keeps_it(ui, store, fresh_browser):
     from selenium.webdriver.common.by import By
 
     bare = f"{ui.base}/#/experiments/{store.experiment_id}"
     # the user switches to GenAI in the sidebar: MLflow stores the choice, the app keeps it
-    with headless_chromium() as driver:
+    with fresh_browser() as driver:
         driver.get(bare)
         assert_runs_table(driver, store.experiment_id, store.runs)
         toggle = [e for e in driver.find_elements(By.CSS_SELECTOR, "aside [role=button]")
@@ -334,19 +351,42 @@ def test_a_browser_that_chose_genai_keeps_it(ui, store):
         assert_runs_table(driver, store.experiment_id, store.runs)
         assert local_storage(driver, WORKFLOW_KEY) == GENAI
     # a browser that stored "genai" before it ever loaded the UI
-    with headless_chromium() as driver:
+    with fresh_browser() as driver:
         set_local_storage(driver, f"{ui.base}/health", {WORKFLOW_KEY: GENAI})
         driver.get(bare)
         assert_genai_overview(driver, store.experiment_id)
         assert local_storage(driver, WORKFLOW_KEY) == GENAI
 
 
+def test_the_shared_browser_forgets_what_pages_stored(ui, fresh_browser):
+    """Each ``with fresh_browser()`` starts as a new profile (tests/browser_session.py): what
+    pages of two origins stored (localStorage, a cookie) is gone, and the window has the size
+    asked for."""
+    origins = [ui.base, ui.base.replace("127.0.0.1", "localhost")]
+    with fresh_browser() as driver:
+        for origin in origins:
+            set_local_storage(driver, f"{origin}/health", {WORKFLOW_KEY: GENAI})
+            driver.add_cookie({"name": "seen", "value": "1"})
+            assert local_storage(driver, WORKFLOW_KEY) == GENAI
+            assert driver.get_cookie("seen")
+    with fresh_browser(width=900, height=700) as driver:
+        assert driver.current_url == "about:blank"
+        assert driver.get_window_size() == {"width": 900, "height": 700}
+        for origin in origins:
+            driver.get(f"{origin}/health")
+            assert local_storage(driver, WORKFLOW_KEY) is None, origin
+            assert driver.get_cookies() == [], origin
+
+
 def test_the_served_page_and_the_lookup_change_nothing(ui, store, capsys):
+    """The front page answers 200 with MLflow's page and the app's script first; looking the
+    experiment up through the server writes nothing."""
     from mlflow import MlflowClient
 
     with urllib.request.urlopen(f"{ui.base}/", timeout=30) as r:
         html = r.read().decode()
-        assert r.headers["Cache-Control"] == "no-cache"
+        assert r.status == 200 and r.headers["Cache-Control"] == "no-cache"
+    assert "mlflow" in html.lower()  # MLflow's front page
     assert DEFAULT_WORKFLOW_SCRIPT in html
     assert html.index(DEFAULT_WORKFLOW_SCRIPT) < html.index("<script defer")  # before MLflow's
     before = [e.experiment_id for e in MlflowClient(store.uri).search_experiments(view_type=3)]
@@ -437,11 +477,12 @@ def _run_rows(driver, want, what: str) -> list[str]:
         d.execute_script(_RUN_ROWS_JS)), what)
 
 
-def test_the_ablation_answer_is_two_clicks_from_the_printed_link(ui, store, grid):
+def test_the_ablation_answer_is_two_clicks_from_the_printed_link(ui, store, grid,
+                                                                  fresh_browser):
     from selenium.webdriver.common.by import By
 
     shots, clicks = _shots(), 0
-    with headless_chromium() as driver:
+    with fresh_browser() as driver:
         # landing: the pipeline's runs, newest first, the grid's parent among them, no grid
         # run; one flat list: a replication's grid parent is a row, not folded inside it
         driver.get(ui.link_line.split()[2])
@@ -602,91 +643,8 @@ def test_ui_refuses_when_the_app_is_not_installed(workdir, monkeypatch, capsys):
 
 
 # -- the lab's server (PostgreSQL) --------------------------------------------------------------
-@pytest.fixture
-def lab_folder():
-    """A server folder the ``postgres`` user can reach (not under pytest's mode-700 folders)."""
-    parent = Path(tempfile.mkdtemp(prefix="talkingface-ui-lab-"))
-    os.chmod(parent, 0o755)
-    try:
-        yield parent / "server"
-    finally:
-        for p in alive_processes(processes_mentioning(str(parent))):
-            with contextlib.suppress(psutil.Error):
-                p.kill()
-        shutil.rmtree(parent, ignore_errors=True)
-
-
-def _get(url: str, host: str) -> int:
-    """The HTTP status of a GET of ``url`` sent with the Host header ``host``."""
-    try:
-        with urllib.request.urlopen(urllib.request.Request(url, headers={"Host": host}),
-                                    timeout=30) as r:
-            return r.status
-    except urllib.error.HTTPError as exc:
-        return exc.code
-
-
-def test_the_lab_server_prints_the_runs_link_and_opens_on_the_runs(lab_folder, capsys):
-    from mlflow import MlflowClient
-
-    port, db_port = _free_ports(2)
-    with lab_server(lab_folder, port=port, db_port=db_port) as server:
-        client = MlflowClient(server.uri)
-        exp = client.create_experiment(EXPERIMENT, tags=KIND)
-        runs = {}
-        for name in RUNS:
-            run = client.create_run(exp, run_name=name, tags=STAGE)
-            client.log_metric(run.info.run_id, METRIC, 0.5)
-            client.set_terminated(run.info.run_id)
-            runs[name] = run.info.run_id
-    capsys.readouterr()
-
-    # the command a lab runs, on the same database; with a host name colleagues use
-    proc = subprocess.Popen([sys.executable, "-m", "talkingface", "server", "--folder",
-                             str(lab_folder), "--port", str(port), "--db-port", str(db_port),
-                             "--allowed-hosts", "mlflow.lab.example"],
-                            cwd=lab_folder.parent, env=_env(lab_folder.parent),
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            start_new_session=True)
-    lines = _output_lines(proc)
-    procs = []
-    try:
-        line, banner = _read_until(lines, "server: its UI:")
-        grids, _ = _read_until(lines, "server: its grids' runs:", timeout=30)
-        procs = processes_mentioning(str(lab_folder))
-        base = f"http://127.0.0.1:{port}"
-        assert line == (f"server: its UI: {pipeline_url(base, exp)} (the runs of experiment "
-                        f"'{EXPERIMENT}': the pipeline's own runs, newest first; a grid's "
-                        "parent run holds its answer); Ctrl-C here stops the server and its "
-                        "database")
-        assert grids == f"server: its grids' runs: {grid_link_text(base, exp)}"
-        assert f"export MLFLOW_TRACKING_URI={base}" in banner and "reusing the database" in banner
-        assert "--app-name talkingface" in " ".join(" ".join(p.cmdline()) for p in procs)
-        # the names listed are accepted (with the port a browser adds), others are not
-        api = f"{base}/api/2.0/mlflow/experiments/search?max_results=1"
-        assert _get(api, f"mlflow.lab.example:{port}") == 200
-        assert _get(api, "mlflow.lab.example") == 200
-        assert _get(api, f"127.0.0.1:{port}") == 200
-        assert _get(api, f"elsewhere.example:{port}") == 403
-        with headless_chromium() as driver:
-            driver.get(line.split()[3])  # the printed link
-            assert_runs_table(driver, exp, runs)
-            assert local_storage(driver, WORKFLOW_KEY) == ML
-        with headless_chromium() as driver:
-            driver.get(f"{base}/#/experiments/{exp}")  # the link MLflow's client prints
-            assert_runs_table(driver, exp, runs)
-            save_png(driver, _shots(), "ui_landing_lab_server.png")
-        proc.send_signal(signal.SIGTERM)
-        _read_until(lines, "server: stopped (SIGTERM)", timeout=180)
-        assert proc.wait(timeout=180) == 0
-        assert wait_gone(procs) == []
-        assert alive(processes_mentioning(str(lab_folder))) == []
-        assert _port_free(port) and _port_free(db_port)
-    finally:
-        if proc.poll() is None:  # a failed test: let the command stop what it started
-            proc.terminate()
-            proc.wait(timeout=180)
-    # a link to the front page, and why, when the store has no such experiment yet
-    assert link_text(base, "other", None) == (
-        f"{base}/ (no experiment 'other' in the store yet: it is listed there once a command "
-        "logs its first run)")
+# `talkingface server` prints the same two links, its MLflow accepts the host names it is given,
+# and a fresh browser opens its printed link and MLflow's bare link on the runs table: checked
+# on the one server of tests/talkingface/test_lab_server.py::
+# test_server_makes_its_database_once_reuses_it_and_leaves_nothing_running (one start of the
+# command for both; each start costs 10-40 s).
