@@ -32,8 +32,11 @@ from groundwork.owner import lock_path
 TINY = ["--set", "synth.n_sentences=3", "--set", "synth.workers=2", "--set", "mlflow.enabled=false",
         "--set", "real_speaker.corpus=''"]  # the real-speaker stage: test_cli_pipeline
 # the real-speech set's first 2 recordings of each speaker and part (21 of 354, all 12 speakers:
-# analysis.speech_set.subset_rows): the speech_eval stage and its bookkeeping, with less work
+# analysis.speech_set.subset_rows) and the tracker's evaluation on 3 utterances (one per
+# expression; 6 by default): the speech_eval and tracking stages and their bookkeeping, with less
+# work
 QUICK = [*TINY, "--set", "mapping.baselines=[linear]", "--set", "mapping.train.max_epochs=20",
+         "--set", "tracker.n_utterances=3",
          "--set", "study.n_participants=4", "--set", "voices.grid=none",
          "--set", "ceiling.grid=none", "--set", "speech_set.per_speaker=2", "--ablations", "none"]
 RUN = QUICK[:-2]  # the run's settings, for the commands without --ablations
