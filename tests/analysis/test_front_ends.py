@@ -1,6 +1,11 @@
 """The front ends on real speech (issue 29): the look-ahead curve read from one decoding equals a
 stream per look-ahead, and the recognisers' rows split the test part by where its labels came
-from."""
+from.
+
+The tests that score the recognisers read them through one content-keyed cache for the module
+(``heard``): each recording is heard once at each rate, however many tests score it
+(tests/mapping/test_hearing.py proves the rows read through the cache are the rows heard one by
+one)."""
 from __future__ import annotations
 
 import dataclasses
@@ -11,8 +16,10 @@ import pytest
 from analysis.speech_recogniser import (LABELS, LOOKAHEAD_FRAMES, NAMES, PhoneRecogniser,
                                         lookahead_figure, recogniser_scores)
 from analysis.speech_set import load_speech_set
+from groundwork.cache import ArrayCache
 from groundwork.errors import ParameterError
 from mapping import hama_front
+from mapping.recogniser import hearing_cache
 
 
 @pytest.fixture(scope="module")
@@ -23,8 +30,18 @@ def two():
     return [slt, dataclasses.replace(cards, part="dev")]
 
 
+@pytest.fixture(scope="module")
+def heard(tmp_path_factory):
+    """The module's cache of what the recognisers heard (``with hearing_cache(heard):``)."""
+    return ArrayCache(tmp_path_factory.mktemp("heard"))
+
+
 def test_hama_curve_from_one_decoding_equals_a_stream_per_look_ahead(two):
-    it = two[0]
+    """On a whole recording (1.1 s: 33 frames, 11 decodes, the first ones filled with silence,
+    the last frames of every look-ahead decided at the end of the audio), the curve read from
+    one stream's decodes is, for every look-ahead, what a stream with that look-ahead
+    decides."""
+    it = two[1]
     curve = hama_front.labels_at_delays(it.audio, it.sr, 30, LOOKAHEAD_FRAMES)
     for d in LOOKAHEAD_FRAMES:
         stream = hama_front.HamaStream(it.sr, 30, d, 0)
@@ -41,8 +58,9 @@ def test_pocketsphinx_curve_from_one_decoding_equals_a_decoding_per_look_ahead(t
         assert np.array_equal(labels, rec.streaming(it.audio, it.sr, k / 30)), k
 
 
-def test_the_recognisers_rows_split_the_test_part_by_label_source(two, tmp_path):
-    files, summary, curve = recogniser_scores(two)
+def test_the_recognisers_rows_split_the_test_part_by_label_source(two, heard, tmp_path):
+    with hearing_cache(heard):
+        files, summary, curve = recogniser_scores(two)
     assert {r["model"] for r in files} == set(NAMES.values())
     by = {(r["model"], r["split"]): r for r in summary}
     for name in NAMES.values():
@@ -72,16 +90,19 @@ def test_the_recognisers_rows_split_the_test_part_by_label_source(two, tmp_path)
     assert png.stat().st_size > 10_000
 
 
-def test_a_seen_speaker_is_never_in_an_unseen_row(two):
-    files, summary, _ = recogniser_scores(two[:1], frozenset({"arctic-slt"}),
-                                          recognisers=("hama",))
+def test_a_seen_speaker_is_never_in_an_unseen_row(two, heard):
+    with hearing_cache(heard):
+        files, summary, _ = recogniser_scores(two[:1], frozenset({"arctic-slt"}),
+                                              recognisers=("hama",))
     by = {r["split"]: r for r in summary}
     assert by["seen"]["files"] == 1 and by["unseen"]["files"] == 0
     assert by["unseen-test"]["files"] == 0 and files[0]["split"] == "seen"
 
 
-def test_an_8_khz_input_is_scored_as_given(two):
-    files, _, _ = recogniser_scores(two[:1], recognisers=("hama",), rates=("native", 8000))
+def test_an_8_khz_input_is_scored_as_given(two, heard):
+    with hearing_cache(heard):
+        files, _, _ = recogniser_scores(two[:1], recognisers=("hama",),
+                                        rates=("native", 8000))
     native, low = files
     assert (native["input_rate"], low["input_rate"]) == ("native", "8000")
     assert native["frames"] == low["frames"] and low["rate_note"] == ""

@@ -1,13 +1,18 @@
 """`talkingface analyze` and `talkingface report --study-data`: a study's tables, statistics
 and model fits from its data alone, here the paper's own tallies turned into trial data."""
+import functools
 import json
 
 import numpy as np
 
+from analysis.perception_report import analyze_study
 from analysis.study_data import PAPER_TALLIES, trials_from_tallies, write_study_data
 from pypdf import PdfReader
 
+from talkingface.cli import study as study_cli
 from talkingface.cli.main import main
+
+BOOTSTRAP = 20  # participant resamples of the model fits' intervals (the commands draw 200)
 
 
 def pdf_text(path) -> str:
@@ -15,7 +20,13 @@ def pdf_text(path) -> str:
 
 
 def test_a_study_report_from_data_alone(tmp_path, monkeypatch, capsys):
+    """Both commands, run on the data alone, with the fits' bootstrap cut to BOOTSTRAP
+    resamples (the same code drawing fewer participant samples; nothing below reads how many):
+    the tallies are the data's, the report holds every table, and a replication's report of the
+    same name is never replaced."""
     monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(study_cli, "analyze_study",
+                        functools.partial(analyze_study, bootstrap=BOOTSTRAP))
     data = write_study_data(trials_from_tallies(PAPER_TALLIES, seed=2), tmp_path / "lab_study")
     assert main(["analyze", str(data), "--seed", "1"]) == 0
     assert "20 participants" in capsys.readouterr().out

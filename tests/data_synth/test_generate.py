@@ -45,19 +45,28 @@ def test_same_seed_gives_byte_identical_files(small_corpus_dir, synth_config, tm
     assert _differing(first, second) == []
 
 
-def test_data_files_identical_for_one_or_two_workers(small_corpus_dir, synth_config, tmp_path):
-    one = _files(synthesize_corpus(tmp_path / "w1", synth_config(workers=1), SEED,
-                                   progress=False))
+@pytest.fixture(scope="module")
+def one_worker_corpus_dir(tmp_path_factory):
+    """The small corpus (conftest's ``small_corpus_dir``: the same settings and seed) made by one
+    worker process instead of two; read-only, for the two tests below."""
+    from tests.conftest import small_synth_config
+
+    return synthesize_corpus(tmp_path_factory.mktemp("w1") / "corpus",
+                             small_synth_config(workers=1), SEED, progress=False)
+
+
+def test_data_files_identical_for_one_or_two_workers(small_corpus_dir, one_worker_corpus_dir):
+    one = _files(one_worker_corpus_dir)
     two = _files(small_corpus_dir)
     assert [k for k in _differing(one, two) if k != "corpus.json"] == []
 
 
-def test_corpus_json_identical_for_one_or_two_workers(small_corpus_dir, synth_config, tmp_path):
+def test_corpus_json_identical_for_one_or_two_workers(small_corpus_dir, one_worker_corpus_dir):
     """The number of worker processes must not change the corpus, its description included.
 
     Library bug: corpus.json records every SynthConfig field, ``workers`` among them.
     """
-    out = synthesize_corpus(tmp_path / "w1", synth_config(workers=1), SEED, progress=False)
+    out = one_worker_corpus_dir
     assert (out / "corpus.json").read_bytes() == (small_corpus_dir / "corpus.json").read_bytes()
 
 

@@ -5,6 +5,7 @@ heard again; and the tables read through the cache are the tables heard one by o
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -167,17 +168,23 @@ def _rows_json(rows) -> str:
     return json.dumps(rows, default=float, sort_keys=True)
 
 
-def test_the_tables_are_the_same_with_the_cache_on_and_off(small_corpus, items, tmp_path,
+def test_the_tables_are_the_same_with_the_cache_on_and_off(small_corpus, items, heard, tmp_path,
                                                             monkeypatch):
+    """The model's and the recognisers' tables heard one by one (no cache) equal the tables
+    read from entries made by parallel passes: the model's recordings heard here, the
+    recognisers' by the module's pass (``heard``, whose entries are copied in: the same
+    recordings, already heard once in parallel)."""
     t = train_small(small_corpus, split="random_frames", gate_front_end="recogniser",
                     mlp_input="phones", phone_training="labels", min_class_frames=5, epochs=5)
     rates = (NATIVE, 8000)
     off = score_model("m", t.mapping, t.units, items, rates=rates, progress=False)
     rec_off = recogniser_scores(items, progress=False, summary=False)
     cache = ArrayCache(tmp_path / "cache")
+    shutil.copytree(heard[0].root, cache.root)
     jobs = model_jobs(t.mapping, items, rates) + recogniser_jobs(items)
     assert len(jobs) == len(rates) * len(items) + 2 * len(items)
-    hear_all(jobs, cache, workers=2, progress=False)
+    passes = hear_all(jobs, cache, workers=2, progress=False)
+    assert passes.reused >= 2 * len(items) and passes.heard >= 1  # the model's 8 kHz are new
     recogniser._HEARD.clear()
     no_hearing(monkeypatch)
     with hearing_cache(cache):

@@ -1,6 +1,10 @@
 """Grid tasks on Dask distributed: the same figures as the process pool, a worker killed
 mid-grid leaves a complete grid with exactly one child run per setting and seed, and a
-scheduler that does not answer is one clear line."""
+scheduler that does not answer is one clear line.
+
+The reference grid of the plain process pool is trained once for the module (``pool_grid``):
+the killed-worker grid compares its figures with it, and the finished-task test starts from
+one of its folders."""
 import json
 import os
 import signal
@@ -27,6 +31,16 @@ def units_path(small_corpus_dir, tmp_path_factory):
     out = tmp_path_factory.mktemp("units")
     fit_units_folder(small_corpus_dir, out, load_config(None, []))
     return out / "motion_units.npz"
+
+
+@pytest.fixture(scope="module")
+def pool_grid(small_corpus_dir, units_path, tmp_path_factory):
+    """``(folder, results)`` of the test grid (2 settings x 2 seeds) on the plain process pool,
+    nothing killed, nothing logged; read-only, tests that change a folder copy it."""
+    out = tmp_path_factory.mktemp("pool") / "grid"
+    results = run_grid(_jobs(small_corpus_dir, units_path), out, seeds=2,
+                       scheduler="processes", workers=2, progress=False)
+    return out, results
 
 
 def _jobs(corpus, units):
@@ -60,14 +74,11 @@ def _free_port():
 
 
 def test_a_worker_killed_mid_grid_leaves_one_child_per_setting_and_seed(
-        small_corpus_dir, units_path, tmp_path):
+        small_corpus_dir, units_path, pool_grid, tmp_path):
     from distributed import Client, LocalCluster
 
     jobs = _jobs(small_corpus_dir, units_path)
-    # the reference: the plain process pool, nothing killed
-    pool_log = _store(tmp_path, "pool")
-    pool = run_grid(jobs, tmp_path / "pool", seeds=2, scheduler="processes", workers=2,
-                    progress=False, log=pool_log, stage="ablate")
+    pool = pool_grid[1]  # the reference: the plain process pool, nothing killed
 
     # Dask: a cluster of two worker processes, reached by its address as a lab's would be
     dask_log = _store(tmp_path, "dask")
@@ -167,12 +178,16 @@ def test_a_child_logged_under_the_old_key_tag_is_found_not_logged_again(tmp_path
 
 
 def test_a_finished_task_is_found_not_trained_again_and_racing_attempts_keep_one_folder(
-        small_corpus_dir, units_path, tmp_path, monkeypatch):
+        small_corpus_dir, units_path, pool_grid, tmp_path, monkeypatch):
+    import shutil
+
     from talkingface.stages import grid
 
     (name, (corpus, units, cfg)), = list(_jobs(small_corpus_dir, units_path).items())[:1]
     out = tmp_path / "grid" / name
-    first = grid.run_child(name, 0, str(corpus), str(units), str(out), cfg)
+    # the task as the pool's grid ran it (run_child, replicate 0), its folder copied here
+    first = pool_grid[1][name, 0]
+    shutil.copytree(replicate_folder(pool_grid[0], name, cfg.seed, 0), out)
     made = (out / "summary.json").read_bytes()
     trained = []
     real_train = grid.train_and_evaluate
@@ -366,7 +381,9 @@ def test_a_local_cluster_that_lost_every_worker_ends_in_one_line(monkeypatch):
     from groundwork.errors import TalkingFaceError
     import talkingface.executor as executor
 
-    monkeypatch.setattr(executor, "LOCAL_NO_WORKER_S", 3)
+    # no worker for 1 s is gone for good here; the watch looks 4 times a second
+    monkeypatch.setattr(executor, "LOCAL_NO_WORKER_S", 1)
+    monkeypatch.setattr(executor, "WATCH_EVERY_S", 0.25)
     with pytest.raises(TalkingFaceError, match=r"^cluster.scheduler local: every worker process "
                                                r"of this machine's Dask cluster is gone") as info:
         map_tasks(_close_worker_and_its_nanny, {"x": (3,), "y": (4,)}, scheduler="local",
@@ -376,12 +393,16 @@ def test_a_local_cluster_that_lost_every_worker_ends_in_one_line(monkeypatch):
 
 
 def test_a_task_that_kills_every_worker_it_runs_on_is_one_line():
+    import dask
+
     from groundwork.errors import TalkingFaceError
 
     # os._exit ends the worker process itself: the scheduler runs the task again on the
-    # restarted worker until its allowed failures are spent
-    with pytest.raises(TalkingFaceError, match=r"^grid task 'x': every worker that ran it died "
-                                               r"\(on local: out of memory") as info:
+    # restarted worker until its allowed failures are spent (one here: a task killed twice,
+    # not Dask's default four times, each death a worker process started again)
+    with dask.config.set({"distributed.scheduler.allowed-failures": 1}), \
+            pytest.raises(TalkingFaceError, match=r"^grid task 'x': every worker that ran it "
+                                                  r"died \(on local: out of memory") as info:
         map_tasks(os._exit, {"x": (3,)}, scheduler="local", workers=1, progress=False)
     assert "\n" not in str(info.value)  # the CLI prints it as one line
     assert _children_alive() == []
