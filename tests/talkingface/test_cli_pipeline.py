@@ -238,13 +238,17 @@ def test_ui_serves_the_same_store_on_localhost(workdir, monkeypatch, capsys):
     import talkingface.cli.main as cli
 
     calls = []
-    monkeypatch.setattr(cli, "serve", lambda cmd: calls.append(cmd) or 0)
+    monkeypatch.setattr(cli, "serve", lambda cmd, env=None: calls.append((cmd, env)) or 0)
     assert main(["ui", "--port", "5099"]) == 0
-    cmd = calls[0]
+    cmd, env = calls[0]
     assert cmd[cmd.index("--host") + 1] == "127.0.0.1" and cmd[cmd.index("--port") + 1] == "5099"
+    # one web worker and no job runner, as the lab server
+    assert cmd[cmd.index("--workers") + 1] == "1"
+    assert env["MLFLOW_SERVER_ENABLE_JOB_EXECUTION"] == "false"
     assert cmd[cmd.index("--backend-store-uri") + 1] == f"sqlite:///{workdir / 'mlflow.db'}"
     assert cmd[cmd.index("--default-artifact-root") + 1] == (workdir / "mlartifacts").as_uri()
     monkeypatch.setenv("MLFLOW_TRACKING_URI", "postgresql://db.example/mlflow")
     assert main(["ui"]) == 0
-    assert calls[1][calls[1].index("--backend-store-uri") + 1] == "postgresql://db.example/mlflow"
-    assert "--default-artifact-root" not in calls[1]
+    cmd = calls[1][0]
+    assert cmd[cmd.index("--backend-store-uri") + 1] == "postgresql://db.example/mlflow"
+    assert "--default-artifact-root" not in cmd

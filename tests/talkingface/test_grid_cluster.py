@@ -5,6 +5,7 @@ scheduler that does not answer is one clear line.
 The reference grid of the plain process pool is trained once for the module (``pool_grid``):
 the killed-worker grid compares its figures with it, and the finished-task test starts from
 one of its folders."""
+import contextlib
 import json
 import os
 import signal
@@ -275,17 +276,34 @@ def test_an_unreachable_scheduler_is_one_line(tmp_path, monkeypatch, capsys):
     assert not (tmp_path / "runs" / "x").exists()
 
 
+_RUNNING_BEFORE: set = set()  # (pid, start time) of the descendants from before the test
+
+
+@pytest.fixture(autouse=True)
+def _descendants_before():
+    """What this process ran before the test (the session's shared Chromium, a pytest-xdist
+    worker's own children): :func:`_children_alive` leaves them out."""
+    import psutil
+
+    _RUNNING_BEFORE.clear()
+    for p in psutil.Process().children(recursive=True):
+        with contextlib.suppress(psutil.Error):
+            _RUNNING_BEFORE.add((p.pid, p.create_time()))
+    yield
+
+
 def _children_alive() -> list:
-    """This process's descendants still running (a zombie counts as ended), but for
-    multiprocessing's resource tracker, which a process keeps, by design, from its first
-    spawned child to its own end."""
+    """This process's descendants started during the test and still running (a zombie counts
+    as ended), but for multiprocessing's resource tracker, which a process keeps, by design,
+    from its first spawned child to its own end."""
     import psutil
 
     from tests.talkingface.browser import wait_gone
 
     def kept(p):
         try:
-            return "multiprocessing.resource_tracker" in " ".join(p.cmdline())
+            return ((p.pid, p.create_time()) in _RUNNING_BEFORE
+                    or "multiprocessing.resource_tracker" in " ".join(p.cmdline()))
         except psutil.Error:
             return False
 
