@@ -1,0 +1,166 @@
+"""Steps of the gap between our Table II on a real speaker and the paper's (issue 39): the
+measurements that need no trained mapping, each chosen on training sentences only.
+
+* **Eq. 6 against what** (:func:`truth_r`): the paper's ground truth is the Motion Units'
+  reconstruction of the tracked MUPs, each coordinate divided by its largest absolute
+  displacement (:mod:`analysis.metrics`); beside it, the same R against the aligned markers
+  themselves, so that a reader sees what the definition alone moves.
+* **The measurement floor**: how much of the truth is the landmarks' frame-to-frame jitter
+  (:func:`smoothing_floor`: R of the truth against a centred moving average of itself, the best
+  any predictor of the smooth motion can reach if the rest is noise) and how much the Motion
+  Units keep (:func:`reconstruction_r`: R of the aligned markers against their reconstruction).
+* **Audio–video offset** (:func:`offset_scores`, :func:`best_offset`): recordings differ in how
+  their audio and video are aligned. For each lag, a ridge regression from the audio features'
+  context to the MUPs is fitted on half of the training sentences and scored (Eq. 6) on the
+  other half, both ways; the best lag is the one with the highest mean R.
+* **Learning curve** (:func:`nested_subsets`): training subsets of growing size, each holding
+  the smaller ones, drawn with a seed.
+
+Arrays: features (n_frames, n_features) per sentence, MUPs (n_frames, n_mups), displacements
+(n_frames, 158) pixels, x/y interleaved per marker.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from analysis.metrics import normalization_scale, pearson_r
+from groundwork.errors import ParameterError
+
+RIDGE_ALPHA = 1.0  # the offset search's ridge penalty (on standardised features)
+OFFSET_CONTEXT = 3  # frames of audio context either side in the offset search's regression
+
+
+def _check_pairs(features: list, targets: list) -> None:
+    if len(features) != len(targets) or len(features) < 2:
+        raise ParameterError(f"need as many target sequences as feature sequences, at least 2 "
+                             f"sentences; got {len(features)} and {len(targets)}")
+    for i, (x, y) in enumerate(zip(features, targets)):
+        if np.ndim(x) != 2 or np.ndim(y) != 2 or len(x) != len(y):
+            raise ParameterError(f"sentence {i}: features {np.shape(x)} and targets "
+                                 f"{np.shape(y)} must be 2-D with one number of frames")
+
+
+def shifted(features: np.ndarray, targets: np.ndarray, lag: int) -> tuple:
+    """The frames of one sentence paired at ``lag``: the audio of frame t with the face of frame
+    t + lag (a positive lag: the face moves ``lag`` frames after the sound that drives it)."""
+    n = len(features)
+    if abs(lag) >= n:
+        return features[:0], targets[:0]
+    if lag >= 0:
+        return features[:n - lag], targets[lag:]
+    return features[-lag:], targets[:n + lag]
+
+
+def _context(x: np.ndarray, k: int) -> np.ndarray:
+    """Each frame with ``k`` frames either side (edges repeated), (n, (2k + 1) · d)."""
+    padded = np.concatenate([np.repeat(x[:1], k, 0), x, np.repeat(x[-1:], k, 0)])
+    return np.concatenate([padded[i:i + len(x)] for i in range(2 * k + 1)], axis=1)
+
+
+def _ridge(x: np.ndarray, y: np.ndarray, alpha: float):
+    """Ridge regression on standardised ``x``: a function from new x to predictions."""
+    mu, sd = x.mean(0), x.std(0)
+    sd = np.where(sd > 0, sd, 1.0)
+    z = (x - mu) / sd
+    ym = y.mean(0)
+    w = np.linalg.solve(z.T @ z + alpha * np.eye(z.shape[1]), z.T @ (y - ym))
+    return lambda xn: ((xn - mu) / sd) @ w + ym
+
+
+def offset_scores(features: list, targets: list, lags, *, context: int = OFFSET_CONTEXT,
+                  alpha: float = RIDGE_ALPHA) -> dict:
+    """``{lag: R}``: for each lag, a ridge regression from the features' context to the targets
+    (:func:`shifted` at that lag) fitted on every other sentence and scored by Eq. 6 on the
+    rest, then the other way round; R is the mean of the two halves. Give it training
+    sentences only: the lag it picks is a setting of the pipeline."""
+    _check_pairs(features, targets)
+    halves = (list(range(0, len(features), 2)), list(range(1, len(features), 2)))
+    ctx = [_context(np.asarray(x, np.float64), context) for x in features]
+    out = {}
+    for lag in lags:
+        pairs = [shifted(x, np.asarray(y, np.float64), int(lag)) for x, y in zip(ctx, targets)]
+        scores = []
+        for fit, score in (halves, halves[::-1]):
+            xf = np.concatenate([pairs[i][0] for i in fit])
+            yf = np.concatenate([pairs[i][1] for i in fit])
+            xs = np.concatenate([pairs[i][0] for i in score])
+            ys = np.concatenate([pairs[i][1] for i in score])
+            if len(xf) < 2 or len(xs) < 2:
+                raise ParameterError(f"lag {lag}: too few frames left to fit and score "
+                                     f"({len(xf)} and {len(xs)}); use smaller lags")
+            scores.append(pearson_r(ys, _ridge(xf, yf, alpha)(xs)))
+        out[int(lag)] = float(np.mean(scores))
+    return out
+
+
+def best_offset(scores: dict) -> int:
+    """The lag of the highest R in ``scores`` (:func:`offset_scores`); of equal ones, the
+    smallest in size, then the negative."""
+    if not scores:
+        raise ParameterError("no lag was scored")
+    return max(scores, key=lambda lag: (scores[lag], -abs(lag), -lag))
+
+
+def smoothing_floor(truths: list, window: int = 3) -> float:
+    """Eq. 6 of the truth (per sentence, (n_frames, n_dims), pooled) against its centred moving
+    average over ``window`` frames (odd; edges averaged over the frames there are): near 1 when
+    the truth moves smoothly, lower the more of it is frame-to-frame jitter that no audio can
+    predict."""
+    if window < 1 or window % 2 == 0:
+        raise ParameterError(f"window {window!r}: allowed: an odd whole number, 1 or more")
+    if not truths:
+        raise ParameterError("no sentences to measure")
+    smooth = []
+    for t in truths:
+        t = np.asarray(t, np.float64)
+        c = np.cumsum(np.concatenate([np.zeros((1, t.shape[1])), t]), axis=0)
+        idx = np.arange(len(t))
+        lo = np.clip(idx - window // 2, 0, len(t))
+        hi = np.clip(idx + window // 2 + 1, 0, len(t))
+        smooth.append((c[hi] - c[lo]) / (hi - lo)[:, None])
+    return pearson_r(np.concatenate(truths), np.concatenate(smooth))
+
+
+def truth_r(markers: np.ndarray, reconstruction: np.ndarray, estimate: np.ndarray) -> dict:
+    """Eq. 6 of an estimate (displacements) against the paper's truth, the Motion Units'
+    reconstruction, and against the aligned markers themselves; each coordinate divided by
+    the largest absolute displacement of the truth it is scored against (over the frames
+    given: pass a whole database's to match Table II)."""
+    markers, reconstruction, estimate = (np.asarray(a, np.float64)
+                                         for a in (markers, reconstruction, estimate))
+    if not markers.shape == reconstruction.shape == estimate.shape:
+        raise ParameterError(f"markers {markers.shape}, reconstruction {reconstruction.shape} "
+                             f"and estimate {estimate.shape} must have one shape")
+    out = {}
+    for name, truth in (("paper", reconstruction), ("markers", markers)):
+        scale = normalization_scale(truth)
+        out[name] = pearson_r(truth / scale, estimate / scale)
+    return out
+
+
+def reconstruction_r(markers: np.ndarray, reconstruction: np.ndarray) -> float:
+    """Eq. 6 of the aligned markers' displacements against their Motion Units' reconstruction
+    (each coordinate divided by the markers' largest absolute displacement): what the units
+    keep of the face's motion, the ceiling of any mapping scored against the markers."""
+    markers = np.asarray(markers, np.float64)
+    scale = normalization_scale(markers)
+    return pearson_r(markers / scale, np.asarray(reconstruction, np.float64) / scale)
+
+
+def nested_subsets(ids: list, sizes, seed: int) -> dict:
+    """``{size: ids}``: training subsets of each size (a size over ``len(ids)`` gives all; 0
+    means all), each the first ``size`` of one seeded permutation, so every subset holds the
+    smaller ones; ids keep their order within a subset."""
+    ids = list(ids)
+    if len(set(ids)) != len(ids):
+        raise ParameterError("sentence ids must be distinct")
+    bad = [s for s in sizes if not isinstance(s, (int, np.integer)) or s < 0]
+    if bad:
+        raise ParameterError(f"subset sizes {bad}: allowed: whole numbers, 0 (all) or more")
+    order = np.random.default_rng(seed).permutation(len(ids))
+    out = {}
+    for size in sizes:
+        n = len(ids) if size == 0 else min(int(size), len(ids))
+        chosen = set(order[:n].tolist())
+        out[int(size)] = [u for i, u in enumerate(ids) if i in chosen]
+    return out

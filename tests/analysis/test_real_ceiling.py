@@ -1,0 +1,110 @@
+"""The measurements of the real speaker's gap (analysis.real_ceiling): Eq. 6 against the
+paper's truth and the markers, the normalisation by the largest absolute displacement, the
+offset search on a pair with a known lag, the jitter floor and the nested learning-curve
+subsets."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from analysis.metrics import normalization_scale, pearson_r
+from analysis.real_ceiling import (best_offset, nested_subsets, offset_scores,
+                                   reconstruction_r, shifted, smoothing_floor, truth_r)
+from groundwork.errors import ParameterError
+
+
+def test_eq6_gives_1_for_a_scaled_copy_and_about_0_for_an_independent_signal():
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(4000, 158))
+    assert pearson_r(d, 3.0 * d + 2.0) == pytest.approx(1.0)
+    assert abs(pearson_r(d, rng.normal(size=d.shape))) < 0.01
+    assert pearson_r(d, -d) == pytest.approx(-1.0)
+
+
+def test_the_normalisation_divides_each_coordinate_by_its_largest_absolute_displacement():
+    d = np.array([[1.0, -4.0, 0.0], [-2.0, 2.0, 0.0], [0.5, 1.0, 0.0]])
+    assert normalization_scale(d).tolist() == [2.0, 4.0, 1.0]  # a still coordinate: 1
+    # so a coordinate that moves little weighs as much as one that moves much
+    rng = np.random.default_rng(1)
+    big, small = rng.normal(size=(500, 1)) * 50, rng.normal(size=(500, 1)) * 0.1
+    truth = np.hstack([big, small])
+    est = np.hstack([big, rng.normal(size=(500, 1)) * 0.1])  # the small one wrong
+    scale = normalization_scale(truth)
+    assert pearson_r(truth, est) > 0.99  # in pixels the small coordinate hardly counts
+    assert pearson_r(truth / scale, est / scale) < 0.75  # normalised it counts half
+
+
+def test_r_against_the_reconstruction_and_against_the_markers():
+    rng = np.random.default_rng(2)
+    recon = rng.normal(size=(600, 6))
+    markers = recon + 0.5 * rng.normal(size=recon.shape)  # what the units do not keep
+    out = truth_r(markers, recon, recon.copy())
+    assert out["paper"] == pytest.approx(1.0)  # the reconstruction predicted exactly
+    assert out["markers"] == pytest.approx(reconstruction_r(markers, recon))
+    assert out["markers"] < 0.95
+    with pytest.raises(ParameterError, match="must have one shape"):
+        truth_r(markers, recon[:10], recon)
+
+
+def test_shifted_pairs_the_sound_with_the_face_lag_frames_later():
+    x = np.arange(10)[:, None].astype(float)
+    f, t = shifted(x, x + 100, 2)
+    assert f[:, 0].tolist() == list(range(8)) and t[:, 0].tolist() == list(range(102, 110))
+    f, t = shifted(x, x + 100, -3)
+    assert f[0, 0] == 3 and t[0, 0] == 100 and len(f) == 7
+    assert len(shifted(x, x, 10)[0]) == 0
+
+
+@pytest.mark.parametrize("true_lag", [-2, 0, 3])
+def test_the_offset_search_recovers_a_lag_put_into_a_pair(true_lag):
+    """The face is a fixed linear function of the audio features ``true_lag`` frames earlier
+    (plus noise); the search over -5..5 on 12 sentences finds that lag."""
+    rng = np.random.default_rng(7)
+    mix = rng.normal(size=(8, 4))
+    features, targets = [], []
+    for _ in range(12):
+        n = int(rng.integers(60, 90))
+        x = rng.normal(size=(n, 8))
+        y = np.zeros((n, 4))
+        src = np.arange(n) - true_lag  # face at t driven by sound at t - lag
+        ok = (src >= 0) & (src < n)
+        y[ok] = x[src[ok]] @ mix
+        features.append(x)
+        targets.append(y + 0.3 * rng.normal(size=y.shape))
+    scores = offset_scores(features, targets, range(-5, 6), context=0)
+    assert best_offset(scores) == true_lag
+    assert scores[true_lag] > 0.9 and max(v for k, v in scores.items() if k != true_lag) < 0.5
+
+
+def test_best_offset_prefers_the_smallest_lag_of_equal_scores_and_refuses_none():
+    assert best_offset({-1: 0.5, 0: 0.5, 1: 0.5}) == 0
+    assert best_offset({-2: 0.7, 2: 0.7, 0: 0.1}) == -2
+    with pytest.raises(ParameterError, match="no lag was scored"):
+        best_offset({})
+
+
+def test_the_smoothing_floor_is_1_for_smooth_motion_and_lower_with_jitter():
+    t = np.linspace(0, 4 * np.pi, 400)
+    smooth = np.stack([np.sin(t), np.cos(0.5 * t)], axis=1)
+    assert smoothing_floor([smooth], 3) > 0.999
+    assert smoothing_floor([smooth], 1) == pytest.approx(1.0)  # no smoothing
+    rng = np.random.default_rng(3)
+    noisy = smooth + 0.5 * rng.normal(size=smooth.shape)
+    assert smoothing_floor([noisy], 3) < 0.9
+    with pytest.raises(ParameterError, match="window 2: allowed: an odd whole number"):
+        smoothing_floor([smooth], 2)
+
+
+def test_learning_curve_subsets_are_nested_and_seeded():
+    ids = [f"u{i:03d}" for i in range(40)]
+    a = nested_subsets(ids, [5, 10, 20, 0], seed=11)
+    assert [len(a[s]) for s in (5, 10, 20, 0)] == [5, 10, 20, 40]
+    assert set(a[5]) <= set(a[10]) <= set(a[20]) <= set(a[0]) == set(ids)
+    assert a[10] == sorted(a[10])  # ids keep their order
+    assert nested_subsets(ids, [5, 10, 20, 0], seed=11) == a
+    assert nested_subsets(ids, [10], seed=12)[10] != a[10]
+    assert nested_subsets(ids, [100], seed=1)[100] == ids
+    with pytest.raises(ParameterError, match=r"subset sizes \[-1\]"):
+        nested_subsets(ids, [-1], seed=1)
+    with pytest.raises(ParameterError, match="distinct"):
+        nested_subsets(["a", "a"], [1], seed=1)
