@@ -164,3 +164,29 @@ def nested_subsets(ids: list, sizes, seed: int) -> dict:
         chosen = set(order[:n].tolist())
         out[int(size)] = [u for i, u in enumerate(ids) if i in chosen]
     return out
+
+
+def phone_onehot(phones: np.ndarray, n_classes: int) -> np.ndarray:
+    """Per frame, the one-hot code of its phone-class index (``phones``: (n_frames,) indices in
+    0..n_classes - 1): the oracle's input, the true phones instead of the audio."""
+    phones = np.asarray(phones)
+    if phones.ndim != 1 or (len(phones) and (phones.min() < 0 or phones.max() >= n_classes)):
+        raise ParameterError(f"phone indices must be 1-D in 0..{n_classes - 1}")
+    out = np.zeros((len(phones), n_classes))
+    out[np.arange(len(phones)), phones] = 1.0
+    return out
+
+
+def region_loadings(components: np.ndarray, regions: dict) -> list[dict]:
+    """Per Motion Unit (rows of ``components``, (n_units, 158), unit length), the share of its
+    squared loading on each region's markers (``regions``: name -> marker indices) and on the
+    x coordinates: where on the face a unit moves, and whether sideways or up and down."""
+    components = np.asarray(components, np.float64)
+    out = []
+    for c in components:
+        total = float((c ** 2).sum()) or 1.0
+        row = {name: float((c[np.array([2 * m + k for m in markers for k in (0, 1)])] ** 2)
+                           .sum() / total) for name, markers in regions.items()}
+        row["x"] = float((c[0::2] ** 2).sum() / total)
+        out.append(row)
+    return out

@@ -108,3 +108,23 @@ def test_learning_curve_subsets_are_nested_and_seeded():
         nested_subsets(ids, [-1], seed=1)
     with pytest.raises(ParameterError, match="distinct"):
         nested_subsets(["a", "a"], [1], seed=1)
+
+
+def test_the_oracle_input_is_one_hot_and_bad_indices_are_refused():
+    from analysis.real_ceiling import phone_onehot
+
+    x = phone_onehot(np.array([0, 2, 2, 1]), 3)
+    assert x.tolist() == [[1, 0, 0], [0, 0, 1], [0, 0, 1], [0, 1, 0]]
+    with pytest.raises(ParameterError, match=r"phone indices must be 1-D in 0..2"):
+        phone_onehot(np.array([3]), 3)
+
+
+def test_region_loadings_say_where_a_unit_moves():
+    from analysis.real_ceiling import region_loadings
+
+    c = np.zeros((2, 8))  # 4 markers: region a = markers 0, 1; b = 2, 3
+    c[0, [0, 2]] = [0.6, 0.8]  # unit 0: x of markers 0 and 1 -> all in a, all sideways
+    c[1, [5, 7]] = [1.0, 1.0]  # unit 1: y of markers 2 and 3 -> all in b, up and down
+    rows = region_loadings(c, {"a": range(0, 2), "b": range(2, 4)})
+    assert rows[0] == pytest.approx({"a": 1.0, "b": 0.0, "x": 1.0})
+    assert rows[1] == pytest.approx({"a": 0.0, "b": 1.0, "x": 0.0})
