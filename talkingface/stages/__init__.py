@@ -28,6 +28,7 @@ from talkingface.stages.ceiling import decompose
 from talkingface.stages.grid import ABLATIONS, CEILING, GRID_STAGES, VOICES, GridStage
 from talkingface.stages.real_speaker import evaluate_real_speaker, real_inputs, \
     real_speaker_applies
+from talkingface.stages.real_steps import measure_real_steps
 from talkingface.stages.training import train
 from talkingface.stages.voices import train_voices
 
@@ -78,12 +79,15 @@ STAGES = {s.name: s for s in (
           config=("seed", "units", "mapping", "real_speaker"), speed_only=("mapping.workers",),
           upstream=("units", "mapping", "voices"), enabled=real_speaker_applies,
           inputs=real_inputs),
+    Stage("real_steps", measure_real_steps, config=("seed", "units", "mapping.train_fraction",
+          "mapping.n_mfcc", "mapping.mel_fmax_hz", "real_speaker"),
+          enabled=real_speaker_applies, inputs=real_inputs),
     Stage("report", build_report, always=True),
 )}
 
 REPLICATION = ("corpus", "units", "keyframes", "tracking", "tracked", "mapping", "voices",
                "speech_eval", "render", "stimuli", "study_data", "analysis", "ablations",
-               "ceiling", "real_speaker", "report")
+               "ceiling", "real_speaker", "real_steps", "report")
 
 
 def run(names, paths: RunPaths, cfg) -> dict:

@@ -12,6 +12,7 @@ from analysis.mapping_report import ceiling_section, mapping_section
 from analysis.motion_report import motion_section
 from analysis.perception_report import perception_section
 from analysis.real_face_report import real_speaker_section
+from analysis.real_steps_report import real_steps_section
 from analysis.report import Report, escape
 from analysis.speech_report import speech_section
 from analysis.study_report import study_section
@@ -70,6 +71,8 @@ def build_report(paths: RunPaths, cfg) -> dict:
     if (paths.stage("real_speaker") / "summary.json").is_file():
         real_speaker_section(rep, paths.stage("real_speaker"), paths.report_dir,
                              targets=cfg.targets)
+        if (paths.stage("real_steps") / "steps.json").is_file():
+            real_steps_section(rep, paths.stage("real_steps"))
     methods_section(rep, cfg, corpus.info, study=study, made_with=made_with)
     items = findings(mapping=mapping, method=cfg.mapping.method, ab_dir=paths.ablations,
                      ceiling_dir=paths.stage("ceiling"), speech_dir=paths.stage("speech_eval"),

@@ -55,6 +55,11 @@ def test_replicate_writes_runs_report_and_mlflow(full_run_dir, monkeypatch):
     assert "A real speaker (GRID s1)" in text and "Cooke" in text
     speaker_r = real["face_scores"]["speaker_model"]["pooled"]["r_speech"]
     assert f"{speaker_r:.3f}" in text
+    # where its R goes, measured on the same training sentences the nested run trained on
+    steps = json.loads((run / "real_steps" / "steps.json").read_text())
+    assert steps["training_sentences"] == 49 - len(real["test_utterances"])
+    assert "Where the real speaker's R goes" in text
+    assert f"{steps['reconstruction_r']:.3f}" in text
     summary = json.loads((run / "report" / "summary.json").read_text())
     ours = f"{100 * summary['units']['explained']['neutral']:.2f} %"
     assert ours in text  # our figure, as text, in the table

@@ -8,7 +8,8 @@ import json
 import numpy as np
 
 from tests.talkingface.full_run import real_speaker_part
-from tools.real_speaker_steps import CONTEXTS, LAGS, main, measure, training_part
+from talkingface.stages.real_steps import CONTEXTS, LAGS, training_part
+from tools.real_speaker_steps import main, measure
 
 
 def test_the_steps_never_read_a_held_out_sentence(tmp_path, capsys):

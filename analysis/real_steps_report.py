@@ -1,0 +1,110 @@
+"""The report's subsection "Where the real speaker's R goes": the ``real_steps`` stage's rows
+(:mod:`talkingface.stages.real_steps`, ``steps.json``), each with the question it answers, and
+the Motion Units the audio can and cannot predict. Every figure is the stage's; the sentence
+under the tables is computed from them. A missing file becomes a sentence, not an error.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from analysis.report import escape
+
+STAGE = "real_steps"
+CHEEK_DOMINATED = 0.5  # a unit whose squared loading is over half on the cheek markers
+
+
+def _f(x) -> str:
+    return f"{float(x):.3f}"
+
+
+def step_rows(steps: dict) -> list[list[str]]:
+    """``[step, question, R]`` rows of the steps table (keys of ``steps.json`` as strings or
+    numbers: JSON makes the dictionaries' numeric keys strings)."""
+    get = {str(k): v for k, v in steps.get("context", {}).items()}
+    oracle = {str(k): v for k, v in steps.get("oracle", {}).items()}
+    smooth = {str(k): v for k, v in steps.get("smoothing_floor", {}).items()}
+    lags = {int(k): v for k, v in steps.get("offset", {}).get("r", {}).items()}
+    best = steps.get("offset", {}).get("best")
+    rows = [
+        ["Motion Units", "How much of the markers' motion do the utterance MUs keep? (markers "
+         "against their reconstruction)", _f(steps["reconstruction_r"])],
+        ["Landmark jitter", "How much of the truth is frame-to-frame noise? (the truth against "
+         "its 3-frame moving average)", _f(smooth["3"])],
+        ["Probe at the pipeline's context", "What does a linear model of ±3 frames of MFCC "
+         "reach?", _f(get["3"])],
+    ]
+    if best is not None and lags:
+        rows.append(["Audio–video offset", f"Does shifting the face against the sound help? "
+                     f"(best of −6…+6 frames: {int(best):+d}; at 0: {_f(lags[0])})",
+                     _f(lags[int(best)])])
+    widest = max(get, key=int)
+    rows.append(["Wider audio context", f"Does more audio help? (±{widest} frames)",
+                 _f(get[widest])])
+    if oracle:
+        rows.append(["Oracle phones", "If the true phones (forced alignment) replaced the "
+                     "audio? (one-hot, ±6 frames)", _f(oracle["6"])])
+    if "oracle_and_audio" in steps:
+        rows.append(["Oracle phones and audio", "Both together (±6 frames)",
+                     _f(steps["oracle_and_audio"])])
+    return rows
+
+
+def unit_rows(steps: dict) -> list[list[str]]:
+    """Per Motion Unit: variance share, loadings on lips, cheeks, forehead and sideways, R."""
+    return [[str(u["unit"]), f"{100 * u['variance_share']:.1f} %", f"{u['lips']:.2f}",
+             f"{u['cheeks']:.2f}", f"{u['forehead']:.2f}", f"{u['x']:.2f}", _f(u["r_audio"])]
+            for u in steps.get("units", [])]
+
+
+def units_sentence(steps: dict) -> str:
+    """What the per-unit rows show, from the rows: the best-predicted unit, and the share and
+    best R of the units whose loading is mostly on the cheeks."""
+    units = steps.get("units", [])
+    if not units:
+        return ""
+    top = max(units, key=lambda u: u["r_audio"])
+    cheek = [u for u in units if u["cheeks"] > CHEEK_DOMINATED]
+    text = (f"The audio predicts unit {top['unit']} best (R {_f(top['r_audio'])}; "
+            f"{100 * top['variance_share']:.0f} % of the variance, "
+            f"{100 * top['lips']:.0f} % of its loading on the lips).")
+    if cheek:
+        share = sum(u["variance_share"] for u in cheek)
+        best = max(u["r_audio"] for u in cheek)
+        names = ", ".join(str(u["unit"]) for u in cheek)
+        text += (f" Units {names}, mostly on the cheeks, hold {100 * share:.0f} % of the "
+                 f"variance and reach at most R {_f(best)}: motion the audio does not carry.")
+    return text
+
+
+def real_steps_section(rep, stage_dir) -> None:
+    """Add the subsection from ``stage_dir/steps.json`` (keys for a findings page: tables
+    ``real_steps`` and ``real_steps_units``)."""
+    rep.heading("Where the real speaker's R goes", level=2, stage=STAGE, key="real_steps_section")
+    try:
+        steps = json.loads((Path(stage_dir) / "steps.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError) as e:
+        rep.paragraph(f"No steps: the stage's steps.json could not be read "
+                      f"({escape(type(e).__name__)}).")
+        return
+    rep.paragraph(
+        f"Measured on the real speaker's {steps['training_sentences']} training sentences "
+        f"({steps['frames']:,} frames) only; the held-out sentences are not read. One probe "
+        "for every row: a ridge regression fitted on every other training sentence and scored "
+        "by Eq. 6 (the paper's truth: the MUs' reconstruction, each coordinate divided by its "
+        "largest displacement) on the rest, then the other way round, so that the rows differ "
+        "only in what they change. {label:real_steps} gives the steps, "
+        "{label:real_steps_units} the Motion Units.")
+    rep.table("Where the real speaker's R goes: one step at a time, training sentences",
+              ["step", "question", "R"], step_rows(steps),
+              note="Deterministic probe: no seed, so no interval; "
+                   "tools/real_speaker_steps.py prints the same rows.", key="real_steps")
+    rep.table("The real speaker's utterance Motion Units: where they move and what the audio "
+              "predicts of each (ridge, ±6 frames of MFCC)",
+              ["unit", "variance", "lips", "cheeks", "forehead", "sideways", "R audio"],
+              unit_rows(steps),
+              note="lips, cheeks, forehead: the share of the unit's squared loading on that "
+                   "region's markers; sideways: on the x coordinates.", key="real_steps_units")
+    sentence = units_sentence(steps)
+    if sentence:
+        rep.paragraph(sentence)
