@@ -18,6 +18,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from groundwork.errors import TalkingFaceError  # noqa: E402
 from talkingface.config import Config  # noqa: E402
 from talkingface.stages.real_speaker import BUILTIN  # noqa: E402
 from talkingface.stages.real_steps import measure_steps  # noqa: E402
@@ -55,7 +56,11 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=Config().seed, help="the run seed")
     p.add_argument("--json", action="store_true")
     args = p.parse_args(argv)
-    res = measure(args.corpus, args.seed)
+    try:
+        res = measure(args.corpus, args.seed)
+    except TalkingFaceError as exc:  # a folder that is not a corpus: one line, exit 2
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     if args.json:
         print(json.dumps(res, indent=1, default=float))
     else:

@@ -31,3 +31,10 @@ def test_the_steps_never_read_a_held_out_sentence(tmp_path, capsys):
     assert set(before["context"]) == set(CONTEXTS)
     assert 0 < before["reconstruction_r"] <= 1 and len(before["units"]) == 7
     assert abs(sum(u["variance_share"] for u in before["units"]) - 1) < 1e-9
+
+
+def test_a_folder_that_is_not_a_corpus_is_one_line(tmp_path, capsys):
+    assert main(["--corpus", str(tmp_path / "nowhere")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and "nowhere" in err[0] \
+        and "manifest not found" in err[0]
