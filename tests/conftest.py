@@ -95,6 +95,18 @@ def _tracking_uri_as_it_was():
 
 
 @pytest.fixture(autouse=True)
+def _no_hearing_cache_left():
+    """No test leaves a hearing cache active (``mapping.recogniser.hearing_cache``, a context
+    variable of the process): a later test's recogniser would read that cache instead of
+    hearing its audio (seen once as a missing cost line in tests/talkingface/test_progress.py)."""
+    from mapping.recogniser import active_cache
+
+    assert active_cache() is None, "an earlier test left a hearing cache active"
+    yield
+    assert active_cache() is None, "this test left a hearing cache active"
+
+
+@pytest.fixture(autouse=True)
 def _release_held_folders():
     """What a test that calls the run layer directly (not through the CLI, which releases at
     its end) left held: released after each test (groundwork.owner)."""

@@ -12,6 +12,7 @@ import pytest
 
 from face_model.corpus import load_corpus
 from mapping import recogniser
+from mapping.recogniser import hearing_cache
 from talkingface.cli.animate import animate_file, stream_file
 from talkingface.cli.main import main
 from tests.mapping.small_mapping import train_small
@@ -52,8 +53,9 @@ def test_animate_says_what_it_will_do_and_what_the_recogniser_costs(trained, pho
     monkeypatch.chdir(trained)
     monkeypatch.setattr(recogniser, "_HEARD", {})  # heard afresh, not from the cache
     npy = tmp_path / "m.npy"
-    assert main(["animate", str(wav), "-o", str(tmp_path / "a.mp4"), "--model",
-                 str(phones_model), "--markers", str(npy)]) == 0
+    with hearing_cache(None):  # and from no cache on disk
+        assert main(["animate", str(wav), "-o", str(tmp_path / "a.mp4"), "--model",
+                     str(phones_model), "--markers", str(npy)]) == 0
     err = capsys.readouterr().err
     n = len(np.load(npy))
     passes = f"animate 3.0 s of audio (~{n} frames at 30 fps): "
