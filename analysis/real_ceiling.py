@@ -190,3 +190,28 @@ def region_loadings(components: np.ndarray, regions: dict) -> list[dict]:
         row["x"] = float((c[0::2] ** 2).sum() / total)
         out.append(row)
     return out
+
+
+def learning_curve(features: list, targets: list, sizes, *, seed: int,
+                   context: int = OFFSET_CONTEXT, alpha: float = RIDGE_ALPHA) -> dict:
+    """``{n: R}``: the ridge probe of :func:`offset_scores` (lag 0) fitted on ``n`` sentences
+    of one half of the sentences (every other one; :func:`nested_subsets` of that half, seeded)
+    and scored by Eq. 6 on the whole other half, then the other way round (mean R). ``sizes``
+    above a half's size are cut to it (0: all of it); the keys are the sizes used, so a curve
+    says how much more data would buy."""
+    _check_pairs(features, targets)
+    halves = (list(range(0, len(features), 2)), list(range(1, len(features), 2)))
+    ctx = [_context(np.asarray(x, np.float64), context) for x in features]
+    used = sorted({min(len(h), int(s) if s else len(h)) for s in sizes for h in halves[:1]})
+    out = {}
+    for n in used:
+        scores = []
+        for fit, score in (halves, halves[::-1]):
+            chosen = nested_subsets(fit, [n], seed)[n]
+            xf = np.concatenate([ctx[i] for i in chosen])
+            yf = np.concatenate([np.asarray(targets[i], np.float64) for i in chosen])
+            xs = np.concatenate([ctx[i] for i in score])
+            ys = np.concatenate([np.asarray(targets[i], np.float64) for i in score])
+            scores.append(pearson_r(ys, _ridge(xf, yf, alpha)(xs)))
+        out[n] = float(np.mean(scores))
+    return out

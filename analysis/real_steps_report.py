@@ -44,6 +44,12 @@ def step_rows(steps: dict) -> list[list[str]]:
     if oracle:
         rows.append(["Oracle phones", "If the true phones (forced alignment) replaced the "
                      "audio? (one-hot, ±6 frames)", _f(oracle["6"])])
+    curve = {int(k): v for k, v in steps.get("learning_curve", {}).items()}
+    if len(curve) > 1:
+        sizes = sorted(curve)
+        rows.append(["More data", "What do more training sentences buy? (the probe fitted on "
+                     + ", ".join(f"{n}: {_f(curve[n])}" for n in sizes) + " sentences)",
+                     _f(curve[sizes[-1]])])
     if "oracle_and_audio" in steps:
         rows.append(["Oracle phones and audio", "Both together (±6 frames)",
                      _f(steps["oracle_and_audio"])])

@@ -43,6 +43,8 @@ def show(res: dict) -> None:
     print("oracle, true phones (context: R): " + ", ".join(
         f"{k}: {v:.3f}" for k, v in res["oracle"].items())
         + f"; phones and audio: {res['oracle_and_audio']:.3f}")
+    print("more data (sentences the probe is fitted on: R): " + ", ".join(
+        f"{k}: {v:.3f}" for k, v in res["learning_curve"].items()))
     print(f"{'unit':>4s} {'var':>6s} {'lips':>6s} {'cheeks':>6s} {'brows':>6s} {'x':>6s} "
           f"{'R audio':>7s}")
     for u in res["units"]:

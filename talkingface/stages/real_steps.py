@@ -20,6 +20,8 @@ Rows (``steps.json``):
 * ``context`` — R for 0, 3, 6, 10 and 15 frames of MFCC context either side;
 * ``oracle`` — the true phones (one-hot; 3, 6, 10 frames) instead of the audio, and
   ``oracle_and_audio`` — both (6 frames);
+* ``learning_curve`` — R of the probe (±3 frames) fitted on 25, 50, 100 sentences of one half
+  (cut to the half's size; nested, seeded with the run seed) and scored on the other half;
 * ``units`` — per utterance Motion Unit: its share of the variance, where it moves (lips,
   cheeks, forehead, sideways) and the R the audio reaches on it alone (6 frames).
 """
@@ -30,8 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.real_ceiling import (best_offset, offset_scores, phone_onehot, reconstruction_r,
-                                   region_loadings, smoothing_floor)
+from analysis.real_ceiling import (best_offset, learning_curve, offset_scores, phone_onehot,
+                                   reconstruction_r, region_loadings, smoothing_floor)
 from face_model.alignment import corpus_deformations
 from face_model.corpus import Corpus, load_corpus
 from face_model.layout import REGIONS
@@ -47,6 +49,7 @@ LAGS = range(-6, 7)
 CONTEXTS = (0, 3, 6, 10, 15)
 ORACLE_CONTEXTS = (3, 6, 10)
 PER_UNIT_CONTEXT = 6
+LEARNING_SIZES = (25, 50, 100, 0)  # sentences the probe is fitted on (0: a whole half)
 FACE_REGIONS = ("lips", "cheeks", "forehead")
 
 
@@ -85,6 +88,7 @@ def measure_steps(corpus_dir: Path, cfg) -> dict:
     out["oracle"] = {k: offset_scores(onehot, mups, [0], context=k)[0] for k in ORACLE_CONTEXTS}
     out["oracle_and_audio"] = offset_scores([np.hstack(p) for p in zip(onehot, feats)], mups,
                                             [0], context=PER_UNIT_CONTEXT)[0]
+    out["learning_curve"] = learning_curve(feats, mups, LEARNING_SIZES, seed=cfg.seed)
     n = units.n_utterance
     share = units.variance_[:n] / units.variance_[:n].sum()
     where = region_loadings(units.components_[:n], {k: REGIONS[k] for k in FACE_REGIONS})
