@@ -15,11 +15,12 @@ import math
 from pathlib import Path
 
 from analysis import real_face_tables as face
+from analysis import real_steps_report as real_steps
 from analysis import speech_report as speech
 from analysis.config import TargetsConfig
 from analysis.grid_summary import (best, delta_cell, fmt, fmt_level, fmt_p, grid_summary,
                                    read_replicates)
-from analysis.mapping_report import _f, ci_cell, lookahead_rows_for_report
+from analysis.mapping_report import _f, ci_cell, lookahead_rows_for_report, r_cell
 from analysis.metrics import PAPER_TABLES
 from analysis.report import escape
 
@@ -218,6 +219,49 @@ def real_speaker_finding(real_dir: Path, targets: TargetsConfig | None = None) -
     return text + " " + _cite("real_face_scores") + "."
 
 
+def real_steps_finding(stage_dir: Path) -> str | None:
+    """Where the real speaker's R goes: the trained steps (the run's mapping on both splits,
+    the recogniser and the oracle), the measurement floor and the cheek units, each figure as
+    its table prints it (:mod:`analysis.real_steps_report`)."""
+    try:
+        steps = json.loads((Path(stage_dir) / "steps.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    trained = {r["step"]: r for r in real_steps.read_trained(stage_dir)}
+    parts = []
+    if "ours" in trained:
+        ours = trained["ours"]
+        text = (f"the run's mapping reaches R {r_cell(ours, 'utterance')} on held-out "
+                f"sentences and {r_cell(ours, 'random_frames')} on the paper's frame split")
+        others = [(k, label) for k, label in (("hama-phones", "hama's phones"),
+                                              ("oracle", "the true phones"))
+                  if k in trained]
+        if others:
+            text += "; with " + ", with ".join(
+                f"{label} {r_cell(trained[k], 'utterance')}" for k, label in others)
+        parts.append(text + " " + _cite("real_steps_trained"))
+    floor = {str(k): v for k, v in steps.get("smoothing_floor", {}).items()}
+    text = (f"the Motion Units keep R {_f(steps['reconstruction_r'])} of the markers' motion and "
+            f"the truth against its smoothed self is R {_f(floor['3'])}")
+    regions = steps.get("regions", {})
+    if {"lips", "forehead"} <= set(regions):
+        lips, brow = regions["lips"], regions["forehead"]
+        text += (f"; an audio probe reaches R {_f(lips['r'])} on the lips' coordinates and "
+                 f"{_f(brow['r'])} on the brows and forehead's, which Eq. 6 weighs about alike "
+                 f"({100 * lips['weight']:.0f} % and {100 * brow['weight']:.0f} %)")
+    text += " " + _cite("real_steps")
+    units = steps.get("units", [])
+    cheek = [u for u in units if u["cheeks"] > real_steps.CHEEK_DOMINATED]
+    if cheek:
+        text += (f"; units mostly on the cheeks hold "
+                 f"{100 * sum(u['variance_share'] for u in cheek):.0f} % of the variance, which "
+                 f"the audio predicts at R {_f(max(u['r_audio'] for u in cheek))} at most "
+                 + _cite("real_steps_units"))
+    parts.append(text)
+    return ("<b>Where the real speaker's R goes.</b> On its training sentences alone, "
+            + "; ".join(parts) + ".")
+
+
 def study_finding(study: dict | None) -> str | None:
     """FLMP or WTAV per face, by BIC, and who the participants were."""
     models = (study or {}).get("models") or {}
@@ -239,10 +283,11 @@ def study_finding(study: dict | None) -> str | None:
 def findings(*, mapping: dict | None, method: str, ab_dir: Path, ceiling_dir: Path,
              speech_dir: Path, default_model: str | None, study: dict | None,
              has: set, targets: TargetsConfig | None = None,
-             real_dir: Path | None = None) -> list[str]:
+             real_dir: Path | None = None, steps_dir: Path | None = None) -> list[str]:
     """The findings of a run whose report has the parts ``has`` (the keys its sections
     registered), in the order of the paper's questions; ``targets``: the run's
-    :class:`~analysis.config.TargetsConfig`; ``real_dir``: the real_speaker stage's folder."""
+    :class:`~analysis.config.TargetsConfig`; ``real_dir``: the real_speaker stage's folder;
+    ``steps_dir``: the real_steps stage's."""
     items = [
         table_ii_finding(mapping or {}, method) if "table_ii" in has else None,
         ablation_finding(ab_dir) if {"ablations", "forest"} <= has else None,
@@ -252,6 +297,8 @@ def findings(*, mapping: dict | None, method: str, ab_dir: Path, ceiling_dir: Pa
         if {"speech_unseen-test", "targets"} <= has else None,
         real_speaker_finding(real_dir, targets)
         if real_dir is not None and {"real_face_scores", "targets"} <= has else None,
+        real_steps_finding(steps_dir)
+        if steps_dir is not None and {"real_steps", "real_steps_units"} <= has else None,
         study_finding(study) if "models" in has else None,
     ]
     return [i for i in items if i and not (isinstance(i, float) and math.isnan(i))]

@@ -11,8 +11,9 @@ measurements that need no trained mapping, each chosen on training sentences onl
   Units keep (:func:`reconstruction_r`: R of the aligned markers against their reconstruction).
 * **Audio–video offset** (:func:`offset_scores`, :func:`best_offset`): recordings differ in how
   their audio and video are aligned. For each lag, a ridge regression from the audio features'
-  context to the MUPs is fitted on half of the training sentences and scored (Eq. 6) on the
-  other half, both ways; the best lag is the one with the highest mean R.
+  context to the MUPs is fitted on half of the training sentences and scored (Eq. 6, on the
+  displacements the MUPs reconstruct, normalised as the paper's: ``project``) on the other
+  half, both ways; the best lag is the one with the highest mean R.
 * **Learning curve** (:func:`nested_subsets`): training subsets of growing size, each holding
   the smaller ones, drawn with a seed.
 
@@ -67,12 +68,21 @@ def _ridge(x: np.ndarray, y: np.ndarray, alpha: float):
     return lambda xn: ((xn - mu) / sd) @ w + ym
 
 
+def _identity(y: np.ndarray) -> np.ndarray:
+    return y
+
+
 def offset_scores(features: list, targets: list, lags, *, context: int = OFFSET_CONTEXT,
-                  alpha: float = RIDGE_ALPHA) -> dict:
+                  alpha: float = RIDGE_ALPHA, project=None) -> dict:
     """``{lag: R}``: for each lag, a ridge regression from the features' context to the targets
     (:func:`shifted` at that lag) fitted on every other sentence and scored by Eq. 6 on the
     rest, then the other way round; R is the mean of the two halves. Give it training
-    sentences only: the lag it picks is a setting of the pipeline."""
+    sentences only: the lag it picks is a setting of the pipeline.
+
+    ``project``: ``(n, n_targets) -> (n, n_dims)``, applied to the truth and the estimate
+    before Eq. 6 — for MUPs, their displacements by Eq. 2 divided by the database's largest
+    absolute displacement per coordinate, the paper's R (None: R on the targets as given)."""
+    project = project or _identity
     _check_pairs(features, targets)
     halves = (list(range(0, len(features), 2)), list(range(1, len(features), 2)))
     ctx = [_context(np.asarray(x, np.float64), context) for x in features]
@@ -88,7 +98,7 @@ def offset_scores(features: list, targets: list, lags, *, context: int = OFFSET_
             if len(xf) < 2 or len(xs) < 2:
                 raise ParameterError(f"lag {lag}: too few frames left to fit and score "
                                      f"({len(xf)} and {len(xs)}); use smaller lags")
-            scores.append(pearson_r(ys, _ridge(xf, yf, alpha)(xs)))
+            scores.append(pearson_r(project(ys), project(_ridge(xf, yf, alpha)(xs))))
         out[int(lag)] = float(np.mean(scores))
     return out
 
@@ -193,12 +203,14 @@ def region_loadings(components: np.ndarray, regions: dict) -> list[dict]:
 
 
 def learning_curve(features: list, targets: list, sizes, *, seed: int,
-                   context: int = OFFSET_CONTEXT, alpha: float = RIDGE_ALPHA) -> dict:
+                   context: int = OFFSET_CONTEXT, alpha: float = RIDGE_ALPHA,
+                   project=None) -> dict:
     """``{n: R}``: the ridge probe of :func:`offset_scores` (lag 0) fitted on ``n`` sentences
     of one half of the sentences (every other one; :func:`nested_subsets` of that half, seeded)
     and scored by Eq. 6 on the whole other half, then the other way round (mean R). ``sizes``
     above a half's size are cut to it (0: all of it); the keys are the sizes used, so a curve
-    says how much more data would buy."""
+    says how much more data would buy. ``project``: as :func:`offset_scores`."""
+    project = project or _identity
     _check_pairs(features, targets)
     halves = (list(range(0, len(features), 2)), list(range(1, len(features), 2)))
     ctx = [_context(np.asarray(x, np.float64), context) for x in features]
@@ -212,6 +224,6 @@ def learning_curve(features: list, targets: list, sizes, *, seed: int,
             yf = np.concatenate([np.asarray(targets[i], np.float64) for i in chosen])
             xs = np.concatenate([ctx[i] for i in score])
             ys = np.concatenate([np.asarray(targets[i], np.float64) for i in score])
-            scores.append(pearson_r(ys, _ridge(xf, yf, alpha)(xs)))
+            scores.append(pearson_r(project(ys), project(_ridge(xf, yf, alpha)(xs))))
         out[n] = float(np.mean(scores))
     return out

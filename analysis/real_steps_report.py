@@ -1,17 +1,22 @@
 """The report's subsection "Where the real speaker's R goes": the ``real_steps`` stage's rows
-(:mod:`talkingface.stages.real_steps`, ``steps.json``), each with the question it answers, and
-the Motion Units the audio can and cannot predict. Every figure is the stage's; the sentence
-under the tables is computed from them. A missing file becomes a sentence, not an error.
+(:mod:`talkingface.stages.real_steps`: the probe's ``steps.json`` and the trained steps'
+``results.csv``), each with the question it answers, and the Motion Units the audio can and
+cannot predict. Every figure is the stage's; the sentences under the tables are computed from
+them. A missing file becomes a sentence, not an error.
 """
 from __future__ import annotations
 
+import csv
 import json
 from pathlib import Path
 
+from analysis.mapping_report import ci_cell, r_cell, seeds_note
 from analysis.report import escape
 
 STAGE = "real_steps"
 CHEEK_DOMINATED = 0.5  # a unit whose squared loading is over half on the cheek markers
+REGION_NAMES = {"lips": "lips", "cheeks": "cheeks", "forehead": "brows and forehead",
+                "glasses": "glasses"}  # the stage's regions in words (plural nouns)
 
 
 def _f(x) -> str:
@@ -53,6 +58,11 @@ def step_rows(steps: dict) -> list[list[str]]:
     if "oracle_and_audio" in steps:
         rows.append(["Oracle phones and audio", "Both together (±6 frames)",
                      _f(steps["oracle_and_audio"])])
+    for name, r in steps.get("regions", {}).items():
+        rows.append([f"{REGION_NAMES.get(name, name).capitalize()} only",
+                     f"What does the probe reach on the {REGION_NAMES.get(name, name)}' "
+                     f"coordinates alone? ({100 * r['weight']:.0f} % of what Eq. 6 weighs)",
+                     _f(r["r"])])
     return rows
 
 
@@ -83,6 +93,60 @@ def units_sentence(steps: dict) -> str:
     return text
 
 
+# the trained steps of configs/real_steps.yaml: child → the question its row answers
+TRAINED_QUESTIONS = {
+    "ours": "The run's mapping: the paper's gate (44 phone-class mixtures on the MFCC)",
+    "pocketsphinx": "If pocketsphinx's phones (trained on real speech) drive the gate?",
+    "hama": "If hama's phones drive the gate?",
+    "hama-phones": "If the MLPs also read hama's phones instead of the MFCC (the default "
+                   "model's front end)?",
+    "oracle": "If the true phones and their timing replaced the audio (gate and MLPs)?",
+}
+
+
+def read_trained(stage_dir) -> list[dict]:
+    """The trained steps' rows (``results.csv``), or [] when the stage has none."""
+    path = Path(stage_dir) / "results.csv"
+    if not path.is_file():
+        return []
+    with open(path, newline="", encoding="utf-8") as f:
+        return list(csv.DictReader(f))
+
+
+def trained_rows(rows: list[dict]) -> list[list[str]]:
+    """``[step, question, R utterance, R frame split, frame − utterance, /p b m/ closed]``."""
+    out = []
+    for r in rows:
+        try:
+            gap = f"{float(r['random_frames_R']) - float(r['utterance_R']):+.3f}"
+        except (KeyError, ValueError):
+            gap = "–"
+        out.append([escape(r["step"]), escape(TRAINED_QUESTIONS.get(r["step"], "")),
+                    r_cell(r, "utterance"), r_cell(r, "random_frames"), gap,
+                    ci_cell(r, "utterance_closure", 2)])
+    return out
+
+
+def trained_sentence(rows: list[dict]) -> str:
+    """What the trained rows show, from the rows: the best step against ``ours`` on the
+    utterance split, and the frame split's gain over it."""
+    by = {r["step"]: r for r in rows}
+    if "ours" not in by:
+        return ""
+    ours = float(by["ours"]["utterance_R"])
+    top = max(rows, key=lambda r: float(r["utterance_R"]))
+    text = (f"On the training sentences' own held-out sentences, the run's mapping reaches R "
+            f"{ours:.3f}; the best step is {escape(top['step'])} (R "
+            f"{float(top['utterance_R']):.3f}).")
+    if "oracle" in by:
+        text += (f" Even the true phones reach only R {float(by['oracle']['utterance_R']):.3f}:"
+                 " what the audio could tell about the phones is not what is missing.")
+    gap = float(by["ours"]["random_frames_R"]) - ours
+    text += (f" The paper's random-frame split adds {gap:+.3f} to the run's mapping (test "
+             "frames between training frames of the same sentence).")
+    return text
+
+
 def real_steps_section(rep, stage_dir) -> None:
     """Add the subsection from ``stage_dir/steps.json`` (keys for a findings page: tables
     ``real_steps`` and ``real_steps_units``)."""
@@ -96,10 +160,12 @@ def real_steps_section(rep, stage_dir) -> None:
     rep.paragraph(
         f"Measured on the real speaker's {steps['training_sentences']} training sentences "
         f"({steps['frames']:,} frames) only; the held-out sentences are not read. One probe "
-        "for every row: a ridge regression fitted on every other training sentence and scored "
-        "by Eq. 6 (the paper's truth: the MUs' reconstruction, each coordinate divided by its "
-        "largest displacement) on the rest, then the other way round, so that the rows differ "
-        "only in what they change. {label:real_steps} gives the steps, "
+        "for every row: a ridge regression from the audio to the MUPs fitted on every other "
+        "training sentence and scored by Eq. 6 as Table II is (the paper's truth: the MUs' "
+        "reconstruction, each coordinate divided by its largest displacement) on the rest, "
+        "then the other way round, so that the rows differ only in what they change. Eq. 6 "
+        "weighs every coordinate by its variance after that division, so a marker that "
+        "hardly moves counts as much as the lips. {label:real_steps} gives the steps, "
         "{label:real_steps_units} the Motion Units.")
     rep.table("Where the real speaker's R goes: one step at a time, training sentences",
               ["step", "question", "R"], step_rows(steps),
@@ -112,5 +178,21 @@ def real_steps_section(rep, stage_dir) -> None:
               note="lips, cheeks, forehead: the share of the unit's squared loading on that "
                    "region's markers; sideways: on the x coordinates.", key="real_steps_units")
     sentence = units_sentence(steps)
+    if sentence:
+        rep.paragraph(sentence)
+    trained = read_trained(stage_dir)
+    if not trained:
+        return
+    rep.paragraph(
+        "The pipeline itself, one change at a time: each row trains the mapping on the "
+        "training sentences only (each seed its own split of them) and scores it by Eq. 6 on "
+        "both of the paper's splits. {label:real_steps_trained} gives the rows.")
+    rep.table("Where the real speaker's R goes: the trained pipeline, training sentences",
+              ["step", "question", "R (utterance)", "R (frame split)", "frame − utt.",
+               "/p b m/ closed"], trained_rows(trained),
+              note=seeds_note(trained, "utterance") + " Each row is an MLflow child run of "
+                   "the real_steps parent run (configs/real_steps.yaml).",
+              key="real_steps_trained")
+    sentence = trained_sentence(trained)
     if sentence:
         rep.paragraph(sentence)

@@ -6,7 +6,8 @@ settings (:mod:`mapping.config`), ``study`` (:mod:`study.config`) — and this m
 that belong to the pipeline and the command line: ``corpus`` (a given corpus instead of the
 synthetic one), ``mlflow`` (where runs are logged), ``ablations`` (the grid
 ``replicate`` trains as child runs, and its seeds), ``cluster`` (where grid tasks run),
-``ceiling`` (the steps toward the ceiling) and ``voices`` (the grid of voice-robust models);
+``ceiling`` (the steps toward the ceiling), ``real_steps`` (the trained steps on the real
+speaker's training sentences) and ``voices`` (the grid of voice-robust models);
 ``targets`` (:mod:`analysis.config`) holds the project's targets on real data, stated once, and
 ``speech_set`` (:mod:`analysis.config`) the part of the real-speech set the evaluation scores.
 It composes, loads, validates and dumps them.
@@ -130,6 +131,20 @@ class CeilingConfig:
 
 
 @dataclass(frozen=True)
+class RealStepsConfig:
+    """Where the real speaker's R goes (stage ``real_steps``): the trained steps, each a child of
+    the grid (the gate's GMMs, the recognisers, the oracle's true phones) trained and scored on
+    the real speaker's training sentences only, on both splits."""
+
+    grid: str = "default"  # default: configs/real_steps.yaml of the project | none | a file
+    workers: int = integer(0, ge=0)  # processes (0: all cores)
+    seeds: int = integer(3, ge=1, le=100)  # training seeds per step, as ceiling.seeds
+
+    def __post_init__(self):
+        check_fields(self)
+
+
+@dataclass(frozen=True)
 class VoicesConfig:
     """The voice-robust models ``replicate`` trains and scores on real speech (the grid's
     children; its ``model`` is what ``animate``, ``stream`` and the study's synthetic face use)."""
@@ -149,7 +164,7 @@ MAX_SEED = 2**31 - 1  # derived seeds add offsets; scikit-learn takes seeds < 2*
 # names the setting; a new one belongs here and there (tests/talkingface/
 # test_config.py finds the settings whose names say they name data).
 DATA_SETTINGS = ("corpus.source", "real_speaker.corpus", "synth.text_file", "ablations.grid",
-                 "ceiling.grid", "voices.grid")
+                 "ceiling.grid", "real_steps.grid", "voices.grid")
 
 
 @dataclass(frozen=True)
@@ -167,17 +182,20 @@ class Config:
     cluster: ClusterConfig = field(default_factory=ClusterConfig)
     voices: VoicesConfig = field(default_factory=VoicesConfig)
     ceiling: CeilingConfig = field(default_factory=CeilingConfig)
+    real_steps: RealStepsConfig = field(default_factory=RealStepsConfig)
     targets: TargetsConfig = field(default_factory=TargetsConfig)
     speech_set: SpeechSetConfig = field(default_factory=SpeechSetConfig)
 
     def __post_init__(self):
         check_fields(self)
         # replicate k of a grid trains with seed + 1000 k (talkingface.stages.grid)
-        top = self.seed + 1000 * (max(self.ablations.seeds, self.ceiling.seeds) - 1)
+        top = self.seed + 1000 * (max(self.ablations.seeds, self.ceiling.seeds,
+                                      self.real_steps.seeds) - 1)
         require(self, "seed", top <= MAX_SEED,
-                f"at most {MAX_SEED} - 1000 x (the largest of ablations.seeds and "
-                "ceiling.seeds, minus one): its replicates' seeds must stay within "
-                f"0..{MAX_SEED}", ("ablations.seeds", "ceiling.seeds"))
+                f"at most {MAX_SEED} - 1000 x (the largest of ablations.seeds, "
+                "ceiling.seeds and real_steps.seeds, minus one): its replicates' seeds must "
+                f"stay within 0..{MAX_SEED}", ("ablations.seeds", "ceiling.seeds",
+                                              "real_steps.seeds"))
         if self.corpus.source and self.mapping.visual_source == "tracked":
             # the tracked corpus draws the synthetic marker face (talkingface.stages.applies)
             raise SettingError("mapping.visual_source", self.mapping.visual_source,

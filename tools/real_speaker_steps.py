@@ -1,7 +1,8 @@
 """Where the real speaker's Table II R goes (issue 39): the steps that need no trained mapping,
-measured on the real speaker's *training* sentences only, printed.
+measured on the real speaker's *training* sentences only, printed; with ``--trained DIR``, also
+the trained steps of ``configs/real_steps.yaml`` (3 seeds each), trained into ``DIR``.
 
-    python tools/real_speaker_steps.py [--corpus DIR] [--seed N] [--json]
+    python tools/real_speaker_steps.py [--corpus DIR] [--seed N] [--json] [--trained DIR]
 
 The rows and how they are measured: :mod:`talkingface.stages.real_steps` (the ``real_steps``
 stage of ``make replicate`` writes the same to ``runs/<name>/real_steps/steps.json``). Data: the
@@ -21,7 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from groundwork.errors import TalkingFaceError  # noqa: E402
 from talkingface.config import Config  # noqa: E402
 from talkingface.stages.real_speaker import BUILTIN  # noqa: E402
-from talkingface.stages.real_steps import measure_steps  # noqa: E402
+from talkingface.stages.real_steps import measure_steps, train_steps  # noqa: E402
 
 
 def measure(corpus_dir: Path, seed: int) -> dict:
@@ -45,6 +46,8 @@ def show(res: dict) -> None:
         + f"; phones and audio: {res['oracle_and_audio']:.3f}")
     print("more data (sentences the probe is fitted on: R): " + ", ".join(
         f"{k}: {v:.3f}" for k, v in res["learning_curve"].items()))
+    print("by region (share of what Eq. 6 weighs, the probe's R on it alone): " + ", ".join(
+        f"{k} {100 * v['weight']:.0f} % R {v['r']:.3f}" for k, v in res["regions"].items()))
     print(f"{'unit':>4s} {'var':>6s} {'lips':>6s} {'cheeks':>6s} {'brows':>6s} {'x':>6s} "
           f"{'R audio':>7s}")
     for u in res["units"]:
@@ -57,9 +60,21 @@ def main(argv=None) -> int:
     p.add_argument("--corpus", type=Path, default=BUILTIN)
     p.add_argument("--seed", type=int, default=Config().seed, help="the run seed")
     p.add_argument("--json", action="store_true")
+    p.add_argument("--trained", type=Path, metavar="DIR",
+                   help="also train the grid's steps into DIR (an empty or new folder; a "
+                        "folder of the same steps is reused) and print their R")
     args = p.parse_args(argv)
     try:
+        if args.trained is not None and args.trained.exists() and (
+                not args.trained.is_dir()
+                or any(args.trained.iterdir()) and not (args.trained / "corpora").is_dir()):
+            raise TalkingFaceError(f"--trained {args.trained}: not an empty folder nor one "
+                                   "this command trained into; give a new folder")
         res = measure(args.corpus, args.seed)
+        if args.trained is not None:
+            cfg = dataclasses.replace(Config(), seed=args.seed)
+            res["trained"] = train_steps(args.corpus, args.trained, cfg,
+                                         cache=args.trained / "corpora" / "cache")
     except TalkingFaceError as exc:  # a folder that is not a corpus: one line, exit 2
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -67,6 +82,11 @@ def main(argv=None) -> int:
         print(json.dumps(res, indent=1, default=float))
     else:
         show(res)
+        for r in res.get("trained", []):
+            print(f"trained {r['step']}: R {float(r['utterance_R']):.3f} ± "
+                  f"{float(r['utterance_R_ci95']):.3f} (utterance split), "
+                  f"{float(r['random_frames_R']):.3f} ± {float(r['random_frames_R_ci95']):.3f} "
+                  "(frame split)")
     return 0
 
 

@@ -2,7 +2,7 @@
 
     talkingface corpus from-video SRC --out DIR [--speaker S] [--transcripts CSV] [--workers N]
     talkingface evaluate-face [--model M] VIDEOS [--out DIR] [--overwrite] [--speaker S]
-                              [--workers N]
+                              [--workers N] [--side-by-side DIR]
 
 Both read video through MediaPipe Face Mesh in the face environment (``bash tools/setup.sh
 face``; :mod:`face_model.landmarks`). ``evaluate-face`` also takes a corpus folder (one made
@@ -10,6 +10,10 @@ by ``corpus from-video``, whose markers need no decoding). Its results folder
 (:data:`EVAL_FILES`) is by default ``face_eval/<source>-<8 hex digits of the source's full
 path>`` beside the model (:func:`default_eval_folder`: never another source's); an existing
 one is replaced only with ``--overwrite``, and then at once (built beside it, swapped in).
+``--side-by-side DIR`` (videos only) also writes one MP4 per clip into ``DIR``: the video with
+its tracked markers | the markers predicted from its audio | the model's animated face, with the
+clip's audio (:mod:`talkingface.stages.side_by_side`); a ``DIR`` holding files is refused unless
+``--overwrite`` (then only its ``.mp4`` files may be there, and a clip's video is replaced).
 """
 from __future__ import annotations
 
@@ -20,12 +24,17 @@ import re
 import shutil
 from pathlib import Path
 
+from tqdm import tqdm
+
 from analysis.face_eval import opening_strip_figure, write_scores_csv
+from face_model.alignment import align_markers
 from face_model.video_corpus import FromVideoSettings, default_speaker
 from face_model.video_import import check_sources, corpus_from_video
 from groundwork.atomic import fresh_partial_folder, swap_in
 from groundwork.errors import ParameterError
-from talkingface.stages.face_scoring import clips_from_corpus, clips_from_videos, score_model
+from talkingface.stages.side_by_side import alignment_of, write_side_by_side
+from talkingface.stages.face_scoring import (clips_from_corpus, clips_from_videos,
+                                             model_neutrals, score_model)
 from talkingface.stages.models import load_animator
 
 
@@ -100,6 +109,38 @@ def check_eval_folder(out: Path, src: Path, *, overwrite: bool, default: bool) -
     return out
 
 
+def check_side_by_side(folder: Path, src: Path, *, corpus: bool, overwrite: bool) -> Path:
+    """Refuse, before any work, ``--side-by-side`` with a corpus folder (no video to show), a
+    folder that is a file, or one that holds files (unless ``overwrite``, and then only
+    ``.mp4`` files: a clip's video is replaced, nothing else is touched)."""
+    if corpus:
+        raise ParameterError(f"--side-by-side {folder}: {src} is a corpus folder (markers, no "
+                             "video); give the folder of videos it was made from")
+    if folder.exists() and not folder.is_dir():
+        raise ParameterError(f"--side-by-side {folder} is a file; give a folder")
+    entries = list(folder.iterdir()) if folder.is_dir() else []
+    if entries and not overwrite:
+        raise ParameterError(f"--side-by-side {folder} already holds files; pass --overwrite "
+                             "to replace its videos, or give another folder")
+    if any(not (e.is_file() and e.suffix == ".mp4") for e in entries):
+        raise ParameterError(f"--side-by-side {folder} holds files that are not videos (.mp4); "
+                             "give another folder (nothing is replaced)")
+    return folder
+
+
+def write_side_by_sides(folder: Path, animator, clips: list, videos: list, training) -> list:
+    """One side-by-side MP4 per clip in ``folder`` (``<clip>.mp4``), with the neutral faces
+    the scores use (:func:`talkingface.stages.face_scoring.model_neutrals`)."""
+    by_stem = {v.stem: v for v in videos}
+    aligned = {c.clip: align_markers(c.markers, model=alignment_of(animator)) for c in clips}
+    neutrals, _ = model_neutrals(animator, clips, aligned, training)
+    written = []
+    for c in tqdm(clips, desc="side by side", unit="clip", leave=False):
+        written.append(write_side_by_side(folder / f"{c.clip}.mp4", by_stem[c.clip], c,
+                                          animator, neutrals[c.speaker], progress=False))
+    return written
+
+
 def cmd_evaluate_face(args) -> int:
     """Score a model on real clips by the rules of :mod:`analysis.face_eval`: speech frames from
     the corpus's phones, or, for videos, from each clip's transcript forced-aligned (a clip
@@ -110,10 +151,16 @@ def cmd_evaluate_face(args) -> int:
         check_sources(src)
     if args.out:
         check_eval_folder(Path(args.out), src, overwrite=args.overwrite, default=False)
+    side = args.side_by_side
+    if side is not None:
+        check_side_by_side(side, src, corpus=corpus, overwrite=args.overwrite)
     animator, tfmap = load_animator(args.model, args.runs_dir)
     out = Path(args.out) if args.out else default_eval_folder(tfmap, src)
     if not args.out:
         check_eval_folder(out, src, overwrite=args.overwrite, default=True)
+    if side is not None and out.resolve() in (side.resolve(), *side.resolve().parents):
+        raise ParameterError(f"--side-by-side {side} is in the results folder {out}; give "
+                             "another folder")
     if corpus:
         clips, refused, unaligned = clips_from_corpus(src), [], []
     else:
@@ -135,6 +182,8 @@ def cmd_evaluate_face(args) -> int:
         shutil.rmtree(partial, ignore_errors=True)
         raise
     swap_in(partial, out)
+    videos = ([] if side is None else
+              write_side_by_sides(side, animator, clips, check_sources(src), training))
     p = scores.pooled
     for clip, reason in refused:
         print(f"refused {clip}: {reason}")
@@ -152,6 +201,9 @@ def cmd_evaluate_face(args) -> int:
           f"{p['r_speech']:.3f} over {part} (chance {p['chance_r_speech']:.3f}; median per "
           f"clip {p['r_clip_median']:.3f}; interval {p['interval_r_speech']}){closures}{lve}\n"
           f"results: {out}/ (per_clip.csv, scores.json, {figure})")
+    if side is not None:
+        print(f"side by side: {side}/ ({len(videos)} videos: real + tracked | predicted from "
+              "audio | animated face)")
     return 0
 
 
@@ -205,6 +257,9 @@ def add_parser(sub) -> None:
                    "opening_<clip>.png (default: face_eval/<source>-<hash of its path> beside "
                    "the model)")
     s.add_argument("--overwrite", action="store_true", help="replace an earlier evaluation in "
-                   "that folder")
+                   "that folder (and the clips' videos in --side-by-side's)")
     s.add_argument("--workers", type=_positive, default=2)
+    s.add_argument("--side-by-side", type=Path, metavar="DIR", help="also write one MP4 per "
+                   "clip into DIR: the video with its tracked markers | the markers predicted "
+                   "from its audio | the animated face, with the clip's audio (videos only)")
     s.set_defaults(func=cmd_evaluate_face)

@@ -14,8 +14,8 @@ from talkingface.executor import check_reachable, scheduler_address
 from talkingface.experiments.log import (check_tracking, grid_runs, log_grid, log_replication,
                                         log_train, log_voices, mlflow_run, tracking_uri)
 from talkingface.paths import RunPaths
-from talkingface.stages import (ABLATIONS, CEILING, GRID_STAGES, REPLICATION, VOICES,
-                                off_for_corpus, preflight, prepare_run, run)
+from talkingface.stages import (ABLATIONS, CEILING, GRID_STAGES, REAL_STEPS, REPLICATION,
+                                VOICES, off_for_corpus, preflight, prepare_run, run)
 from talkingface.stages.base import time_summary
 
 
@@ -60,7 +60,7 @@ def replicate(name: str, cfg, *, overwrite: bool = False, runs_dir="runs",
             done = run(REPLICATION, paths, cfg)
         if mlf is not None:
             log_train(mlf, done["mapping"], paths.mapping, cfg)
-            for grid in (ABLATIONS, CEILING):
+            for grid in (ABLATIONS, CEILING, REAL_STEPS):
                 if grid.name in done:
                     log_grid(mlf, logs[grid.name], paths.stage(grid.name), grid, cfg)
             if VOICES.name in done:

@@ -76,7 +76,7 @@ DEFAULT_WORKFLOW_SCRIPT = (
 PIPELINE_FILTER = "tags.stage IS NOT NULL"  # the pipeline's runs and the grid parents
 NEWEST_FIRST_FLAT = "attributes.`start_time`"  # "Created", without nesting child runs
 RUN_NAME = "tags.`mlflow.runName`"  # the UI's "Run Name" sort
-GRIDS = ("ablations", "ceiling", "voices")  # the values of the runs' ``grid`` tag
+GRIDS = ("ablations", "ceiling", "real_steps", "voices")  # the values of the runs' ``grid`` tag
 
 
 def with_default_workflow(html: str) -> str:

@@ -25,7 +25,8 @@ from talkingface.stages.study import (analyze, keep_real_participants, make_stim
                                       simulate_participants)
 from talkingface.stages.ablations import ablate
 from talkingface.stages.ceiling import decompose
-from talkingface.stages.grid import ABLATIONS, CEILING, GRID_STAGES, VOICES, GridStage
+from talkingface.stages.grid import (ABLATIONS, CEILING, GRID_STAGES, REAL_STEPS, VOICES,
+                                     GridStage)
 from talkingface.stages.real_speaker import evaluate_real_speaker, real_inputs, \
     real_speaker_applies
 from talkingface.stages.real_steps import measure_real_steps
@@ -36,16 +37,17 @@ _TRAINING_INPUTS = ("corpus", "units", "tracked")
 
 
 def _grid_stage(grid: GridStage, run, *, config: tuple, speed_only: tuple,
-                applies=None) -> Stage:
-    """The stage of ``grid``: trained on the run's training inputs; its own settings
-    (:attr:`GridStage.settings`) and its grid file's contents join its key; on when its config
-    names a grid and, with ``applies`` (``cfg -> bool``), the run's corpus allows it;
+                applies=None, upstream: tuple = _TRAINING_INPUTS, inputs=None) -> Stage:
+    """The stage of ``grid``: trained on ``upstream``'s results (the run's training inputs);
+    its own settings (:attr:`GridStage.settings`), its grid file's contents and ``inputs``
+    (``(paths, cfg) -> dict``: the data outside the run it reads) join its key; on when its
+    config names a grid and, with ``applies`` (``cfg -> bool``), the run's corpus allows it;
     resumable as the grid stage says."""
     enabled = grid.has_grid if applies is None else (
         lambda cfg: grid.has_grid(cfg) and applies(cfg))
     return Stage(grid.name, run, config=(*config, *grid.settings), speed_only=speed_only,
-                 upstream=_TRAINING_INPUTS, enabled=enabled, files=grid.grid_file,
-                 resumable=grid.resumable)
+                 upstream=upstream, enabled=enabled, files=grid.grid_file,
+                 resumable=grid.resumable, **({} if inputs is None else {"inputs": inputs}))
 
 
 STAGES = {s.name: s for s in (
@@ -79,9 +81,10 @@ STAGES = {s.name: s for s in (
           config=("seed", "units", "mapping", "real_speaker"), speed_only=("mapping.workers",),
           upstream=("units", "mapping", "voices"), enabled=real_speaker_applies,
           inputs=real_inputs),
-    Stage("real_steps", measure_real_steps, config=("seed", "units", "mapping.train_fraction",
-          "mapping.n_mfcc", "mapping.mel_fmax_hz", "real_speaker"),
-          enabled=real_speaker_applies, inputs=real_inputs),
+    _grid_stage(REAL_STEPS, measure_real_steps, config=("seed", "units", "mapping",
+                                                         "real_speaker"),
+                speed_only=("mapping.workers",), applies=real_speaker_applies, upstream=(),
+                inputs=real_inputs),
     Stage("report", build_report, always=True),
 )}
 
@@ -119,5 +122,5 @@ def preflight(names, paths: RunPaths, cfg) -> list[str]:
     return todo
 
 
-__all__ = ["ABLATIONS", "CEILING", "GRID_STAGES", "GridStage", "REPLICATION", "STAGES", "Stage",
-           "VOICES", "off_for_corpus", "preflight", "prepare_run", "read_done", "run", "stale"]
+__all__ = ["ABLATIONS", "CEILING", "GRID_STAGES", "REAL_STEPS", "GridStage", "REPLICATION",
+           "STAGES", "Stage", "VOICES", "off_for_corpus", "preflight", "prepare_run", "read_done", "run", "stale"]

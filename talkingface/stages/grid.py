@@ -1,11 +1,12 @@
 """A grid stage's machinery: its grid file, its tasks and their seed replicates.
 
 Each grid stage is described once, by a :class:`GridStage` (:data:`ABLATIONS`, :data:`CEILING`,
-:data:`VOICES`; :data:`GRID_STAGES` by kind): the setting that names its grid file, how the file
-is read and checked, its children's MLflow tags, whether it resumes. The stage table
+:data:`REAL_STEPS`, :data:`VOICES`; :data:`GRID_STAGES` by kind): the setting that names its grid
+file, how the file is read and checked, its children's MLflow tags, whether it resumes. The stage table
 (:data:`talkingface.stages.STAGES`), the stages, the command line and the MLflow logging read it.
 
-A grid file (``configs/ablations.yaml``, ``configs/ceiling.yaml``, ``configs/voices.yaml``)::
+A grid file (``configs/ablations.yaml``, ``configs/ceiling.yaml``, ``configs/real_steps.yaml``,
+``configs/voices.yaml``)::
 
     base:                  # settings applied to every child (optional)
       mapping.splits: [utterance]
@@ -128,6 +129,18 @@ def load_ceiling_grid(path, cfg) -> dict:
     return children
 
 
+def load_real_steps_grid(path, cfg) -> dict:
+    """``{child: Config}`` of a real-speaker steps grid: the children share the training
+    sentences' corpus and Motion Units, so none may change the seed, the visual source, the
+    tracker (:func:`load_grid`) or the Motion Units' settings."""
+    children = load_grid(path, cfg, what=REAL_STEPS.what)
+    for name, child in children.items():
+        if child.units != cfg.units:
+            raise ParameterError(f"{path}: child {name!r} changes the Motion Units' settings; "
+                                 "set these for the whole run")
+    return children
+
+
 def load_voices_grid(path, cfg) -> tuple[dict, str]:
     """``({child: Config}, default model child)`` of a voices grid; the children may not change
     what the run's Motion Units or faces are made from (seed, units, tracker, visual source)."""
@@ -164,7 +177,7 @@ class GridStage:
     name : str
         The stage (in :data:`talkingface.stages.STAGES`; its folder under the run), its config
         section (``<name>.grid``, ``<name>.workers``, ``<name>.seeds``) and the kind of grid
-        its runs' ``grid`` tag names: ``ablations``, ``ceiling`` or ``voices``.
+        its runs' ``grid`` tag names: ``ablations``, ``ceiling``, ``real_steps`` or ``voices``.
     tag : str
         Its MLflow ``stage`` tag: the parent run's, and its children's ``<prefix>.stage``.
     prefix : str
@@ -265,10 +278,15 @@ ABLATIONS = GridStage("ablations", tag="ablate", prefix="ablation", what="ablati
 CEILING = GridStage("ceiling", tag="ceiling", prefix="ceiling", what="ceiling grid",
                     default=_CONFIGS / "ceiling.yaml", load=load_ceiling_grid,
                     title="Where Table II stands: the ceiling steps", row_key="step")
+REAL_STEPS = GridStage("real_steps", tag="real_steps", prefix="real_steps",
+                       what="real-speaker steps grid", default=_CONFIGS / "real_steps.yaml",
+                       load=load_real_steps_grid,
+                       title="Where the real speaker's R goes: the trained steps",
+                       row_key="step")
 VOICES = GridStage("voices", tag="voices", prefix="voices", what="voices grid",
                    default=_CONFIGS / "voices.yaml", load=_voices_children,
                    title="Voice-robust models", replicated=False)
-GRID_STAGES = {g.name: g for g in (ABLATIONS, CEILING, VOICES)}  # kind (the grid tag) → stage
+GRID_STAGES = {g.name: g for g in (ABLATIONS, CEILING, REAL_STEPS, VOICES)}  # kind (the grid tag) → stage
 _BY_TAG = {g.tag: g for g in GRID_STAGES.values()}
 
 

@@ -8,30 +8,50 @@ draws it), the steps that need no trained mapping (:mod:`analysis.real_ceiling`)
 Units are fitted on those sentences with the run's ``units`` settings; the features are the
 pipeline's (:func:`mapping.dataset.build_dataset`: ``mapping.n_mfcc``, ``mapping.mel_fmax_hz``).
 
-Probe. A ridge regression fitted on every other training sentence and scored by Eq. 6 on the
-rest, then the other way round (mean R; :func:`analysis.real_ceiling.offset_scores`): one fixed,
-fast, deterministic model, so that the rows differ only in what they change.
+Probe. A ridge regression from the features to the MUPs fitted on every other training sentence
+and scored by Eq. 6 on the rest, then the other way round (mean R;
+:func:`analysis.real_ceiling.offset_scores`): one fixed, fast, deterministic model, so that the
+rows differ only in what they change. Its R is the pipeline's Table II R: on the displacements
+the MUPs reconstruct (Eq. 2), each coordinate divided by its largest absolute displacement over
+the training sentences.
 
 Rows (``steps.json``):
 
 * ``reconstruction_r`` — the aligned markers against their Motion Units' reconstruction;
-* ``smoothing_floor`` — the truth against its 3- and 5-frame moving average (landmark jitter);
+* ``smoothing_floor`` — the truth (as Eq. 6 sees it) against its 3- and 5-frame moving
+  average (landmark jitter);
 * ``offset`` — R for audio–video lags of -6..6 frames and the best lag;
 * ``context`` — R for 0, 3, 6, 10 and 15 frames of MFCC context either side;
 * ``oracle`` — the true phones (one-hot; 3, 6, 10 frames) instead of the audio, and
   ``oracle_and_audio`` — both (6 frames);
 * ``learning_curve`` — R of the probe (±3 frames) fitted on 25, 50, 100 sentences of one half
   (cut to the half's size; nested, seeded with the run seed) and scored on the other half;
+* ``regions`` — per region of the face (lips, cheeks, forehead, the glasses the alignment
+  holds still): its share of what Eq. 6 weighs (the normalised truth's variance on its
+  coordinates) and the probe's R (±3 frames) on its coordinates alone;
 * ``units`` — per utterance Motion Unit: its share of the variance, where it moves (lips,
-  cheeks, forehead, sideways) and the R the audio reaches on it alone (6 frames).
+  cheeks, forehead, sideways) and the Pearson r the audio reaches on its MUP alone (6 frames).
+
+Trained steps. The pipeline itself, one change at a time: each child of the grid
+``real_steps.grid`` (by default ``configs/real_steps.yaml``: the run's mapping with the paper's
+gate, the gate's phones from pocketsphinx or hama, the MLPs reading hama's phones, the oracle
+that reads the true phones) is trained with ``real_steps.seeds`` seeds on a copy of the training
+sentences (``corpora/train``, hard links) with Motion Units fitted on that copy's own training
+sentences (``corpora/units``: the inner utterance split of the run seed), and scored on each
+seed's own split of those sentences (:func:`talkingface.stages.grid.run_grid`): the random-frame
+split beside the utterance split. ``results.csv`` has each step's mean R, its 95 % interval over
+seeds and the paired test against ``ours``; ``replicates.csv`` each seed's figures.
+The held-out sentences of the run are never read here.
 """
 from __future__ import annotations
 
+import csv
 import json
 from pathlib import Path
 
 import numpy as np
 
+from analysis.metrics import normalization_scale
 from analysis.real_ceiling import (best_offset, learning_curve, offset_scores, phone_onehot,
                                    reconstruction_r, region_loadings, smoothing_floor)
 from face_model.alignment import corpus_deformations
@@ -42,8 +62,15 @@ from face_model.phones import N_PHONES
 from groundwork.atomic import atomic_file
 from mapping.dataset import build_dataset, training_sentences
 from mapping.experiment import SPLIT_SEED_OFFSET
+from analysis.replicates import summarise_replicates
 from talkingface.paths import RunPaths
+from talkingface.stages.base import write_csv
+from talkingface.stages.child_runs import log_for
+from talkingface.stages.foundation import fit_units_folder
+from talkingface.stages.given_corpus import link_or_copy
+from talkingface.stages.grid import REAL_STEPS, child_metrics, run_grid
 from talkingface.stages.real_speaker import real_corpus
+from talkingface.stages.training import utterance_test_ids
 
 LAGS = range(-6, 7)
 CONTEXTS = (0, 3, 6, 10, 15)
@@ -51,6 +78,7 @@ ORACLE_CONTEXTS = (3, 6, 10)
 PER_UNIT_CONTEXT = 6
 LEARNING_SIZES = (25, 50, 100, 0)  # sentences the probe is fitted on (0: a whole half)
 FACE_REGIONS = ("lips", "cheeks", "forehead")
+EQ6_REGIONS = ("lips", "cheeks", "forehead", "glasses")  # every marker, in four regions
 
 
 def training_part(corpus: Corpus, seed: int, train_fraction: float) -> Corpus:
@@ -75,20 +103,37 @@ def measure_steps(corpus_dir: Path, cfg) -> dict:
     markers = [defs[d.utt_id] for d in data]
     recon = [units.inverse_transform(m) for m in mups]
     m_all = np.concatenate(markers)
-    scale = np.where(np.abs(m_all).max(0) > 0, np.abs(m_all).max(0), 1.0)
+    # the paper's truth: the MUs' reconstruction, each coordinate divided by its largest
+    # absolute displacement over the sentences (analysis.evaluation.database_scale)
+    scale = normalization_scale(np.concatenate(recon))
+
+    def paper(m: np.ndarray) -> np.ndarray:  # MUPs → the displacements Eq. 6 compares
+        return units.inverse_transform(m) / scale
+
     out = {"corpus": str(corpus_dir), "training_sentences": len(data),
            "frames": int(sum(len(f) for f in feats)),
            "reconstruction_r": reconstruction_r(m_all, np.concatenate(recon)),
-           "smoothing_floor": {w: smoothing_floor([m / scale for m in markers], w)
+           "smoothing_floor": {w: smoothing_floor([r / scale for r in recon], w)
                                for w in (3, 5)}}
-    lags = offset_scores(feats, mups, LAGS)
+    lags = offset_scores(feats, mups, LAGS, project=paper)
     out["offset"] = {"r": lags, "best": best_offset(lags)}
-    out["context"] = {k: offset_scores(feats, mups, [0], context=k)[0] for k in CONTEXTS}
+    out["context"] = {k: offset_scores(feats, mups, [0], context=k, project=paper)[0]
+                      for k in CONTEXTS}
     onehot = [phone_onehot(d.phones, N_PHONES) for d in data]
-    out["oracle"] = {k: offset_scores(onehot, mups, [0], context=k)[0] for k in ORACLE_CONTEXTS}
+    out["oracle"] = {k: offset_scores(onehot, mups, [0], context=k, project=paper)[0]
+                     for k in ORACLE_CONTEXTS}
     out["oracle_and_audio"] = offset_scores([np.hstack(p) for p in zip(onehot, feats)], mups,
-                                            [0], context=PER_UNIT_CONTEXT)[0]
-    out["learning_curve"] = learning_curve(feats, mups, LEARNING_SIZES, seed=cfg.seed)
+                                            [0], context=PER_UNIT_CONTEXT, project=paper)[0]
+    out["learning_curve"] = learning_curve(feats, mups, LEARNING_SIZES, seed=cfg.seed,
+                                           project=paper)
+    truth = np.concatenate([r / scale for r in recon])
+    weight = truth.var(0)  # what each coordinate weighs in Eq. 6's trace form
+    out["regions"] = {}
+    for name in EQ6_REGIONS:
+        cols = np.array([2 * m + k for m in REGIONS[name] for k in (0, 1)])
+        out["regions"][name] = {
+            "weight": float(weight[cols].sum() / weight.sum()),
+            "r": offset_scores(feats, mups, [0], project=lambda m, c=cols: paper(m)[:, c])[0]}
     n = units.n_utterance
     share = units.variance_[:n] / units.variance_[:n].sum()
     where = region_loadings(units.components_[:n], {k: REGIONS[k] for k in FACE_REGIONS})
@@ -99,14 +144,84 @@ def measure_steps(corpus_dir: Path, cfg) -> dict:
     return out
 
 
+FILE_COLUMNS = ("audio", "markers", "phones", "quality")  # manifest columns that name files
+
+
+def copy_training_part(src: Path, dst: Path, cfg) -> Path:
+    """The training sentences of ``src`` (:func:`training_part`) as a corpus folder ``dst``:
+    their manifest rows, files (hard links where the file system allows), ``corpus.json`` and
+    ``NOTICE.md``. The manifest is written last, so a folder with one is complete (a resumed
+    build keeps it)."""
+    if (dst / "manifest.csv").is_file():
+        return dst
+    keep = {u.utt_id for u in training_part(load_corpus(src), cfg.seed,
+                                            cfg.mapping.train_fraction).utterances}
+    with open(src / "manifest.csv", newline="") as f:
+        reader = csv.DictReader(f)
+        fields, rows = list(reader.fieldnames), [r for r in reader if r["utt_id"] in keep]
+    for row in rows:
+        for column in FILE_COLUMNS:
+            if row.get(column):
+                link_or_copy(src / row[column], dst / row[column])
+    for name in ("corpus.json", "NOTICE.md"):
+        if (src / name).is_file():
+            link_or_copy(src / name, dst / name)
+    with atomic_file(dst / "manifest.csv") as tmp:
+        with open(tmp, "w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=fields)
+            writer.writeheader()
+            writer.writerows(rows)
+    return dst
+
+
+def train_steps(corpus_dir: Path, out: Path, cfg, cache=None) -> list[dict]:
+    """The trained steps of the module text: every child of ``real_steps.grid`` on the
+    training sentences of ``corpus_dir``, ``real_steps.seeds`` seeds each; writes
+    ``replicates.csv`` and ``results.csv`` into ``out`` and returns the results' rows."""
+    part = copy_training_part(corpus_dir, out / "corpora" / "train", cfg)
+    units_dir = out / "corpora" / "units"
+    if not (units_dir / "motion_units.npz").is_file():
+        fit_units_folder(part, units_dir, cfg,
+                         held_out=utterance_test_ids(load_corpus(part), cfg))
+    children = REAL_STEPS.children(cfg)
+    units_path = units_dir / "motion_units.npz"
+    results = run_grid({n: (part, units_path, c) for n, c in children.items()}, out,
+                       seeds=REAL_STEPS.seeds(cfg), scheduler=cfg.cluster.scheduler,
+                       workers=cfg.real_steps.workers, desc="real-speaker steps",
+                       log=log_for(REAL_STEPS.name), stage=REAL_STEPS.tag, cache=cache)
+    reps = []
+    for (name, k), res in results.items():
+        m = children[name].mapping
+        metrics = child_metrics(res["summary"], m.method)
+        row = {REAL_STEPS.row_key: name, "method": m.method, "gate_front_end": m.gate_front_end,
+               "recogniser": m.recogniser if m.gate_front_end == "recogniser" else "",
+               "mlp_input": m.mlp_input}
+        for split in ("utterance", "random_frames"):
+            for key in ("R", "MSE", "LVE", "closure"):
+                row[f"{split}_{key}"] = metrics.get(f"{split}.mean_test_{key}", float("nan"))
+        row["seconds"] = round(res["seconds"], 1)
+        reps.append({**row, "replicate": k, "seed": res["seed"]})
+    write_csv(out / "replicates.csv", reps)
+    rows = summarise_replicates(reps, reference=REAL_STEPS.reference_child(children),
+                                key=REAL_STEPS.row_key)
+    write_csv(out / "results.csv", rows)
+    return rows
+
+
 def measure_real_steps(paths: RunPaths, cfg) -> dict:
     """The stage: :func:`measure_steps` on ``real_speaker.corpus``, written to
-    ``real_steps/steps.json``; its done.json keeps the headline rows."""
-    steps = measure_steps(real_corpus(cfg), cfg)
-    out = paths.stage("real_steps")
+    ``real_steps/steps.json``, and :func:`train_steps` beside it; its done.json keeps the
+    headline rows."""
+    src = real_corpus(cfg)
+    steps = measure_steps(src, cfg)
+    out = paths.stage(REAL_STEPS.name)
+    out.mkdir(parents=True, exist_ok=True)
     with atomic_file(out / "steps.json") as tmp:
         tmp.write_text(json.dumps(steps, indent=1, default=float) + "\n")
+    rows = train_steps(src, out, cfg, cache=paths.cache)
     return {"training_sentences": steps["training_sentences"],
             "reconstruction_r": steps["reconstruction_r"],
             "best_lag": steps["offset"]["best"],
-            "context_3": steps["context"][3], "oracle_6": steps["oracle"][6]}
+            "context_3": steps["context"][3], "oracle_6": steps["oracle"][6],
+            "grid": str(REAL_STEPS.grid_path(cfg)), "children": [r["step"] for r in rows],
+            **{f"{r['step']}.utterance_R": r.get("utterance_R") for r in rows}}

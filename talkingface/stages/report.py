@@ -77,7 +77,8 @@ def build_report(paths: RunPaths, cfg) -> dict:
     items = findings(mapping=mapping, method=cfg.mapping.method, ab_dir=paths.ablations,
                      ceiling_dir=paths.stage("ceiling"), speech_dir=paths.stage("speech_eval"),
                      default_model=default_model, study=study, has=set(rep.refs.labels),
-                     targets=cfg.targets, real_dir=paths.stage("real_speaker"))
+                     targets=cfg.targets, real_dir=paths.stage("real_speaker"),
+                     steps_dir=paths.stage("real_steps"))
     if scope["finding"]:
         items.append(scope["finding"])
     rep.findings(items)

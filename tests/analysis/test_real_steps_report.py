@@ -16,6 +16,7 @@ STEPS = {
     "context": {"0": 0.438, "3": 0.513, "15": 0.543},
     "oracle": {"3": 0.537, "6": 0.541}, "oracle_and_audio": 0.566,
     "learning_curve": {"25": 0.47, "50": 0.49, "78": 0.501},
+    "regions": {"lips": {"weight": 0.306, "r": 0.48}, "forehead": {"weight": 0.303, "r": 0.219}},
     "units": [
         {"unit": 0, "variance_share": 0.466, "lips": 0.84, "cheeks": 0.14, "forehead": 0.02,
          "x": 0.07, "r_audio": 0.692},
@@ -40,6 +41,10 @@ def test_the_rows_are_the_stages_figures_each_with_its_question():
     assert rows["Oracle phones"][2] == "0.541" and rows["Oracle phones and audio"][2] == "0.566"
     assert rows["More data"][2] == "0.501" and "25: 0.470, 50: 0.490, 78: 0.501" in \
         rows["More data"][1]
+    assert rows["Lips only"][2] == "0.480" and "(31 % of what Eq. 6 weighs)" in \
+        rows["Lips only"][1]
+    assert rows["Brows and forehead only"][2] == "0.219" and "brows and forehead'" in \
+        rows["Brows and forehead only"][1]
     assert all(r[1].strip() for r in rows.values())  # every step says what it asks
 
 

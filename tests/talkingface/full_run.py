@@ -1,7 +1,8 @@
 """The small full replication the suite shares (``full_run_dir`` in tests/conftest.py, made once
 per test session): every stage of ``talkingface replicate`` on a tiny corpus, with a real
-speaker (every 4th of the built-in GRID s1's 196 sentences, given as a corpus folder), two
-voice-robust models, four ceiling steps and MLflow in the folder's own store."""
+speaker (every 4th of the built-in GRID s1's 196 sentences, given as a corpus folder) with two
+trained steps, two voice-robust models, four ceiling steps and MLflow in the folder's own
+store."""
 from __future__ import annotations
 
 import csv
@@ -19,6 +20,7 @@ TINY = ["--set", "synth.n_sentences=3", "--set", "synth.workers=2",
 # default; the real speaker's 196 sentences train every method on both splits): every stage
 # and its bookkeeping, with less work
 SMALLER = ["--set", "tracker.n_utterances=3", "--set", "ceiling.seeds=2",
+           "--set", "real_steps.seeds=2",
            "--set", "speech_set.per_speaker=2", "--set", "mapping.train.max_epochs=40"]
 # four ceiling steps, small: the run's, one nuisance off (its own corpus), the tracked MUPs
 # (a tracked copy of the run's corpus), the oracle
@@ -30,6 +32,15 @@ children:
   ours: {}
   no-brow-motion: {synth.brow_px: 0}
   tracked: {mapping.visual_source: tracked}
+  oracle: {mapping.gate_front_end: labels, mapping.mlp_input: phones}
+"""
+# two trained steps on the real speaker's training sentences: the run's mapping, the oracle
+REAL_STEPS_GRID = """base:
+  mapping.splits: [random_frames, utterance]
+  mapping.baselines: []
+  mapping.train.max_epochs: 40
+children:
+  ours: {}
   oracle: {mapping.gate_front_end: labels, mapping.mlp_input: phones}
 """
 # two voice-robust configurations, small: the run's voice, and three engines with CMVN
@@ -76,8 +87,10 @@ def build_full_run(root: Path, main) -> Path:
     ``main`` (the CLI entry point) in ``root``, the current folder."""
     (root / "voices.yaml").write_text(VOICES_GRID)
     (root / "ceiling.yaml").write_text(CEILING_GRID)
+    (root / "real_steps.yaml").write_text(REAL_STEPS_GRID)
     real_speaker_part(root / "grid-s1-part")
     assert main(["replicate", "--name", "tiny", *TINY, *SMALLER, "--ablations", "none",
                  "--voices", "voices.yaml", "--set", "ceiling.grid=ceiling.yaml",
+                 "--set", "real_steps.grid=real_steps.yaml",
                  "--set", "real_speaker.corpus=grid-s1-part"]) == 0
     return root

@@ -557,3 +557,11 @@ def test_a_model_file_edited_or_of_another_kind_is_one_line(world, monkeypatch, 
     model = make(world)
     refused(world, monkeypatch, capsys,
             ["animate", "speech.wav", "-o", "o.mp4", "--model", model], *names)
+
+
+def test_side_by_side_into_a_folder_that_holds_files_is_one_line(world, monkeypatch, capsys):
+    """``evaluate-face --side-by-side DIR`` never writes into a folder of the user's files."""
+    refused(world, monkeypatch, capsys,
+            ["evaluate-face", "--model", "runs/R/mapping/gated_mlp_utterance.tfmap", "s9/video",
+             "--out", "eval_new", "--side-by-side", "eval_mine"],
+            "--side-by-side eval_mine", "already holds files", "--overwrite")

@@ -44,7 +44,7 @@ def test_replicate_writes_runs_report_and_mlflow(full_run_dir, monkeypatch):
 
     leads = [f.split(".")[0] for f in findings_of(page_texts(workdir / "reports" / "tiny.pdf")[0])]
     assert leads == ["Table II", "The gap to the paper", "Real speech", "A real face",
-                     "Perception study"]
+                     "Where the real speaker's R goes", "Perception study"]
     assert mismatches(workdir / "reports" / "tiny.pdf") == []
     assert "MU variance explained: ours vs the paper's" in text
     assert "Utterance MUs (neutral speech)" in text and "97.56 %" in text
@@ -60,6 +60,12 @@ def test_replicate_writes_runs_report_and_mlflow(full_run_dir, monkeypatch):
     assert steps["training_sentences"] == 49 - len(real["test_utterances"])
     assert "Where the real speaker's R goes" in text
     assert f"{steps['reconstruction_r']:.3f}" in text
+    # the trained steps: each child with two seeds, on the training sentences' own split
+    with open(run / "real_steps" / "results.csv", newline="") as f:
+        trained = {r["step"]: r for r in csv.DictReader(f)}
+    assert set(trained) == {"ours", "oracle"} and trained["oracle"]["n_seeds"] == "2"
+    assert "the trained pipeline, training sentences" in text
+    assert f"{float(trained['ours']['utterance_R']):.3f}" in text
     summary = json.loads((run / "report" / "summary.json").read_text())
     ours = f"{100 * summary['units']['explained']['neutral']:.2f} %"
     assert ours in text  # our figure, as text, in the table
@@ -98,6 +104,9 @@ def test_replicate_writes_runs_report_and_mlflow(full_run_dir, monkeypatch):
     assert steps == {"ours", "no-brow-motion", "tracked", "oracle"}
     assert parent.data.tags["grid"] == "ceiling" and parent.data.params["reference"] == "ours"
     assert "best: " in parent.data.tags["mlflow.note.content"]
+    parent = next(c for c in runs if c.data.tags.get("stage") == "real_steps")
+    assert {c.data.tags.get("real_steps.setting") for c in runs
+            if c.data.tags.get("mlflow.parentRunId") == parent.info.run_id} == {"ours", "oracle"}
     # the voice-robust models: a parent with one child per model and the models side by side
     voices = next(c for c in runs if c.data.tags.get("stage") == "voices")
     kids = [c for c in runs if c.data.tags.get("mlflow.parentRunId") == voices.info.run_id]
