@@ -165,6 +165,43 @@ def frame_strip_figure(strip_npz, path, *, width: float = 1.0) -> Path:
     return Path(path)
 
 
+def video_strip_figure(video_npz, path, *, width: float = 1.0) -> Path:
+    """The held-out clip's video, real | predicted, at the stage's chosen frames.
+
+    Parameters
+    ----------
+    video_npz : path-like
+        ``clip``, ``fps``, ``frames`` (k,), ``reasons`` (k,) and ``images`` (k, h, w, 3) uint8:
+        each the video frame with the tracked markers (left) beside the same frame with the
+        speaker-trained model's markers (right)
+        (:func:`talkingface.stages.side_by_side.strip_frames`).
+    path : path-like
+        The PNG to write.
+    width : float
+        Fraction of the text width the report draws it at.
+
+    Returns
+    -------
+    Path
+        ``path``: the stills in a row, each titled with its time and why it was chosen.
+    """
+    with np.load(video_npz) as z:
+        clip, fps = str(z["clip"]), float(z["fps"])
+        frames, reasons, images = list(z["frames"]), list(z["reasons"]), z["images"]
+    k = max(1, len(images))
+    h, w = images.shape[1:3] if len(images) else (1, 2)
+    panel_h = figures.TEXT_WIDTH_IN * width / k * h / w + 0.45
+    with figures.report_figure(path, width=width, height_in=panel_h) as fig:
+        axes = np.atleast_1d(fig.subplots(1, k))
+        for ax, f, why, img in zip(axes, frames, reasons, images):
+            ax.imshow(img)
+            ax.set_title(f"{int(f) / fps:.2f} s: {why}", fontsize=7)
+            ax.set_axis_off()
+        fig.suptitle(f"held-out clip {clip}: real (tracked, green) | predicted (magenta)",
+                     fontsize=7.5)
+    return Path(path)
+
+
 def _corpus_paragraph(rep, summary: dict) -> None:
     c = summary.get("corpus") or {}
     if not c:
@@ -232,7 +269,8 @@ def real_speaker_section(rep, stage_dir, figs_dir,
     -----
     Keys for a findings page: section ``real_speaker``; tables ``real_tables`` (Tables I–II,
     real vs synthetic vs the paper), ``real_lips``, ``real_face_scores``, ``real_rates``,
-    ``real_peer_oculus`` and ``real_peer_ulipsync``; figures ``real_units`` and ``real_strip``.
+    ``real_peer_oculus`` and ``real_peer_ulipsync``; figures ``real_units``, ``real_strip``
+    and ``real_video_strip``.
     Anything absent is said in a sentence.
     """
     stage_dir, figs_dir = Path(stage_dir), Path(figs_dir)
@@ -291,6 +329,23 @@ def real_speaker_section(rep, stage_dir, figs_dir,
             "(black), the speaker-trained prediction (blue) and the synthetic-trained one "
             "(red) at evenly spread frames, and the three openings over time (z on the "
             "sentence's speech frames) with those frames marked.", "frame strip", "real_strip")
+    side = summary.get("side_by_side") or {}
+    if side.get("videos"):
+        rep.paragraph(
+            "The stage wrote " + ", ".join(escape(v) for v in side["videos"]) + " (in its "
+            "folder): the held-out clip's video with its tracked markers | the markers the "
+            "speaker-trained model predicts from the audio, drawn on the same frame | the "
+            "default model's face, the audio muxed. {label:real_video_strip} shows stills "
+            "of the first.")
+        _figure(rep, video_strip_figure, stage_dir / "video_strip.npz",
+                figs_dir / "real_video_strip.png",
+                "A held-out clip's video: left of each pair the tracked markers (green), right "
+                "the speaker-trained model's markers predicted from the audio (magenta), at the "
+                "middle of the first /p b m/ segments and of the vowels the real lips open "
+                "widest.", "video strip", "real_video_strip")
+    elif "side_by_side" in summary:
+        rep.paragraph("No side-by-side video: no held-out clip has a video in "
+                      "real_speaker.videos.")
 
 
 def _no_interval(p: dict) -> str:

@@ -63,11 +63,17 @@ class RealSpeakerConfig:
     from video (``talkingface corpus from-video``), or empty (off)."""
 
     corpus: str = "builtin"
+    # the corpus's videos (<utt_id>.<ext>), for the side-by-side of two held-out clips:
+    # builtin (two held-out GRID s1 clips, face_model/real_faces/grid-s1-video), a folder, or
+    # empty (none)
+    videos: str = "builtin"
 
     def __post_init__(self):
-        require(self, "corpus", self.corpus.strip() == self.corpus and self.corpus.isprintable(),
-                "builtin, empty (off) or the path of a corpus folder, without leading or "
-                "trailing spaces or control characters")
+        for key in ("corpus", "videos"):
+            value = getattr(self, key)
+            require(self, key, value.strip() == value and value.isprintable(),
+                    "builtin, empty (off) or the path of a folder, without leading or "
+                    "trailing spaces or control characters")
 
 
 @dataclass(frozen=True)
@@ -163,8 +169,9 @@ MAX_SEED = 2**31 - 1  # derived seeds add offsets; scikit-learn takes seeds < 2*
 # ``Stage.files``, called by ``talkingface.stages.preflight``), and refused in one line that
 # names the setting; a new one belongs here and there (tests/talkingface/
 # test_config.py finds the settings whose names say they name data).
-DATA_SETTINGS = ("corpus.source", "real_speaker.corpus", "synth.text_file", "ablations.grid",
-                 "ceiling.grid", "real_steps.grid", "voices.grid")
+DATA_SETTINGS = ("corpus.source", "real_speaker.corpus", "real_speaker.videos",
+                 "synth.text_file", "ablations.grid", "ceiling.grid", "real_steps.grid",
+                 "voices.grid")
 
 
 @dataclass(frozen=True)

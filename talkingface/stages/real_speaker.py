@@ -21,7 +21,11 @@ phones come from forced alignment; the source's ``.align`` word times are read o
 corpus is built), and splitting the phones into words would need the aligner's dictionary.
 
 The stage folder holds ``summary.json``, per-clip CSVs ``per_clip_<name>_<rate>.csv``,
-``strip.npz`` and ``units.npz`` for the report's section (:mod:`analysis.real_face_report`).
+``strip.npz`` and ``units.npz`` for the report's section (:mod:`analysis.real_face_report`), and
+for the first two held-out clips with a video in ``real_speaker.videos`` (by default two of GRID
+s1's, shipped) ``side_by_side_<clip>.mp4`` — the video with its tracked markers | the markers
+the speaker-trained model predicts from the audio | the default model's face, the audio muxed —
+and ``video_strip.npz``, the report's stills from the first.
 """
 from __future__ import annotations
 
@@ -39,6 +43,7 @@ from analysis.face_eval import ClipTrack, normalised, write_scores_csv
 from face_model.alignment import align_markers
 from face_model.corpus import load_corpus
 from face_model.motion_units import MotionUnits
+from face_model.video_corpus import VIDEO_EXTENSIONS
 from groundwork.atomic import atomic_file
 from groundwork.errors import CorpusError
 from mapping.animator import FaceAnimator
@@ -50,9 +55,14 @@ from talkingface.stages.face_scoring import (RealClip, clips_from_corpus, model_
                                              predicted_markers, score_model, score_peer)
 from talkingface.stages.given_corpus import check_folder
 from talkingface.stages.models import find_model
+from talkingface.stages.side_by_side import predict, strip_frames, write_side_by_side
 from talkingface.stages.training import utterance_test_ids
 
 BUILTIN = Path(face_model.__file__).resolve().parent / "real_faces" / "grid-s1"
+BUILTIN_VIDEOS = BUILTIN.with_name("grid-s1-video")  # two held-out clips' video
+N_SIDE_BY_SIDE = 2  # held-out clips drawn beside their predictions (those with a video)
+SIDE_BY_SIDE_CAPTIONS = ("real + tracked", "predicted (speaker-trained)",
+                         "default model's face")
 PAPER_VARIANCE = 0.9756
 NESTED = "real"  # runs/<name>/real: the nested run
 SETTING = "real_speaker.corpus"  # the setting that names the corpus, in messages
@@ -73,6 +83,23 @@ def real_corpus(cfg) -> Path | None:
     return BUILTIN if value == "builtin" else Path(value)
 
 
+def real_videos(cfg) -> Path | None:
+    """The folder of the real corpus's videos (``real_speaker.videos``), or None."""
+    value = cfg.real_speaker.videos
+    if not value:
+        return None
+    return BUILTIN_VIDEOS if value == "builtin" else Path(value)
+
+
+def video_files(folder: Path | None) -> dict:
+    """``{stem: path}`` of the videos in ``folder`` (:data:`face_model.video_corpus.
+    VIDEO_EXTENSIONS`; none for None)."""
+    if folder is None:
+        return {}
+    return {p.stem: p for p in sorted(folder.iterdir())
+            if p.is_file() and p.suffix.lower() in VIDEO_EXTENSIONS}
+
+
 def real_speaker_applies(cfg) -> bool:
     """On when ``real_speaker.corpus`` names a corpus and the run's own corpus is synthetic
     (a run on a given corpus *is* the pipeline on that corpus)."""
@@ -89,14 +116,20 @@ def real_inputs(paths, cfg) -> dict:
     Raises
     ------
     CorpusError
-        ``real_speaker.corpus <folder>: ...``: not found, not a folder, or the reader's refusal.
+        ``real_speaker.corpus <folder>: ...``: not found, not a folder, or the reader's refusal;
+        ``real_speaker.videos <folder>: not a folder``.
     """
     src = real_corpus(cfg)
     if src is None:
         return {}
     check_folder(src, SETTING, also=ALSO)
+    videos = real_videos(cfg)
+    if videos is not None and not videos.is_dir():
+        raise CorpusError(f"real_speaker.videos {videos}: not a folder (builtin, empty for "
+                          "none, or the folder of the corpus's videos, <utt_id>.mpg …)")
     return {"real_corpus": hashlib.sha256((src / "manifest.csv").read_bytes()).hexdigest(),
-            "scoring": SCORING_VERSION}
+            "scoring": SCORING_VERSION,
+            "videos": {k: p.stat().st_size for k, p in video_files(videos).items()}}
 
 
 def _rows(path: Path) -> list[dict]:
@@ -132,6 +165,33 @@ def _strip(path: Path, clip: RealClip, models: dict, neutrals: dict) -> None:
         arrays[key], arrays[f"{key}_opening"], arrays["real_opening"] = pred, z_pred, z_real
     with atomic_file(path) as tmp:
         np.savez(tmp, **arrays)
+
+
+def _side_by_side(out: Path, clips: list, videos: dict, speaker, synthetic, neutral) -> dict:
+    """The first :data:`N_SIDE_BY_SIDE` held-out clips that have a video: one MP4 each
+    (``side_by_side_<clip>.mp4``: the video with its tracked markers | the speaker-trained
+    model's markers | the default model's face, the audio muxed;
+    :func:`talkingface.stages.side_by_side.write_side_by_side`) and, from the first, the
+    report's stills (``video_strip.npz``: real | predicted at /p b m/ and open vowels)."""
+    shown = [c for c in clips if c.clip in videos][:N_SIDE_BY_SIDE]
+    written = []
+    for i, c in enumerate(shown):
+        pred = predict(speaker, c, neutral, face_animator=synthetic)
+        path = out / f"side_by_side_{c.clip}.mp4"
+        write_side_by_side(path, videos[c.clip], c, speaker, neutral, prediction=pred,
+                           face_animator=synthetic, captions=SIDE_BY_SIDE_CAPTIONS,
+                           progress=False)
+        written.append(path.name)
+        if i == 0:
+            stills = strip_frames(videos[c.clip], c, speaker, neutral, prediction=pred)
+            with atomic_file(out / "video_strip.npz") as tmp:
+                np.savez(tmp, clip=np.str_(c.clip), fps=np.float64(c.fps),
+                         frames=np.array([s.frame for s in stills], int),
+                         reasons=np.array([s.reason for s in stills]),
+                         images=np.stack([s.image for s in stills]) if stills else
+                         np.zeros((0, 1, 1, 3), np.uint8))
+    return {"videos": written, "clips": [c.clip for c in shown],
+            "without_video": sum(c.clip not in videos for c in clips)}
 
 
 def _score_all(clips, speaker, synthetic, corpus, rate, out: Path) -> dict:
@@ -192,6 +252,8 @@ def evaluate_real_speaker(paths: RunPaths, cfg, runner) -> dict:
     _strip(out / "strip.npz", strip_clip, {"speaker_model": speaker,
                                             "synthetic_model": synthetic},
            {k: v[spk] for k, v in neutrals.items()})
+    side = _side_by_side(out, clips, video_files(real_videos(cfg)), speaker, synthetic,
+                         neutrals["speaker_model"][spk])
     units = speaker.units
     with atomic_file(out / "units.npz") as tmp:
         np.savez(tmp, components=units.components_,
@@ -218,6 +280,7 @@ def evaluate_real_speaker(paths: RunPaths, cfg, runner) -> dict:
         "peers": {"names": list(PEERS), "versions": peer_versions(),
                   "openfacefx_text_words": WORD_TIMES},
         "models": {"speaker_model": str(speaker_tfmap), "synthetic_model": str(synth_tfmap)},
+        "side_by_side": side,
         "scoring_seconds": time.perf_counter() - t0,
         "note": str(mapping_done.get("note", "")),
     }

@@ -147,17 +147,24 @@ class Prediction:
     face: np.ndarray
 
 
-def predict(animator, clip, neutral: np.ndarray, *, input_rate: int | None = None) -> Prediction:
+def predict(animator, clip, neutral: np.ndarray, *, input_rate: int | None = None,
+            face_animator=None) -> Prediction:
     """The model's markers for ``clip`` (a :class:`~talkingface.stages.face_scoring.RealClip`)
     on ``neutral`` (79, 2), exactly the clip's frames
     (:func:`talkingface.stages.face_scoring.predicted_markers`), and their image and
     rendered-face versions.
-    ``input_rate``: the rate (Hz) the model hears the audio at (None: the clip's own)."""
+    ``input_rate``: the rate (Hz) the model hears the audio at (None: the clip's own).
+    ``face_animator``: another model whose own face (its neutral face plus its deformation
+    of the same audio) is the rendered one (None: ``animator``'s)."""
     neutral = np.asarray(neutral, np.float64)
     aligned = predicted_markers(animator, clip, neutral, input_rate)
-    deform = aligned - neutral[None]
     image = unalign_markers(aligned, clip.markers, model=alignment_of(animator))
-    return Prediction(aligned, image, np.asarray(animator.neutral, np.float64)[None] + deform)
+    if face_animator is None:
+        face = np.asarray(animator.neutral, np.float64)[None] + (aligned - neutral[None])
+    else:
+        face = predicted_markers(face_animator, clip,
+                                 np.asarray(face_animator.neutral, np.float64), input_rate)
+    return Prediction(aligned, image, face)
 
 
 # -- drawing --------------------------------------------------------------------------------
@@ -264,7 +271,8 @@ def video_frames(video, times_s) -> Iterator[np.ndarray]:
 
 def side_by_side_frames(video, clip, animator, neutral: np.ndarray, *,
                         prediction: Prediction | None = None, input_rate: int | None = None,
-                        max_height: int = MAX_HEIGHT):
+                        max_height: int = MAX_HEIGHT, face_animator=None,
+                        captions: tuple = CAPTIONS):
     """``(layout, frames)``: the :class:`Layout` and an iterator of the clip's
     ``clip.n_frames`` RGB frames (height, width, 3) uint8, three panels and their captions
     (module docstring).
@@ -286,12 +294,17 @@ def side_by_side_frames(video, clip, animator, neutral: np.ndarray, *,
         The rate (Hz) the model hears the audio at.
     max_height : int
         The panels' greatest height, pixels.
+    face_animator : FaceAnimator, optional
+        The model whose face panel 3 renders (:func:`predict`; None: ``animator``).
+    captions : tuple of 3 str
+        The panels' captions.
     """
-    pred = prediction or predict(animator, clip, neutral, input_rate=input_rate)
+    pred = prediction or predict(animator, clip, neutral, input_rate=input_rate,
+                                 face_animator=face_animator)
     layout = layout_for(video_size(video), max_height=max_height)
     renderer = FaceRenderer(size=(layout.face_width, layout.height))
     band = np.concatenate([_caption(w, layout.caption, text)
-                           for w, text in zip(layout.panel_widths, CAPTIONS)], axis=1)
+                           for w, text in zip(layout.panel_widths, captions)], axis=1)
     valid = np.ones(clip.n_frames, bool) if clip.valid is None else np.asarray(clip.valid)
     times = np.arange(clip.n_frames) / clip.fps
 
@@ -307,7 +320,8 @@ def side_by_side_frames(video, clip, animator, neutral: np.ndarray, *,
 
 def write_side_by_side(path, video, clip, animator, neutral: np.ndarray, *,
                        input_rate: int | None = None, progress: bool = True,
-                       max_height: int = MAX_HEIGHT) -> Path:
+                       max_height: int = MAX_HEIGHT, prediction: Prediction | None = None,
+                       face_animator=None, captions: tuple = CAPTIONS) -> Path:
     """Write the clip's three-panel MP4 (H.264, ``clip.fps``, ``clip.n_frames`` frames) with
     the clip's own audio muxed as AAC (:func:`groundwork.movie.write_mp4`: written under a
     temporary name, renamed into place only when whole). Arguments as for
@@ -319,7 +333,8 @@ def write_side_by_side(path, video, clip, animator, neutral: np.ndarray, *,
         ``path``.
     """
     layout, frames = side_by_side_frames(video, clip, animator, neutral, input_rate=input_rate,
-                                         max_height=max_height)
+                                         max_height=max_height, prediction=prediction,
+                                         face_animator=face_animator, captions=captions)
     with tempfile.TemporaryDirectory(prefix="talkingface-sbs-") as tmp:
         wav = Path(tmp) / "audio.wav"
         write_wav(wav, np.asarray(clip.audio), clip.sample_rate)

@@ -4,8 +4,8 @@
 :func:`add_inputs` makes the files they name in the suite's working folder.
 
 Every config setting that names data outside the run (``real_speaker.corpus``,
-``corpus.source``, ``synth.text_file``, ``ablations.grid``, ``ceiling.grid``,
-``real_steps.grid``, ``voices.grid``)
+``real_speaker.videos``, ``corpus.source``, ``synth.text_file``, ``ablations.grid``,
+``ceiling.grid``, ``real_steps.grid``, ``voices.grid``)
 is read and checked before any stage runs, and refused in a line that names the setting: a
 bad real speaker's corpus used to be found only when its stage was reached, minutes into a
 replication, and named as ``corpus.source``. The Ctrl-C tests and the cut simulation's bounded
@@ -53,6 +53,8 @@ CASES: list = [
     (_replicate("--set", "ceiling.grid=grid_unknown.yaml"), ["ceiling.grid", "grid_unknown.yaml"]),
     (_replicate("--set", "real_speaker.corpus=c", "--set", "real_steps.grid=grid_unknown.yaml"),
      ["real_steps.grid", "grid_unknown.yaml"]),
+    (_replicate("--set", "real_speaker.corpus=c", "--set", "real_speaker.videos=no_videos"),
+     ["real_speaker.videos", "no_videos", "not a folder"]),
     (_replicate("--set", "voices.grid=grid.yaml"), ["voices.grid", "grid.yaml", "'model'"]),
     (["train", "--name", "G", *RUN, "--set", "corpus.source=rs_nan_corpus"],
      ["corpus.source", "rs_nan_corpus", "NaN"]),

@@ -292,3 +292,34 @@ def test_evaluate_face_writes_one_video_per_clip_and_replaces_it_only_when_asked
     capsys.readouterr()
     assert main(["evaluate-face", str(video), "--out", "res2", "--side-by-side", "res2/v"]) == 2
     assert "--side-by-side res2/v is in the results folder res2" in _error_line(capsys)
+
+
+# -- the real_speaker stage's videos and the report's stills ---------------------------------
+def test_another_models_face_is_rendered_as_that_model_animates_it(setup):
+    clip, animator, neutral = setup
+    own = sbs.predict(animator, clip, neutral)
+    other = sbs.predict(animator, clip, neutral, face_animator=animator)
+    assert np.array_equal(own.aligned, other.aligned) and np.array_equal(own.image, other.image)
+    np.testing.assert_allclose(other.face, own.face, atol=1e-9)  # the two paths agree
+
+
+def test_the_stage_writes_the_videos_of_held_out_clips_and_the_reports_stills(setup, tmp_path):
+    from analysis.real_face_report import video_strip_figure
+    from talkingface.stages.real_speaker import (BUILTIN_VIDEOS, SIDE_BY_SIDE_CAPTIONS,
+                                                 _side_by_side, video_files)
+
+    clip, animator, neutral = setup
+    videos = video_files(BUILTIN_VIDEOS)
+    assert set(videos) == {"bbbf8p", "bgbh7a"} and (BUILTIN_VIDEOS / "NOTICE.md").is_file()
+    other = dataclasses.replace(clip, clip="zz-no-video")
+    side = _side_by_side(tmp_path, [other, clip], videos, animator, animator, neutral)
+    assert side == {"videos": [f"side_by_side_{CLIP}.mp4"], "clips": [CLIP],
+                    "without_video": 1}
+    check_mp4(tmp_path / side["videos"][0])
+    with np.load(tmp_path / "video_strip.npz") as z:
+        frames, reasons, images = list(z["frames"]), list(z["reasons"]), z["images"]
+    rule = sbs.strip_rule(clip)
+    assert frames == [s.frame for s in rule] and reasons == [s.reason for s in rule]
+    assert images.dtype == np.uint8 and images.shape[0] == len(rule) and images.shape[3] == 3
+    png = video_strip_figure(tmp_path / "video_strip.npz", tmp_path / "strip.png")
+    assert png.stat().st_size > 10_000 and len(SIDE_BY_SIDE_CAPTIONS) == 3
