@@ -243,10 +243,14 @@ def real_steps_finding(stage_dir: Path) -> str | None:
     floor = {str(k): v for k, v in steps.get("smoothing_floor", {}).items()}
     text = (f"the Motion Units keep R {_f(steps['reconstruction_r'])} of the markers' motion and "
             f"the truth against its smoothed self is R {_f(floor['3'])}")
-    regions = steps.get("regions", {})
+    regions, definition = steps.get("regions", {}), steps.get("definition", {})
+    if {"paper", "pixels"} <= set(definition):
+        text += (f"; a linear audio probe reaches R {_f(definition['paper'])}, and "
+                 f"{_f(definition['pixels'])} in pixels without Eq. 6's division by each "
+                 "coordinate's largest displacement")
     if {"lips", "forehead"} <= set(regions):
         lips, brow = regions["lips"], regions["forehead"]
-        text += (f"; an audio probe reaches R {_f(lips['r'])} on the lips' coordinates and "
+        text += (f"; the probe reaches R {_f(lips['r'])} on the lips' coordinates and "
                  f"{_f(brow['r'])} on the brows and forehead's, which Eq. 6 weighs about alike "
                  f"({100 * lips['weight']:.0f} % and {100 * brow['weight']:.0f} %)")
     text += " " + _cite("real_steps")

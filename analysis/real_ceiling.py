@@ -73,7 +73,7 @@ def _identity(y: np.ndarray) -> np.ndarray:
 
 
 def offset_scores(features: list, targets: list, lags, *, context: int = OFFSET_CONTEXT,
-                  alpha: float = RIDGE_ALPHA, project=None) -> dict:
+                  alpha: float = RIDGE_ALPHA, project=None, truths=None) -> dict:
     """``{lag: R}``: for each lag, a ridge regression from the features' context to the targets
     (:func:`shifted` at that lag) fitted on every other sentence and scored by Eq. 6 on the
     rest, then the other way round; R is the mean of the two halves. Give it training
@@ -81,14 +81,20 @@ def offset_scores(features: list, targets: list, lags, *, context: int = OFFSET_
 
     ``project``: ``(n, n_targets) -> (n, n_dims)``, applied to the truth and the estimate
     before Eq. 6 — for MUPs, their displacements by Eq. 2 divided by the database's largest
-    absolute displacement per coordinate, the paper's R (None: R on the targets as given)."""
+    absolute displacement per coordinate, the paper's R (None: R on the targets as given).
+    ``truths``: per sentence what the projected estimate is scored against instead of the
+    projected targets (n_frames, n_dims), e.g. the aligned markers themselves."""
     project = project or _identity
     _check_pairs(features, targets)
+    if truths is not None:
+        _check_pairs(features, truths)
     halves = (list(range(0, len(features), 2)), list(range(1, len(features), 2)))
     ctx = [_context(np.asarray(x, np.float64), context) for x in features]
     out = {}
     for lag in lags:
         pairs = [shifted(x, np.asarray(y, np.float64), int(lag)) for x, y in zip(ctx, targets)]
+        against = None if truths is None else [
+            shifted(x, np.asarray(t, np.float64), int(lag))[1] for x, t in zip(ctx, truths)]
         scores = []
         for fit, score in (halves, halves[::-1]):
             xf = np.concatenate([pairs[i][0] for i in fit])
@@ -98,7 +104,9 @@ def offset_scores(features: list, targets: list, lags, *, context: int = OFFSET_
             if len(xf) < 2 or len(xs) < 2:
                 raise ParameterError(f"lag {lag}: too few frames left to fit and score "
                                      f"({len(xf)} and {len(xs)}); use smaller lags")
-            scores.append(pearson_r(project(ys), project(_ridge(xf, yf, alpha)(xs))))
+            truth = project(ys) if against is None else np.concatenate(
+                [against[i] for i in score])
+            scores.append(pearson_r(truth, project(_ridge(xf, yf, alpha)(xs))))
         out[int(lag)] = float(np.mean(scores))
     return out
 

@@ -39,6 +39,13 @@ def step_rows(steps: dict) -> list[list[str]]:
         ["Probe at the pipeline's context", "What does a linear model of ±3 frames of MFCC "
          "reach?", _f(get["3"])],
     ]
+    definition = steps.get("definition", {})
+    if "markers" in definition:
+        rows.append(["Truth: the markers", "Scored against the aligned markers instead of "
+                     "their MU reconstruction?", _f(definition["markers"])])
+    if "pixels" in definition:
+        rows.append(["Eq. 6 undivided", "Scored in pixels, without dividing each coordinate "
+                     "by its largest displacement?", _f(definition["pixels"])])
     if best is not None and lags:
         rows.append(["Audio–video offset", f"Does shifting the face against the sound help? "
                      f"(best of −6…+6 frames: {int(best):+d}; at 0: {_f(lags[0])})",

@@ -36,6 +36,9 @@ def show(res: dict) -> None:
     print(f"measurement floor: markers vs their MU reconstruction R {res['reconstruction_r']:.3f};"
           " truth vs its moving average R " + ", ".join(
               f"{v:.3f} ({w} frames)" for w, v in res["smoothing_floor"].items()))
+    d = res["definition"]
+    print(f"the probe (±3 frames) by Eq. 6 as the paper R {d['paper']:.3f}; against the markers "
+          f"{d['markers']:.3f}; in pixels, undivided {d['pixels']:.3f}")
     print("audio-video offset (lag: R): " + ", ".join(
         f"{k:+d}: {v:.3f}" for k, v in res["offset"]["r"].items())
         + f"; best {res['offset']['best']:+d}")

@@ -20,6 +20,9 @@ Rows (``steps.json``):
 * ``reconstruction_r`` — the aligned markers against their Motion Units' reconstruction;
 * ``smoothing_floor`` — the truth (as Eq. 6 sees it) against its 3- and 5-frame moving
   average (landmark jitter);
+* ``definition`` — the probe (±3 frames) scored by Eq. 6 as the paper (``paper``), against the
+  aligned markers instead of their reconstruction (``markers``), and in pixels without the
+  division by the largest displacement (``pixels``): what the definition alone moves;
 * ``offset`` — R for audio–video lags of -6..6 frames and the best lag;
 * ``context`` — R for 0, 3, 6, 10 and 15 frames of MFCC context either side;
 * ``oracle`` — the true phones (one-hot; 3, 6, 10 frames) instead of the audio, and
@@ -115,6 +118,14 @@ def measure_steps(corpus_dir: Path, cfg) -> dict:
            "reconstruction_r": reconstruction_r(m_all, np.concatenate(recon)),
            "smoothing_floor": {w: smoothing_floor([r / scale for r in recon], w)
                                for w in (3, 5)}}
+    # what the definition alone moves: the same probe scored against the aligned markers
+    # (each coordinate divided by their largest displacement) and in pixels, undivided
+    m_scale = normalization_scale(m_all)
+    out["definition"] = {
+        "paper": offset_scores(feats, mups, [0], project=paper)[0],
+        "markers": offset_scores(feats, mups, [0], truths=[m / m_scale for m in markers],
+                                 project=lambda m: units.inverse_transform(m) / m_scale)[0],
+        "pixels": offset_scores(feats, mups, [0], project=units.inverse_transform)[0]}
     lags = offset_scores(feats, mups, LAGS, project=paper)
     out["offset"] = {"r": lags, "best": best_offset(lags)}
     out["context"] = {k: offset_scores(feats, mups, [0], context=k, project=paper)[0]

@@ -143,3 +143,27 @@ def test_the_learning_curve_rises_with_data_and_is_seeded():
     assert list(curve) == [2, 5, 20]  # 0 and 100 mean a whole half: 20 sentences
     assert curve[2] < curve[5] < curve[20]
     assert learning_curve(feats, targets, [2, 5, 0], seed=3) == curve
+
+
+def test_the_probe_scores_through_a_projection_and_against_given_truths():
+    rng = np.random.default_rng(3)
+    feats = [rng.normal(size=(60, 4)) for _ in range(6)]
+    w = rng.normal(size=(4, 2))
+    # two MUPs: the first follows the audio, the second (small) is noise the audio cannot tell
+    mups = [np.column_stack([x @ w[:, 0], 0.05 * rng.normal(size=60)]) for x in feats]
+    # orthonormal units (2, 6): the first moves coordinates 0-2, the second 3-5
+    basis = np.kron(np.eye(2), np.full((1, 3), 3 ** -0.5))
+    pixels = offset_scores(feats, mups, [0], project=lambda m: m @ basis)[0]
+    # an orthonormal reconstruction keeps Eq. 6's trace: R in pixels is R on the MUPs
+    assert pixels == pytest.approx(offset_scores(feats, mups, [0])[0], abs=1e-9)
+    # dividing each coordinate by its largest displacement lets the small noisy unit weigh more
+    scale = normalization_scale(np.concatenate([m @ basis for m in mups]))
+    paper = offset_scores(feats, mups, [0], project=lambda m: m @ basis / scale)[0]
+    only_second = offset_scores(feats, [m[:, 1:] for m in mups], [0])[0]
+    assert only_second < 0.3 and pixels > 0.99 and 0.4 < paper < 0.6
+    # given truths equal to the projected targets score the same as the default
+    same = offset_scores(feats, mups, [0], project=lambda m: m @ basis / scale,
+                         truths=[m @ basis / scale for m in mups])[0]
+    assert same == pytest.approx(paper, abs=1e-12)
+    with pytest.raises(ParameterError, match="need as many target sequences"):
+        offset_scores(feats, mups, [0], truths=[mups[0]])

@@ -16,6 +16,7 @@ STEPS = {
     "context": {"0": 0.438, "3": 0.513, "15": 0.543},
     "oracle": {"3": 0.537, "6": 0.541}, "oracle_and_audio": 0.566,
     "learning_curve": {"25": 0.47, "50": 0.49, "78": 0.501},
+    "definition": {"paper": 0.36, "markers": 0.348, "pixels": 0.5134},
     "regions": {"lips": {"weight": 0.306, "r": 0.48}, "forehead": {"weight": 0.303, "r": 0.219}},
     "units": [
         {"unit": 0, "variance_share": 0.466, "lips": 0.84, "cheeks": 0.14, "forehead": 0.02,
@@ -45,6 +46,7 @@ def test_the_rows_are_the_stages_figures_each_with_its_question():
         rows["Lips only"][1]
     assert rows["Brows and forehead only"][2] == "0.219" and "brows and forehead'" in \
         rows["Brows and forehead only"][1]
+    assert rows["Truth: the markers"][2] == "0.348" and rows["Eq. 6 undivided"][2] == "0.513"
     assert all(r[1].strip() for r in rows.values())  # every step says what it asks
 
 

@@ -55,6 +55,13 @@ def test_replicate_writes_runs_report_and_mlflow(full_run_dir, monkeypatch):
     assert "A real speaker (GRID s1)" in text and "Cooke" in text
     speaker_r = real["face_scores"]["speaker_model"]["pooled"]["r_speech"]
     assert f"{speaker_r:.3f}" in text
+    # the one held-out sentence of the quarter with a shipped video, drawn side by side
+    assert real["side_by_side"] == {"videos": ["side_by_side_bgbh7a.mp4"], "clips": ["bgbh7a"],
+                                    "without_video": len(real["test_utterances"]) - 1}
+    from groundwork.movie import check_mp4
+
+    check_mp4(run / "real_speaker" / "side_by_side_bgbh7a.mp4")
+    assert "A held-out clip's video: left of each pair the tracked markers" in text
     # where its R goes, measured on the same training sentences the nested run trained on
     steps = json.loads((run / "real_steps" / "steps.json").read_text())
     assert steps["training_sentences"] == 49 - len(real["test_utterances"])

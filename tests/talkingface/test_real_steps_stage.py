@@ -71,6 +71,7 @@ def test_the_trained_rows_and_their_sentence():
 
 def test_the_finding_quotes_the_tables_cells(tmp_path):
     steps = {"reconstruction_r": 0.947, "smoothing_floor": {"3": 0.992},
+             "definition": {"paper": 0.36, "pixels": 0.5134},
              "regions": {"lips": {"weight": 0.31, "r": 0.48},
                          "forehead": {"weight": 0.3, "r": 0.2191}},
              "units": [{"unit": 0, "variance_share": 0.6, "cheeks": 0.1, "r_audio": 0.7},
@@ -88,6 +89,7 @@ def test_the_finding_quotes_the_tables_cells(tmp_path):
            "paper's frame split" in text
     assert f"with the true phones {cells['oracle'][2]}" in text
     assert "keep R 0.947" in text and "smoothed self is R 0.992" in text
+    assert "probe reaches R 0.360, and 0.513 in pixels without Eq. 6's division" in text
     assert "R 0.480 on the lips' coordinates and 0.219 on the brows and forehead's" in text \
         and "(31 % and 30 %)" in text
     assert "hold 40 % of the variance, which the audio predicts at R 0.300 at most" in text

@@ -29,6 +29,7 @@ def test_the_steps_never_read_a_held_out_sentence(tmp_path, capsys):
     assert json.loads(capsys.readouterr().out) == json.loads(json.dumps(before, default=float))
     assert set(before["offset"]["r"]) == set(LAGS) and before["offset"]["best"] in LAGS
     assert set(before["context"]) == set(CONTEXTS)
+    assert before["definition"]["paper"] == before["context"][3]  # the same probe, two rows
     assert 0 < before["reconstruction_r"] <= 1 and len(before["units"]) == 7
     assert abs(sum(u["variance_share"] for u in before["units"]) - 1) < 1e-9
 
