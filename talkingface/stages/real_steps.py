@@ -57,15 +57,17 @@ import numpy as np
 from analysis.metrics import normalization_scale
 from analysis.real_ceiling import (best_offset, learning_curve, offset_scores, phone_onehot,
                                    reconstruction_r, region_loadings, smoothing_floor)
+from analysis.replicates import summarise_replicates
 from face_model.alignment import corpus_deformations
 from face_model.corpus import Corpus, load_corpus
 from face_model.layout import REGIONS
 from face_model.motion_units import MotionUnits
 from face_model.phones import N_PHONES
 from groundwork.atomic import atomic_file
+from groundwork.cache import ArrayCache
 from mapping.dataset import build_dataset, training_sentences
-from mapping.experiment import SPLIT_SEED_OFFSET
-from analysis.replicates import summarise_replicates
+from mapping.experiment import SPLIT_SEED_OFFSET, recognise_context
+from mapping.hearing import corpus_jobs, hear_all
 from talkingface.paths import RunPaths
 from talkingface.stages.base import write_csv
 from talkingface.stages.child_runs import log_for
@@ -188,7 +190,11 @@ def copy_training_part(src: Path, dst: Path, cfg) -> Path:
 def train_steps(corpus_dir: Path, out: Path, cfg, cache=None) -> list[dict]:
     """The trained steps of the module text: every child of ``real_steps.grid`` on the
     training sentences of ``corpus_dir``, ``real_steps.seeds`` seeds each; writes
-    ``replicates.csv`` and ``results.csv`` into ``out`` and returns the results' rows."""
+    ``replicates.csv`` and ``results.csv`` into ``out`` and returns the results' rows.
+    With ``cache`` (the content-keyed cache's folder), the recognisers the children use hear
+    the sentences first, on ``real_steps.workers`` processes (``passes.json``: how many were
+    heard and how many read from the cache), so that no child hears them on one core while
+    the others wait."""
     part = copy_training_part(corpus_dir, out / "corpora" / "train", cfg)
     units_dir = out / "corpora" / "units"
     if not (units_dir / "motion_units.npz").is_file():
@@ -196,6 +202,14 @@ def train_steps(corpus_dir: Path, out: Path, cfg, cache=None) -> list[dict]:
                          held_out=utterance_test_ids(load_corpus(part), cfg))
     children = REAL_STEPS.children(cfg)
     units_path = units_dir / "motion_units.npz"
+    passes = None
+    if cache is not None:  # every recogniser hears the sentences once, on every core
+        loaded = load_corpus(part)
+        contexts = dict.fromkeys(c for c in (recognise_context(ch.mapping)
+                                             for ch in children.values()) if c is not None)
+        passes = hear_all([j for c in contexts for j in corpus_jobs(loaded, c)],
+                          ArrayCache(cache), workers=cfg.real_steps.workers,
+                          desc="hearing the training sentences")
     results = run_grid({n: (part, units_path, c) for n, c in children.items()}, out,
                        seeds=REAL_STEPS.seeds(cfg), scheduler=cfg.cluster.scheduler,
                        workers=cfg.real_steps.workers, desc="real-speaker steps",
@@ -216,6 +230,8 @@ def train_steps(corpus_dir: Path, out: Path, cfg, cache=None) -> list[dict]:
     rows = summarise_replicates(reps, reference=REAL_STEPS.reference_child(children),
                                 key=REAL_STEPS.row_key)
     write_csv(out / "results.csv", rows)
+    if passes is not None:
+        (out / "passes.json").write_text(json.dumps(passes.as_dict()) + "\n")
     return rows
 
 
