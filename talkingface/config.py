@@ -35,7 +35,8 @@ from analysis.config import SpeechSetConfig, TargetsConfig
 from data_synth.config import SynthConfig
 from face_model.config import TrackerConfig, UnitsConfig
 from groundwork.errors import ParameterError
-from groundwork.settings import SettingError, check_fields, choices_of, integer, require
+from groundwork.settings import (SettingError, check_fields, choice, choices_of, integer,
+                                 require)
 from mapping.config import MappingConfig
 from study.config import StudyConfig
 from talkingface.executor import scheduler_address
@@ -157,6 +158,10 @@ class VoicesConfig:
 
     grid: str = "default"  # default: configs/voices.yaml of the project | none | a file
     workers: int = integer(0, ge=0)  # processes (0: all cores)
+    # a child's corpus and the real speaker (real_speaker.corpus): none (the drawn faces only),
+    # alone (the real speaker's training sentences instead) or added (beside the drawn faces);
+    # a child that asks for the real speaker is left out of a run without one
+    real_face: str = choice("none", "alone", "added")
 
     def __post_init__(self):
         check_fields(self)

@@ -31,7 +31,7 @@ from talkingface.stages.real_speaker import evaluate_real_speaker, real_inputs, 
     real_speaker_applies
 from talkingface.stages.real_steps import measure_real_steps
 from talkingface.stages.training import train
-from talkingface.stages.voices import train_voices
+from talkingface.stages.voices import train_voices, voices_inputs
 
 _TRAINING_INPUTS = ("corpus", "units", "tracked")
 
@@ -62,8 +62,10 @@ STAGES = {s.name: s for s in (
           "tracker.corpus_noise_sd"), upstream=("corpus", "units"), enabled=uses_tracked_corpus),
     Stage("mapping", train, config=("seed", "mapping"), speed_only=("mapping.workers",),
           upstream=_TRAINING_INPUTS),
-    _grid_stage(VOICES, train_voices, config=("seed", "synth", "units", "mapping"),
-                speed_only=("synth.workers", "mapping.workers"), applies=synthesised),
+    _grid_stage(VOICES, train_voices, config=("seed", "synth", "units", "mapping",
+                                              "real_speaker.corpus"),
+                speed_only=("synth.workers", "mapping.workers"), applies=synthesised,
+                inputs=voices_inputs),
     Stage("speech_eval", evaluate_speech, config=("targets.lookahead_ms", "speech_set"),
           upstream=("corpus", "units", "mapping", "voices"), files=set_files),
     Stage("render", render_held_out, upstream=("corpus", "keyframes", "mapping")),

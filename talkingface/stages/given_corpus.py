@@ -23,12 +23,15 @@ Hard links share the files with the source folder: edit a given corpus by writin
 """
 from __future__ import annotations
 
+import csv
 import hashlib
+import json
 import os
 import shutil
 from pathlib import Path
 
 from face_model.corpus import corpus_hash, load_corpus, read_manifest
+from groundwork.atomic import atomic_file
 from groundwork.errors import CorpusError
 from talkingface.paths import RunPaths
 from talkingface.stages.applies import expression_note, given
@@ -203,3 +206,52 @@ def take_given_corpus(paths: RunPaths, cfg) -> dict:
     if note:
         record["note"] = note
     return record
+
+
+def combine_corpora(parts: list, dst: Path) -> Path:
+    """A corpus folder ``dst`` of the rows of several corpora: ``parts`` is a list of
+    ``(source folder, utterance ids to keep or None for all, subfolder)``; each kept row's files
+    are hard-linked (:func:`link_or_copy`) under ``dst/<subfolder>/`` (its file cells prefixed
+    so; ``""``: ``dst`` itself), the rows listed in ``parts``' order under the union of their columns (empty where a
+    part has none), ``corpus.json`` says where each part came from (``parts``) and carries the
+    first part's licence, a part's ``NOTICE.md`` is kept as ``<subfolder>/NOTICE.md``. The
+    manifest is written last, so a folder with one is complete (a resumed build keeps it).
+
+    Raises
+    ------
+    CorpusError
+        Two parts list the same utterance id.
+    """
+    dst = Path(dst)
+    if (dst / MANIFEST).is_file():
+        return dst
+    fields, rows, seen, info = [], [], set(), {"parts": []}
+    for src, keep, sub in parts:
+        src = Path(src)
+        with open(src / MANIFEST, newline="", encoding="utf-8-sig") as f:
+            reader = csv.DictReader(f)
+            fields += [c for c in reader.fieldnames if c not in fields]
+            part = [r for r in reader if keep is None or r["utt_id"] in keep]
+        for row in part:
+            if row["utt_id"] in seen:
+                raise CorpusError(f"{src / MANIFEST}: utterance {row['utt_id']!r} is in two "
+                                  "of the corpora combined into " + str(dst))
+            seen.add(row["utt_id"])
+            for column, cell in row.items():
+                if column not in _VALUE_COLUMNS and cell and (src / cell).is_file():
+                    link_or_copy(src / cell, dst / sub / cell)
+                    row[column] = f"{sub}/{cell}" if sub else cell
+        rows += part
+        src_info = json.loads((src / INFO).read_text(encoding="utf-8")) \
+            if (src / INFO).is_file() else {}
+        info["parts"].append({"folder": sub, "source": str(src.resolve()),
+                              "utterances": len(part), "licence": src_info.get("licence", "")})
+        info.setdefault("licence", src_info.get("licence", ""))
+        if (src / "NOTICE.md").is_file():
+            link_or_copy(src / "NOTICE.md", dst / sub / "NOTICE.md")
+    (dst / INFO).write_text(json.dumps(info, indent=1) + "\n", encoding="utf-8")
+    with atomic_file(dst / MANIFEST) as tmp, open(tmp, "w", newline="", encoding="utf-8") as f:
+        writer = csv.DictWriter(f, fieldnames=fields, restval="")
+        writer.writeheader()
+        writer.writerows(rows)
+    return dst

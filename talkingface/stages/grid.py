@@ -59,6 +59,7 @@ from mapping.experiment import METHOD_COST
 from talkingface.config import apply_overrides, flatten, parse_set, read_yaml, to_dict
 from talkingface.executor import map_tasks
 from talkingface.stages.child_runs import artifact_files
+from talkingface.stages.real_speaker import real_speaker_applies
 from talkingface.stages.training import train_and_evaluate
 
 _CHILD_NAME = "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_.-"
@@ -143,13 +144,21 @@ def load_real_steps_grid(path, cfg) -> dict:
 
 def load_voices_grid(path, cfg) -> tuple[dict, str]:
     """``({child: Config}, default model child)`` of a voices grid; the children may not change
-    what the run's Motion Units or faces are made from (seed, units, tracker, visual source)."""
+    what the run's Motion Units or faces are made from (seed, units, tracker, visual source).
+    A child that trains on the real speaker (``voices.real_face``) is left out when the run has
+    none (:func:`talkingface.stages.real_speaker.real_speaker_applies`); the default model may not be one of those then."""
     what = VOICES.what
     children = load_grid(path, cfg, what=what, extra_keys=("model",))
     model = (read_yaml(path, what) or {}).get("model")
     if model not in children:
         raise ParameterError(f"{path}: 'model' is {model!r}; allowed: the name of a child "
                              f"({', '.join(children)})")
+    if not real_speaker_applies(cfg):  # the children that ask for the real speaker: left out
+        if children[model].voices.real_face != "none":
+            raise ParameterError(f"{path}: 'model' {model!r} trains on the real speaker "
+                                 f"(voices.real_face: {children[model].voices.real_face}), "
+                                 "which this run has none of (real_speaker.corpus)")
+        children = {n: c for n, c in children.items() if c.voices.real_face == "none"}
     for name, child in children.items():
         if child.seed != cfg.seed or child.units != cfg.units:
             raise ParameterError(f"{path}: child {name!r} changes the seed or the Motion Units; "

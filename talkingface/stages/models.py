@@ -52,7 +52,7 @@ def find_model(model: str | None, runs_dir="runs") -> tuple[Path, Path]:
         raise ParameterError(f"{run}/mapping holds no saved model")
     robust = voices_default(run)
     if robust is not None:  # the run's voice-robust model (stage voices) is the default
-        return robust, run / "units" / "motion_units.npz"
+        return robust, model_units(robust)
     split = "utterance" if "utterance" in models else next(iter(models))
     return run / "mapping" / models[split], run / "units" / "motion_units.npz"
 
@@ -72,12 +72,23 @@ def voices_default(run: Path) -> Path | None:
 
 
 def model_units(tfmap: Path) -> Path:
-    """The Motion Units of the run a ``.tfmap`` belongs to: ``<run>/mapping/x.tfmap`` or a
-    voice-robust model ``<run>/voices/<child>/x.tfmap``."""
+    """The Motion Units of a ``.tfmap``: its own, beside it (a voice-robust model trained on
+    the real speaker: ``<run>/voices/<child>/motion_units.npz``), else those of the run it
+    belongs to: ``<run>/mapping/x.tfmap`` or a voice-robust model
+    ``<run>/voices/<child>/x.tfmap``."""
+    tfmap = Path(tfmap)
+    if (tfmap.parent / "motion_units.npz").is_file():
+        return tfmap.parent / "motion_units.npz"
+    return model_run(tfmap) / "units" / "motion_units.npz"
+
+
+def model_run(tfmap: Path) -> Path:
+    """The run folder a ``.tfmap`` belongs to: ``<run>/mapping/x.tfmap`` or a voice-robust model
+    ``<run>/voices/<child>/x.tfmap`` (the folder holding ``units/motion_units.npz``)."""
+    tfmap = Path(tfmap)
     for run in (tfmap.parent.parent, tfmap.parent.parent.parent):
-        units = run / "units" / "motion_units.npz"
-        if units.is_file():
-            return units
+        if (run / "units" / "motion_units.npz").is_file():
+            return run
     raise ParameterError(f"--model {tfmap}: the Motion Units of its run "
                          f"({tfmap.parent.parent / 'units' / 'motion_units.npz'}) are missing")
 

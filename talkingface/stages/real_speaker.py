@@ -41,19 +41,21 @@ import numpy as np
 import face_model
 from analysis.face_eval import ClipTrack, normalised, write_scores_csv
 from face_model.alignment import align_markers
-from face_model.corpus import load_corpus
+from face_model.corpus import Corpus, load_corpus
 from face_model.motion_units import MotionUnits
 from face_model.video_corpus import VIDEO_EXTENSIONS
 from groundwork.atomic import atomic_file
 from groundwork.errors import CorpusError
 from mapping.animator import FaceAnimator
 from mapping.checkpoint import AudioMapping
+from mapping.dataset import training_sentences
+from mapping.experiment import SPLIT_SEED_OFFSET
 from mapping.peers import PEERS, peer_versions
 from talkingface.paths import RunPaths
 from talkingface.stages.base import read_done
 from talkingface.stages.face_scoring import (RealClip, clips_from_corpus, model_neutrals,
                                              predicted_markers, score_model, score_peer)
-from talkingface.stages.given_corpus import check_folder
+from talkingface.stages.given_corpus import check_folder, combine_corpora
 from talkingface.stages.models import find_model
 from talkingface.stages.side_by_side import predict, strip_frames, write_side_by_side
 from talkingface.stages.training import utterance_test_ids
@@ -98,6 +100,25 @@ def video_files(folder: Path | None) -> dict:
         return {}
     return {p.stem: p for p in sorted(folder.iterdir())
             if p.is_file() and p.suffix.lower() in VIDEO_EXTENSIONS}
+
+
+def training_part(corpus: Corpus, seed: int, train_fraction: float) -> Corpus:
+    """The corpus's utterances whose sentence is a training sentence of the utterance split of
+    run seed ``seed``."""
+    train = training_sentences([u.text for u in corpus.utterances],
+                               train_fraction=train_fraction, seed=seed + SPLIT_SEED_OFFSET)
+    return Corpus(corpus.root, corpus.info, [u for u in corpus.utterances if u.text in train])
+
+
+def copy_training_part(src: Path, dst: Path, cfg) -> Path:
+    """The training sentences of ``src`` (:func:`training_part`) as a corpus folder ``dst``
+    (:func:`talkingface.stages.given_corpus.combine_corpora`: their rows and files, hard links
+    where the file system allows; a finished folder is kept)."""
+    if (dst / "manifest.csv").is_file():
+        return dst
+    keep = {u.utt_id for u in training_part(load_corpus(src), cfg.seed,
+                                            cfg.mapping.train_fraction).utterances}
+    return combine_corpora([(src, keep, "")], dst)
 
 
 def real_speaker_applies(cfg) -> bool:

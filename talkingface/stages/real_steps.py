@@ -48,7 +48,6 @@ The held-out sentences of the run are never read here.
 """
 from __future__ import annotations
 
-import csv
 import json
 from pathlib import Path
 
@@ -59,22 +58,21 @@ from analysis.real_ceiling import (best_offset, learning_curve, offset_scores, p
                                    reconstruction_r, region_loadings, smoothing_floor)
 from analysis.replicates import summarise_replicates
 from face_model.alignment import corpus_deformations
-from face_model.corpus import Corpus, load_corpus
+from face_model.corpus import load_corpus
 from face_model.layout import REGIONS
 from face_model.motion_units import MotionUnits
 from face_model.phones import N_PHONES
 from groundwork.atomic import atomic_file
 from groundwork.cache import ArrayCache
-from mapping.dataset import build_dataset, training_sentences
-from mapping.experiment import SPLIT_SEED_OFFSET, recognise_context
+from mapping.dataset import build_dataset
+from mapping.experiment import recognise_context
 from mapping.hearing import corpus_jobs, hear_all
 from talkingface.paths import RunPaths
 from talkingface.stages.base import write_csv
 from talkingface.stages.child_runs import log_for
 from talkingface.stages.foundation import fit_units_folder
-from talkingface.stages.given_corpus import link_or_copy
 from talkingface.stages.grid import REAL_STEPS, child_metrics, run_grid
-from talkingface.stages.real_speaker import real_corpus
+from talkingface.stages.real_speaker import copy_training_part, real_corpus, training_part
 from talkingface.stages.training import utterance_test_ids
 
 LAGS = range(-6, 7)
@@ -84,14 +82,6 @@ PER_UNIT_CONTEXT = 6
 LEARNING_SIZES = (25, 50, 100, 0)  # sentences the probe is fitted on (0: a whole half)
 FACE_REGIONS = ("lips", "cheeks", "forehead")
 EQ6_REGIONS = ("lips", "cheeks", "forehead", "glasses")  # every marker, in four regions
-
-
-def training_part(corpus: Corpus, seed: int, train_fraction: float) -> Corpus:
-    """The corpus's utterances whose sentence is a training sentence of the utterance split of
-    run seed ``seed``."""
-    train = training_sentences([u.text for u in corpus.utterances],
-                               train_fraction=train_fraction, seed=seed + SPLIT_SEED_OFFSET)
-    return Corpus(corpus.root, corpus.info, [u for u in corpus.utterances if u.text in train])
 
 
 def measure_steps(corpus_dir: Path, cfg) -> dict:
@@ -155,36 +145,6 @@ def measure_steps(corpus_dir: Path, cfg) -> dict:
                                               context=PER_UNIT_CONTEXT)[0]}
                     for j in range(n)]
     return out
-
-
-FILE_COLUMNS = ("audio", "markers", "phones", "quality")  # manifest columns that name files
-
-
-def copy_training_part(src: Path, dst: Path, cfg) -> Path:
-    """The training sentences of ``src`` (:func:`training_part`) as a corpus folder ``dst``:
-    their manifest rows, files (hard links where the file system allows), ``corpus.json`` and
-    ``NOTICE.md``. The manifest is written last, so a folder with one is complete (a resumed
-    build keeps it)."""
-    if (dst / "manifest.csv").is_file():
-        return dst
-    keep = {u.utt_id for u in training_part(load_corpus(src), cfg.seed,
-                                            cfg.mapping.train_fraction).utterances}
-    with open(src / "manifest.csv", newline="") as f:
-        reader = csv.DictReader(f)
-        fields, rows = list(reader.fieldnames), [r for r in reader if r["utt_id"] in keep]
-    for row in rows:
-        for column in FILE_COLUMNS:
-            if row.get(column):
-                link_or_copy(src / row[column], dst / row[column])
-    for name in ("corpus.json", "NOTICE.md"):
-        if (src / name).is_file():
-            link_or_copy(src / name, dst / name)
-    with atomic_file(dst / "manifest.csv") as tmp:
-        with open(tmp, "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=fields)
-            writer.writeheader()
-            writer.writerows(rows)
-    return dst
 
 
 def train_steps(corpus_dir: Path, out: Path, cfg, cache=None) -> list[dict]:

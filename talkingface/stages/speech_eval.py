@@ -55,7 +55,7 @@ from mapping.hearing import hear_all
 from mapping.recogniser import hearing_cache
 from talkingface.paths import RunPaths
 from talkingface.stages.base import read_done, write_csv
-from talkingface.stages.models import model_units
+from talkingface.stages.models import model_run, model_units
 from talkingface.stages.voices import voices_models
 
 FIGURE_RECORDING = "slt_a0009"  # a real sentence with hand-checked (HTS) labels
@@ -244,14 +244,14 @@ def run_models(paths: RunPaths) -> dict:
             for f in done["models"].values()}
 
 
-def _tfmap_corpus(tfmap: Path, units: Path) -> Path | None:
+def _tfmap_corpus(tfmap: Path) -> Path | None:
     """The corpus a ``.tfmap`` was trained on: a voice-robust model's own corpus
     (``<run>/voices/<child>/``, from the voices stage's record), else its run's ``corpus/``
     (``runs/<name>/mapping`` or a nested real run's ``runs/<name>/real/mapping``); None when
     that folder holds no manifest."""
-    run = units.parent.parent
+    run = model_run(tfmap)
     if tfmap.parent.parent.name == "voices":
-        for path, corpus in voices_models(RunPaths.at(run)).values():
+        for path, corpus, _ in voices_models(RunPaths.at(run)).values():
             if Path(path).resolve() == tfmap.resolve():
                 return corpus if (Path(corpus) / "manifest.csv").is_file() else None
     corpus = run / "corpus"
@@ -267,7 +267,7 @@ def find_models(model: str, runs_dir="runs") -> dict:
         if not p.is_file():
             raise ParameterError(f"--model {p}: file not found")
         units = model_units(p)
-        return {p.stem: (p, units, _tfmap_corpus(p, units))}
+        return {p.stem: (p, units, _tfmap_corpus(p))}
     if p.is_dir():
         return run_models(RunPaths.at(p, reports_dir="reports"))
     if not (Path(runs_dir) / model).is_dir():
@@ -281,7 +281,7 @@ def model_cache(model: str, runs_dir="runs") -> Path:
     the run it belongs to (:attr:`talkingface.paths.RunPaths.cache`)."""
     p = Path(model)
     if p.suffix == ".tfmap":
-        run = model_units(p).parent.parent
+        run = model_run(p)
     elif p.is_dir():
         run = p
     else:
@@ -295,8 +295,8 @@ def evaluate_speech(paths: RunPaths, cfg) -> dict:
     are made against the run's default model (the voices stage's pick, else the mapping); the
     recordings are those ``speech_set.per_speaker`` picks."""
     models = run_models(paths)
-    for name, (tfmap, corpus) in voices_models(paths).items():
-        models[f"voices-{name}"] = (tfmap, paths.units_model, corpus)
+    for name, (tfmap, corpus, units) in voices_models(paths).items():
+        models[f"voices-{name}"] = (tfmap, units, corpus)
     chosen = (read_done(paths.stage("voices")) or {}).get("model")
     default = f"voices-{chosen}" if chosen else f"{cfg.mapping.method}_utterance"
     res = evaluate_models(models, paths.stage("speech_eval") / "results.csv",

@@ -8,12 +8,22 @@ Its grid (``voices.grid``, by default ``configs/voices.yaml``) has the form of t
 * a child that leaves ``synth`` as the run has it trains on the run's corpus (one voice);
 * a child that changes ``synth`` (``synth.voices``: many voices) trains on a corpus of its own,
   made with the run's seed — the same faces and sentences, the speech drawn from its voices —
-  under ``voices/corpora/<k>/``, built once for every child that asks for the same settings.
+  under ``voices/corpora/<k>/``, built once for every child that asks for the same settings;
+* a child with ``voices.real_face: alone`` trains on the real speaker's training sentences
+  (``real_speaker.corpus``, the utterance split of the run seed: its held-out sentences are
+  never read) instead, ``added`` on those beside its drawn faces' corpus; each such corpus gets
+  Motion Units fitted on it, which the model keeps beside its file (``<child>/
+  motion_units.npz``). A grid's real-face children are left out of a run without a real
+  speaker.
 
 Files (``runs/<name>/voices/``)::
 
     <child>/               the child's tables.csv, gate.json, <method>_<split>.tfmap, summary.json
+                           (and motion_units.npz when they are not the run's)
     corpora/<k>/           the many-voice corpora
+    corpora/real/, corpora/<k>-real/, corpora/*-units/
+                           the real speaker's training sentences alone or beside corpus <k>,
+                           and their Motion Units
     results.csv            per child: its corpus, settings, test R on its own corpus, and the
                            in-domain test R on the run's single-voice corpus (utterance split)
 
@@ -44,24 +54,48 @@ from mapping.hearing import corpus_jobs, hear_all
 from talkingface.paths import RunPaths
 from talkingface.stages.base import read_done, write_csv
 from talkingface.stages.child_runs import log_for
+from talkingface.stages.foundation import fit_units_folder
+from talkingface.stages.given_corpus import combine_corpora, link_or_copy
 from talkingface.stages.grid import VOICES, grid_corpus, load_voices_grid, run_children
 from talkingface.stages.motion import training_corpus
+from talkingface.stages.real_speaker import copy_training_part, real_corpus, real_inputs
+
+
+def _synthetic_corpus(child, cfg, paths: RunPaths, out: Path, built: list) -> Path:
+    """The drawn faces' corpus of a child: the run's own, or a many-voice one built under
+    ``out`` once for every child that asks for the same synth settings (``built``)."""
+    if child.synth.voices == cfg.synth.voices:
+        return training_corpus(paths, cfg)
+    folder = next((f for s, f in built if s == child.synth), None)
+    if folder is None:
+        folder = out / f"{len(built)}"
+        grid_corpus(folder, child.synth, cfg.seed)
+        built.append((child.synth, folder))
+    return folder
 
 
 def _corpora(children: dict, cfg, paths: RunPaths, out: Path) -> dict:
-    """Child → corpus folder: the run's own, or a many-voice one built under ``out``."""
+    """Child → (corpus folder, motion_units.npz): the drawn faces' corpus with the run's Motion
+    Units; or, for a child that trains on the real speaker (``voices.real_face``), the real
+    speaker's training sentences alone (``out/real``) or beside its drawn faces' corpus
+    (``out/<k>-real``: ``synthetic/`` and ``real/``), with Motion Units fitted on that corpus
+    (``<corpus>-units/``), each built once."""
     built: list = []  # [(synth settings, folder)]
     where = {}
     for name, child in children.items():
-        if child.synth.voices == cfg.synth.voices:
-            where[name] = training_corpus(paths, cfg)
+        synthetic = _synthetic_corpus(child, cfg, paths, out, built)
+        mode = child.voices.real_face
+        if mode == "none":
+            where[name] = (synthetic, paths.units_model)
             continue
-        folder = next((f for s, f in built if s == child.synth), None)
-        if folder is None:
-            folder = out / f"{len(built)}"
-            grid_corpus(folder, child.synth, cfg.seed)
-            built.append((child.synth, folder))
-        where[name] = folder
+        real = copy_training_part(real_corpus(cfg), out / "real", cfg)
+        if mode == "added":
+            real = combine_corpora([(synthetic, None, "synthetic"), (real, None, "real")],
+                                   out / f"{synthetic.name}-real")
+        units = real.with_name(f"{real.name}-units")
+        if not (units / "motion_units.npz").is_file():
+            fit_units_folder(real, units, cfg)
+        where[name] = (real, units / "motion_units.npz")
     return where
 
 
@@ -78,7 +112,7 @@ def hear_corpora(children: dict, corpora: dict, own_corpus, cache, *, workers: i
         context = recognise_context(child.mapping)
         if context is not None:
             needs[(Path(own_corpus.root).resolve(), context)] = True
-            needs[(Path(corpora[name]).resolve(), context)] = True
+            needs[(Path(corpora[name][0]).resolve(), context)] = True
     jobs = []
     for folder, context in needs:
         if folder not in loaded:
@@ -108,37 +142,45 @@ def train_voices(paths: RunPaths, cfg) -> dict:
     own_corpus = load_corpus(training_corpus(paths, cfg))
     passes = hear_corpora(children, corpora, own_corpus, ArrayCache(paths.cache),
                           workers=cfg.voices.workers)
-    summaries = run_children({name: (corpora[name], paths.units_model, child)
+    summaries = run_children({name: (*corpora[name], child)
                               for name, child in children.items()}, out,
                              scheduler=cfg.cluster.scheduler, workers=cfg.voices.workers,
                              desc="voice-robust models", cache=paths.cache,
                              log=log_for(VOICES.name), stage=VOICES.tag)
-    units = MotionUnits.load(paths.units_model)
-    own: dict = {}  # (n_mfcc, deltas) -> (data, masks, scale) of the run's corpus
+    own: dict = {}  # (units, n_mfcc, ...) -> (data, masks, scale) of the run's corpus
     rows, models = [], {}
     for name, child in children.items():
         m = child.mapping
+        corpus, units_path = corpora[name]
+        units = MotionUnits.load(units_path)
         tfmap = out / name / f"{m.method}_utterance.tfmap"
         if not tfmap.is_file():
             raise ParameterError(f"{VOICES.what} child {name!r} trained no utterance-split "
                                  "model; keep 'utterance' in its mapping.splits")
-        key = (m.n_mfcc, m.deltas, recognise_context(m), m.window_align, m.mel_fmax_hz)
+        if units_path != paths.units_model:  # the model's own units beside it (model_units)
+            link_or_copy(units_path, tfmap.parent / "motion_units.npz")
+        key = (str(units_path), m.n_mfcc, m.deltas, recognise_context(m), m.window_align,
+               m.mel_fmax_hz)
         if key not in own:
             data = build_dataset(own_corpus, units, n_mfcc=m.n_mfcc, deltas=m.deltas,
-                                 recognise_context=key[2], window_align=m.window_align,
+                                 recognise_context=key[3], window_align=m.window_align,
                                  mel_fmax_hz=m.mel_fmax_hz, progress=True,
                                  cache=ArrayCache(paths.cache))
             own[key] = (data, split_masks(
                 data, "utterance", train_fraction=cfg.mapping.train_fraction,
                 seed=cfg.seed + SPLIT_SEED_OFFSET), database_scale(data, units))
         models[name] = {"tfmap": str(tfmap.relative_to(out)),
-                        "corpus": "" if corpora[name] == training_corpus(paths, cfg)
-                        else str(corpora[name].relative_to(out))}
+                        "corpus": "" if corpus == training_corpus(paths, cfg)
+                        else str(corpus.relative_to(out)),
+                        "units": "" if units_path == paths.units_model
+                        else str(Path(units_path).relative_to(out))}
         summary = summaries[name]["summary"]
         own_R = next(x["R"] for x in summary["ranking"]["utterance"] if x["method"] == m.method)
         rows.append({"model": name, "default": name == model,
                      "corpus": models[name]["corpus"] or "the run's",
-                     "voices": " ".join(child.synth.voices) or "(the run's voice)",
+                     "real_face": child.voices.real_face,
+                     "voices": ("" if child.voices.real_face == "alone" else
+                                " ".join(child.synth.voices) or "(the run's voice)"),
                      "cmvn": m.cmvn, "vtlp_range": "-".join(map(str, m.vtlp_range)),
                      "augment_copies": m.augment.copies, "own_corpus_test_R": own_R,
                      **in_domain_R(tfmap, *own[key], units),
@@ -150,13 +192,24 @@ def train_voices(paths: RunPaths, cfg) -> dict:
 
 def voices_models(paths: RunPaths) -> dict:
     """The trained voice-robust models of a run: child name → (tfmap, the corpus it was
-    trained on: its own many-voice corpus, or the run's); empty when the run has none."""
+    trained on: its own corpus, or the run's, its Motion Units: its own, or the run's); empty
+    when the run has none."""
     done = read_done(paths.stage("voices"))
     if not done:
         return {}
     out = paths.stage("voices")
-    return {name: (out / m["tfmap"], out / m["corpus"] if m["corpus"] else paths.corpus)
+    return {name: (out / m["tfmap"], out / m["corpus"] if m["corpus"] else paths.corpus,
+                   out / m["units"] if m.get("units") else paths.units_model)
             for name, m in done.get("models", {}).items()}
+
+
+def voices_inputs(paths, cfg) -> dict:
+    """The real speaker's corpus (:func:`talkingface.stages.real_speaker.real_inputs`) joins
+    the stage's key when a child of its grid trains on it (``voices.real_face``)."""
+    if not VOICES.has_grid(cfg) or all(c.voices.real_face == "none"
+                                       for c in VOICES.children(cfg).values()):
+        return {}
+    return {"real_corpus": real_inputs(paths, cfg)["real_corpus"]}
 
 
 def read_results(paths: RunPaths) -> list[dict]:

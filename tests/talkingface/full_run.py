@@ -1,7 +1,8 @@
 """The small full replication the suite shares (``full_run_dir`` in tests/conftest.py, made once
 per test session): every stage of ``talkingface replicate`` on a tiny corpus, with a real
 speaker (every 4th of the built-in GRID s1's 196 sentences, given as a corpus folder) with two
-trained steps, two voice-robust models, four ceiling steps and MLflow in the folder's own
+trained steps, three voice-robust models (one trained on the real speaker), four ceiling
+steps and MLflow in the folder's own
 store."""
 from __future__ import annotations
 
@@ -43,7 +44,8 @@ children:
   ours: {}
   oracle: {mapping.gate_front_end: labels, mapping.mlp_input: phones}
 """
-# two voice-robust configurations, small: the run's voice, and three engines with CMVN
+# three voice-robust configurations, small: the run's voice, three engines with CMVN, and the
+# real speaker's training sentences alone
 VOICES_GRID = """model: many
 base:
   mapping.splits: [utterance]
@@ -53,6 +55,7 @@ children:
   many:
     synth.voices: [espeak:en-us+f3, flite:awb, festival:kal_diphone]
     mapping.cmvn: meanvar
+  real: {voices.real_face: alone}
 """
 
 

@@ -29,7 +29,8 @@ def pdf_text(path) -> str:
 
 def test_replicate_writes_runs_report_and_mlflow(full_run_dir, monkeypatch):
     """The whole replication, small (``full_run_dir``, tests/conftest.py: every stage, a real
-    speaker (a quarter of GRID s1's sentences), two voice-robust models, four ceiling steps,
+    speaker (a quarter of GRID s1's sentences), three voice-robust models (one on the real
+    speaker's training sentences), four ceiling steps,
     MLflow): what needs a real run is that the stages hand each other real files and the
     report cites them."""
     workdir = full_run_dir
@@ -165,7 +166,7 @@ def _check_voices_and_real_speech(run, table_rows, text):
 
     with open(run / "voices" / "results.csv", newline="") as f:
         voices = {r["model"]: r for r in csv.DictReader(f)}
-    assert set(voices) == {"one", "many"} and voices["many"]["default"] == "True"
+    assert set(voices) == {"one", "many", "real"} and voices["many"]["default"] == "True"
     # the child with the run's own settings is the run's mapping again: its in-domain R is
     # Table II's mean test R (utterance split), recomputed from its predictions
     ours = [float(r["R"]) for r in table_rows if r["method"] == "gated_mlp"
@@ -177,7 +178,14 @@ def _check_voices_and_real_speech(run, table_rows, text):
     with open(run / "speech_eval" / "results.csv", newline="") as f:
         scores = list(csv.DictReader(f))
     models = {r["model"] for r in scores}
-    assert {"gated_mlp_utterance", "voices-one", "voices-many"} <= models
+    assert {"gated_mlp_utterance", "voices-one", "voices-many", "voices-real"} <= models
+    # the real-face child: the real speaker's training sentences only, its own Motion Units
+    real_part = {r.split(",")[0] for r in
+                 (run / "voices" / "corpora" / "real" / "manifest.csv").read_text().split()[1:]}
+    held = json.loads((run / "real_speaker" / "summary.json").read_text())["test_utterances"]
+    assert real_part and not real_part & set(held)
+    assert (run / "voices" / "real" / "motion_units.npz").is_file()
+    assert voices["real"]["real_face"] == "alone"
     seen = {r["model"]: int(r["files"]) for r in scores if r["split"] == "seen"}
     assert seen["voices-many"] == 1 and seen["voices-one"] == 0
     assert any(m.startswith("pocketsphinx") for m in models)

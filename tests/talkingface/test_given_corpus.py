@@ -236,3 +236,28 @@ def test_replicate_on_a_given_neutral_corpus_says_what_it_skips(workdir, neutral
                  f"corpus.source={neutral_corpus_dir}"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: stage stimuli does not apply") and "\n" not in err
+
+
+def test_two_corpora_combined_keep_every_row_and_file(tmp_path, neutral_corpus_dir):
+    """A synthetic corpus and a real speaker's sentences in one folder (the voices stage's
+    ``voices.real_face: added``): every row of both, under the union of their columns, each
+    utterance's arrays unchanged; two parts with one utterance id are refused."""
+    from tests.talkingface.full_run import real_speaker_part
+    from talkingface.stages.given_corpus import combine_corpora
+    from groundwork.errors import CorpusError
+
+    real = real_speaker_part(tmp_path / "real", every=40)  # 5 of GRID s1's sentences
+    both = combine_corpora([(neutral_corpus_dir, None, "synthetic"), (real, None, "real")],
+                           tmp_path / "both")
+    parts = [load_corpus(neutral_corpus_dir), load_corpus(real)]
+    combined = load_corpus(both)
+    want = [u for c in parts for u in c.utterances]
+    assert [u.utt_id for u in combined.utterances] == [u.utt_id for u in want]
+    for a, b in zip(combined.utterances, want):
+        assert (a.markers == b.markers).all() and (a.audio == b.audio).all()
+        assert a.phones == b.phones and a.speaker == b.speaker
+    assert (both / "real" / "NOTICE.md").is_file()
+    assert [p["folder"] for p in combined.info["parts"]] == ["synthetic", "real"]
+    with pytest.raises(CorpusError, match=r"utterance '.+' is in two of the corpora"):
+        combine_corpora([(real, None, "a"), (real, None, "b")], tmp_path / "twice")
+    assert not (tmp_path / "twice" / "manifest.csv").exists()

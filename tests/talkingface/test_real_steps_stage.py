@@ -14,7 +14,7 @@ from face_model.corpus import load_corpus
 from groundwork.errors import ParameterError
 from talkingface.config import Config, load_config
 from talkingface.stages.grid import REAL_STEPS, load_real_steps_grid
-from talkingface.stages.real_steps import copy_training_part, training_part
+from talkingface.stages.real_speaker import copy_training_part, training_part
 from tests.talkingface.full_run import real_speaker_part
 
 

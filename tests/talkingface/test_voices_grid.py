@@ -24,8 +24,13 @@ def test_the_project_grid_holds_the_issue_configurations():
                               "many-cmvn-warp-augment", "many-cmvn-warp-augment-recogniser",
                               "one-voice-recogniser", "one-voice-phones", "many-phones",
                               "many-augment-phones", "one-voice-phones-labels",
-                              "many-phones-labels", "one-voice-hama-labels"]
+                              "many-phones-labels", "one-voice-hama-labels",
+                              "real-face-hama-labels", "real-face-mfcc",
+                              "real-and-drawn-hama-labels"]
     assert model == "one-voice-hama-labels"
+    assert [children[n].voices.real_face for n in list(children)[-4:]] == \
+        ["none", "alone", "alone", "added"]
+    assert children["real-face-hama-labels"].mapping == children[model].mapping
     full = children["many-cmvn-warp-augment"].mapping
     assert full.cmvn == "meanvar" and full.vtlp_range == (0.9, 1.1) and full.augment.copies >= 1
     default = children[model].mapping
@@ -44,6 +49,20 @@ def test_the_project_grid_holds_the_issue_configurations():
 
     sources = {voice_speaker(v) for v in children[model].synth.voices}
     assert "arctic-slt" not in sources
+
+
+def test_the_real_face_children_are_left_out_of_a_run_without_a_real_speaker(tmp_path):
+    off = load_config(None, ["real_speaker.corpus="])
+    children, model = load_voices_grid(VOICES.default, off)
+    assert all(c.voices.real_face == "none" for c in children.values()) and len(children) == 13
+    grid = tmp_path / "g.yaml"
+    grid.write_text(GRID.format(model="real", extra="").replace(
+        "children:", "children:\n  real: {voices.real_face: alone}"))
+    assert set(load_voices_grid(grid, Config())[0]) == {"one", "many", "real"}
+    with pytest.raises(ParameterError, match=r"g\.yaml: 'model' 'real' trains on the real "
+                                             r"speaker \(voices\.real_face: alone\), which "
+                                             r"this run has none of"):
+        load_voices_grid(grid, off)
 
 
 @pytest.mark.parametrize("model, extra, names", [

@@ -8,7 +8,8 @@ import json
 import numpy as np
 
 from tests.talkingface.full_run import real_speaker_part
-from talkingface.stages.real_steps import CONTEXTS, LAGS, training_part
+from talkingface.stages.real_speaker import training_part
+from talkingface.stages.real_steps import CONTEXTS, LAGS
 from tools.real_speaker_steps import main, measure
 
 
