@@ -29,7 +29,8 @@ Files (``runs/<name>/voices/``)::
 
 The in-domain R puts every child on the paper's Table II footing: its predictions for the test
 sentences of the run's own corpus (the same sentences every child held out, since the split is
-drawn by sentence with the run's seed), measured as :mod:`analysis.evaluation` measures Table II.
+drawn by sentence with the run's seed), measured as :mod:`analysis.evaluation` measures Table II
+with the child's own Motion Units, on the expressions those have (a real face: neutral speech).
 
 The stage is described by :data:`talkingface.stages.grid.VOICES` (its grid is read by
 :func:`talkingface.stages.grid.load_voices_grid`; its children's MLflow tags are
@@ -43,12 +44,12 @@ from pathlib import Path
 import numpy as np
 
 from analysis.evaluation import database_scale, evaluate_predictions
-from face_model.corpus import load_corpus
+from face_model.corpus import Corpus, load_corpus
 from face_model.motion_units import MotionUnits
 from groundwork.cache import ArrayCache
 from groundwork.errors import ParameterError
 from mapping.checkpoint import AudioMapping
-from mapping.dataset import build_dataset, split_masks
+from mapping.dataset import build_dataset, training_sentences
 from mapping.experiment import SPLIT_SEED_OFFSET, predict_utterance, recognise_context
 from mapping.hearing import corpus_jobs, hear_all
 from talkingface.paths import RunPaths
@@ -161,14 +162,20 @@ def train_voices(paths: RunPaths, cfg) -> dict:
             link_or_copy(units_path, tfmap.parent / "motion_units.npz")
         key = (str(units_path), m.n_mfcc, m.deltas, recognise_context(m), m.window_align,
                m.mel_fmax_hz)
-        if key not in own:
-            data = build_dataset(own_corpus, units, n_mfcc=m.n_mfcc, deltas=m.deltas,
+        if key not in own:  # the expressions the model's units have (a real face: neutral)
+            held = {"neutral", *units.expressions_}
+            corpus_part = Corpus(own_corpus.root, own_corpus.info,
+                                 [u for u in own_corpus.utterances if u.expression in held])
+            data = build_dataset(corpus_part, units, n_mfcc=m.n_mfcc, deltas=m.deltas,
                                  recognise_context=key[3], window_align=m.window_align,
                                  mel_fmax_hz=m.mel_fmax_hz, progress=True,
                                  cache=ArrayCache(paths.cache))
-            own[key] = (data, split_masks(
-                data, "utterance", train_fraction=cfg.mapping.train_fraction,
-                seed=cfg.seed + SPLIT_SEED_OFFSET), database_scale(data, units))
+            # the run's split, drawn over all its sentences, whatever part is scored
+            train = training_sentences([u.text for u in own_corpus.utterances],
+                                       train_fraction=cfg.mapping.train_fraction,
+                                       seed=cfg.seed + SPLIT_SEED_OFFSET)
+            own[key] = (data, [np.full(d.n_frames, d.text in train) for d in data],
+                        database_scale(data, units))
         models[name] = {"tfmap": str(tfmap.relative_to(out)),
                         "corpus": "" if corpus == training_corpus(paths, cfg)
                         else str(corpus.relative_to(out)),

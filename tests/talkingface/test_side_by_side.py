@@ -12,7 +12,6 @@ a second on 16 other sentences of that corpus.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import re
 import shutil
 import subprocess
@@ -219,15 +218,7 @@ def test_the_strip_of_the_real_clip_shows_a_closure(setup):
 
 
 # -- the command line ------------------------------------------------------------------------
-def _tree(folder: Path) -> dict:
-    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(folder.rglob("*")) if p.is_file()}
-
-
-def _error_line(capsys) -> str:
-    lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
-    assert len(lines) == 1 and lines[0].startswith("error: "), lines
-    return lines[0]
+from tests.talkingface.test_face_outputs import _error_line, _tree  # noqa: E402
 
 
 def _videos(root: Path) -> Path:
