@@ -42,9 +42,9 @@ def r_cell(row: dict, split: str) -> str:
     return text + (" ↑" if _num(row.get(f"{split}_R_diff")) > 0 else " ↓")
 
 
-def seeds_note(rows: list[dict], split: str) -> str:
+def seeds_note(rows: list[dict], split: str, corpus: str = "the corpus is the run's") -> str:
     """What a table of seed replicates shows, in words (its reference setting is the row whose
-    ``<split>_R_differs`` is ``reference``)."""
+    ``<split>_R_differs`` is ``reference``); ``corpus``: what the rows trained on, in words."""
     n = sorted({int(float(r["n_seeds"])) for r in rows if r.get("n_seeds")})
     if not n or n == [1]:
         return ("One training seed per row: differences of a few thousandths in R are within "
@@ -61,7 +61,7 @@ def seeds_note(rows: list[dict], split: str) -> str:
                 "5 %): "
                 f"{marked} of the {len(tested)} rows tested here. " if tested else "") +
             "Replicate k trains with the run seed + 1000 k (its split, initialisation, batches "
-            "and augmentation); the corpus is the run's.")
+            f"and augmentation); {corpus}.")
 
 
 def paper_table_rows(rows: list[dict], method: str, part: str) -> list[list]:

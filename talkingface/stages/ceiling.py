@@ -39,13 +39,11 @@ import numpy as np
 
 from analysis.figures import report_figure
 from analysis.metrics import PAPER_TABLES
-from analysis.replicates import summarise_replicates
 from talkingface.config import flatten
 from talkingface.paths import RunPaths
-from talkingface.stages.base import write_csv
 from talkingface.stages.child_runs import log_for
 from talkingface.stages.foundation import fit_units_folder
-from talkingface.stages.grid import CEILING, child_metrics, grid_corpus, run_grid
+from talkingface.stages.grid import CEILING, grid_corpus, grid_rows, run_grid
 from talkingface.stages.motion import track_folder, training_corpus, uses_tracked_corpus
 
 PAPER_TEST_R = sum(v[0] for v in PAPER_TABLES["test"].values()) / len(PAPER_TABLES["test"])
@@ -104,24 +102,15 @@ def decompose(paths: RunPaths, cfg) -> dict:
                        workers=cfg.ceiling.workers, desc="ceiling steps",
                        log=log_for(CEILING.name), stage=CEILING.tag, cache=paths.cache)
     run_corpus = training_corpus(paths, cfg)
-    reps = []
-    for (name, k), res in results.items():
-        child = children[name]
+
+    def describe(name, child) -> dict:
         m = child.mapping
-        metrics = child_metrics(res["summary"], m.method)
-        row = {CEILING.row_key: name, "changes": _changes(child, cfg), "method": m.method,
-               "gate_front_end": m.gate_front_end,
-               "corpus": ("the run's" if inputs[name][0] == run_corpus
-                          else str(Path(inputs[name][0]).relative_to(out)))}
-        for split in ("utterance", "random_frames"):
-            for key in ("R", "MSE", "LVE", "closure"):
-                row[f"{split}_{key}"] = metrics.get(f"{split}.mean_test_{key}", float("nan"))
-        row["seconds"] = round(res["seconds"], 1)
-        reps.append({**row, "replicate": k, "seed": res["seed"]})
-    write_csv(out / "replicates.csv", reps)
-    rows = summarise_replicates(reps, reference=CEILING.reference_child(children),
-                                key=CEILING.row_key)
-    write_csv(out / "results.csv", rows)
+        return {"changes": _changes(child, cfg), "method": m.method,
+                "gate_front_end": m.gate_front_end,
+                "corpus": ("the run's" if inputs[name][0] == run_corpus
+                           else str(Path(inputs[name][0]).relative_to(out)))}
+
+    rows = grid_rows(results, children, CEILING, out, describe)
     ceiling_figure(rows, out / "ceiling.png")
     return {"grid": str(CEILING.grid_path(cfg)), "children": list(children), "rows": rows}
 

@@ -52,12 +52,14 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from analysis.evaluation import row_metrics
+from analysis.replicates import summarise_replicates
 from data_synth.generate import synthesize_corpus
 from groundwork.atomic import swap_in
 from groundwork.errors import ParameterError
 from mapping.experiment import METHOD_COST
 from talkingface.config import apply_overrides, flatten, parse_set, read_yaml, to_dict
 from talkingface.executor import map_tasks
+from talkingface.stages.base import write_csv
 from talkingface.stages.child_runs import artifact_files
 from talkingface.stages.real_speaker import real_speaker_applies
 from talkingface.stages.training import train_and_evaluate
@@ -319,6 +321,30 @@ def child_metrics(summary: dict, method: str) -> dict:
         split = key.split("/")[1]
         out.update({f"{split}.gate.{k}": v for k, v in g.items() if isinstance(v, float)})
     return out
+
+
+def grid_rows(results: dict, children: dict, grid: "GridStage", out: Path, describe
+              ) -> list[dict]:
+    """The rows of a trained, replicated grid (:func:`run_grid`'s ``results``): per task,
+    ``describe(name, child)``'s columns, then test R, MSE, LVE and /p b m/ closure on the
+    utterance and frame splits, seconds, replicate and seed (``out/replicates.csv``); per child
+    their means, 95 % intervals and the paired test against the grid's reference child
+    (``out/results.csv``, :func:`analysis.replicates.summarise_replicates`), returned."""
+    reps = []
+    for (name, k), res in results.items():
+        child = children[name]
+        metrics = child_metrics(res["summary"], child.mapping.method)
+        row = {grid.row_key: name, **describe(name, child)}
+        for split in ("utterance", "random_frames"):
+            for key in ("R", "MSE", "LVE", "closure"):
+                row[f"{split}_{key}"] = metrics.get(f"{split}.mean_test_{key}", float("nan"))
+        row["seconds"] = round(res["seconds"], 1)
+        reps.append({**row, "replicate": k, "seed": res["seed"]})
+    write_csv(out / "replicates.csv", reps)
+    rows = summarise_replicates(reps, reference=grid.reference_child(children),
+                                key=grid.row_key)
+    write_csv(out / "results.csv", rows)
+    return rows
 
 
 def task_cost(cfg) -> float:

@@ -56,7 +56,6 @@ import numpy as np
 from analysis.metrics import normalization_scale
 from analysis.real_ceiling import (best_offset, learning_curve, offset_scores, phone_onehot,
                                    reconstruction_r, region_loadings, smoothing_floor)
-from analysis.replicates import summarise_replicates
 from face_model.alignment import corpus_deformations
 from face_model.corpus import load_corpus
 from face_model.layout import REGIONS
@@ -68,10 +67,9 @@ from mapping.dataset import build_dataset
 from mapping.experiment import recognise_context
 from mapping.hearing import corpus_jobs, hear_all
 from talkingface.paths import RunPaths
-from talkingface.stages.base import write_csv
 from talkingface.stages.child_runs import log_for
 from talkingface.stages.foundation import fit_units_folder
-from talkingface.stages.grid import REAL_STEPS, child_metrics, run_grid
+from talkingface.stages.grid import REAL_STEPS, grid_rows, run_grid
 from talkingface.stages.real_speaker import copy_training_part, real_corpus, training_part
 from talkingface.stages.training import utterance_test_ids
 
@@ -174,22 +172,14 @@ def train_steps(corpus_dir: Path, out: Path, cfg, cache=None) -> list[dict]:
                        seeds=REAL_STEPS.seeds(cfg), scheduler=cfg.cluster.scheduler,
                        workers=cfg.real_steps.workers, desc="real-speaker steps",
                        log=log_for(REAL_STEPS.name), stage=REAL_STEPS.tag, cache=cache)
-    reps = []
-    for (name, k), res in results.items():
-        m = children[name].mapping
-        metrics = child_metrics(res["summary"], m.method)
-        row = {REAL_STEPS.row_key: name, "method": m.method, "gate_front_end": m.gate_front_end,
-               "recogniser": m.recogniser if m.gate_front_end == "recogniser" else "",
-               "mlp_input": m.mlp_input}
-        for split in ("utterance", "random_frames"):
-            for key in ("R", "MSE", "LVE", "closure"):
-                row[f"{split}_{key}"] = metrics.get(f"{split}.mean_test_{key}", float("nan"))
-        row["seconds"] = round(res["seconds"], 1)
-        reps.append({**row, "replicate": k, "seed": res["seed"]})
-    write_csv(out / "replicates.csv", reps)
-    rows = summarise_replicates(reps, reference=REAL_STEPS.reference_child(children),
-                                key=REAL_STEPS.row_key)
-    write_csv(out / "results.csv", rows)
+
+    def describe(name, child) -> dict:
+        m = child.mapping
+        return {"method": m.method, "gate_front_end": m.gate_front_end,
+                "recogniser": m.recogniser if m.gate_front_end == "recogniser" else "",
+                "mlp_input": m.mlp_input}
+
+    rows = grid_rows(results, children, REAL_STEPS, out, describe)
     if passes is not None:
         (out / "passes.json").write_text(json.dumps(passes.as_dict()) + "\n")
     return rows

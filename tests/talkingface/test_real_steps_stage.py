@@ -67,6 +67,10 @@ def test_the_trained_rows_and_their_sentence():
     text = trained_sentence(ROWS)
     assert "reaches R 0.432" in text and "the best step is oracle (R 0.556)" in text
     assert "adds +0.039" in text and trained_sentence(ROWS[1:]) == ""
+    assert "The true phones raise R to 0.556 in a paired test" in text
+    same = [ROWS[0], {**ROWS[1], "utterance_R": "0.4", "utterance_R_differs": "False"}]
+    assert "The true phones reach R 0.400, not higher than the run's mapping" in \
+        trained_sentence(same)
 
 
 def test_the_finding_quotes_the_tables_cells(tmp_path):
