@@ -31,7 +31,8 @@ from data_synth.generate import synthesize_corpus  # noqa: E402
 from talkingface.config import load_config  # noqa: E402
 from talkingface.executor import dask_client  # noqa: E402
 from talkingface.stages.foundation import fit_units_folder  # noqa: E402
-from talkingface.stages.grid import load_grid, run_grid  # noqa: E402
+from talkingface.stages.grid import run_grid  # noqa: E402
+from talkingface.stages.grid_files import load_grid  # noqa: E402
 
 GRID = Path(__file__).resolve().parent.parent / "configs" / "ablations.yaml"
 

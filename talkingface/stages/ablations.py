@@ -44,7 +44,7 @@ def run_ablations(grid: dict, corpus_dir: Path, units_path: Path, out_dir: Path,
     Parameters
     ----------
     grid : dict
-        ``{child: Config}`` (:func:`talkingface.stages.grid.load_grid`).
+        ``{child: Config}`` (:func:`talkingface.stages.grid_files.load_grid`).
     corpus_dir, units_path : Path
         The corpus and the ``motion_units.npz`` every child trains on.
     out_dir : Path

@@ -2,7 +2,7 @@
 
 Our test R on the utterance split is far below the paper's 0.968. This stage measures why, one
 step at a time, each a child of the grid ``ceiling.grid`` (by default ``configs/ceiling.yaml``,
-the form of the ablation grid, :func:`talkingface.stages.grid.load_grid`): the run's own
+the form of the ablation grid, :func:`talkingface.stages.grid_files.load_grid`): the run's own
 setting, then each nuisance of the corpus switched off in turn (brow motion, marker noise, head
 motion, the randomness of the expressions' onset and intensity), all of them together, and
 the oracle that reads the true phones and their timing instead of the audio

@@ -2,7 +2,8 @@
 
 Each grid stage is described once, by a :class:`GridStage` (:data:`ABLATIONS`, :data:`CEILING`,
 :data:`REAL_STEPS`, :data:`VOICES`; :data:`GRID_STAGES` by kind): the setting that names its grid
-file, how the file is read and checked, its children's MLflow tags, whether it resumes. The stage table
+file, how the file is read and checked (:mod:`talkingface.stages.grid_files`), its children's
+MLflow tags, whether it resumes. The stage table
 (:data:`talkingface.stages.STAGES`), the stages, the command line and the MLflow logging read it.
 
 A grid file (``configs/ablations.yaml``, ``configs/ceiling.yaml``, ``configs/real_steps.yaml``,
@@ -15,7 +16,7 @@ A grid file (``configs/ablations.yaml``, ``configs/ceiling.yaml``, ``configs/rea
       classes-1: {mapping.n_classes: 1}
 
 Keys are ``section.key`` as for ``--set``; an unknown key is an error naming the grid file and the
-child (:func:`load_grid`).
+child (:func:`talkingface.stages.grid_files.load_grid`).
 
 Each child is one task per seed (:func:`run_grid`), run where ``cluster.scheduler`` says
 (:mod:`talkingface.executor`). Replicate ``k`` of a child trains with the run seed plus
@@ -57,126 +58,16 @@ from data_synth.generate import synthesize_corpus
 from groundwork.atomic import swap_in
 from groundwork.errors import ParameterError
 from mapping.experiment import METHOD_COST
-from talkingface.config import apply_overrides, flatten, parse_set, read_yaml, to_dict
+from talkingface.config import flatten, to_dict
 from talkingface.executor import map_tasks
 from talkingface.stages.base import write_csv
 from talkingface.stages.child_runs import artifact_files
-from talkingface.stages.real_speaker import real_speaker_applies
+from talkingface.stages.grid_files import (load_ceiling_grid, load_grid,
+                                           load_real_steps_grid, voices_children)
 from talkingface.stages.training import train_and_evaluate
 
-_CHILD_NAME = "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_.-"
-RESERVED = ("corpora", "replicates")  # folders of a grid stage beside its children
 REPLICATE_SEED_STEP = 1000
 PARTIAL = ".partial-"  # a task's folder while it is written: <child>.partial-<attempt>
-
-
-def load_grid(path, cfg, *, what: str = "ablation grid", extra_keys: tuple = (),
-              shared_corpus: bool = True) -> dict:
-    """``{child name: resolved Config}`` from a grid file, in file order. ``extra_keys``: other
-    top-level keys the caller reads itself (the voices grid's ``model``). ``shared_corpus``: the
-    children train on the run's training corpus, so none may change the visual source or the
-    tracker (False: the caller builds each child's corpus, as the ceiling does)."""
-    path = Path(path)
-    if not path.is_file():
-        raise ParameterError(f"{what} {path} not found")
-    tree = read_yaml(path, what) or {}
-    if not isinstance(tree, dict) or not isinstance(tree.get("children"), dict) \
-            or not tree["children"]:
-        raise ParameterError(f"{path}: {what} needs a non-empty 'children' mapping "
-                             "(name → settings)")
-    unknown = set(tree) - {"base", "children", *extra_keys}
-    if unknown:
-        raise ParameterError(f"{path}: unknown top-level keys {sorted(unknown)}; allowed: "
-                             f"{', '.join(['base', 'children', *extra_keys])}")
-
-    def settings(where, d) -> dict:
-        if d is None:
-            return {}
-        if not isinstance(d, dict):
-            raise ParameterError(f"{path}: {where} must map section.key to a value, got {d!r}")
-        return parse_set([f"{k}={json.dumps(v)}" for k, v in d.items()])
-
-    base = settings("base", tree.get("base"))
-    out = {}
-    for name, d in tree["children"].items():
-        name = str(name)
-        if not name or any(ch not in _CHILD_NAME for ch in name) or name in RESERVED \
-                or ".partial" in name:
-            raise ParameterError(f"{path}: child name {name!r} may use letters, digits, '_.-' "
-                                 f"(not {', '.join(RESERVED)}, nor containing .partial)")
-        try:
-            child = apply_overrides(apply_overrides(cfg, base), settings(name, d))
-        except ParameterError as e:
-            raise ParameterError(f"{path}: child {name!r}: {e}") from None
-        if child.seed != cfg.seed:
-            raise ParameterError(f"{path}: child {name!r} sets seed {child.seed}; the children's "
-                                 "replicates are paired by seed with the reference's, so set "
-                                 "it for the whole run (--seed)")
-        if shared_corpus and (child.mapping.visual_source != cfg.mapping.visual_source
-                              or child.tracker != cfg.tracker):
-            raise ParameterError(f"{path}: child {name!r} changes the visual source or the "
-                                 "tracker; the children share the run's training corpus, so set "
-                                 "these for the whole run (--visual-source, --set tracker.…)")
-        out[name] = child
-    return out
-
-
-def load_ceiling_grid(path, cfg) -> dict:
-    """``{child: Config}`` of a ceiling grid; a child may not change the seed (:func:`load_grid`)
-    or the Motion Units' settings (every step is the run's replication with its own corpus)."""
-    children = load_grid(path, cfg, what=CEILING.what, shared_corpus=False)
-    for name, child in children.items():
-        if child.units != cfg.units:
-            raise ParameterError(f"{path}: child {name!r} changes the Motion Units' settings; "
-                                 "set these for the whole run")
-    return children
-
-
-def load_real_steps_grid(path, cfg) -> dict:
-    """``{child: Config}`` of a real-speaker steps grid: the children share the training
-    sentences' corpus and Motion Units, so none may change the seed, the visual source, the
-    tracker (:func:`load_grid`) or the Motion Units' settings."""
-    children = load_grid(path, cfg, what=REAL_STEPS.what)
-    for name, child in children.items():
-        if child.units != cfg.units:
-            raise ParameterError(f"{path}: child {name!r} changes the Motion Units' settings; "
-                                 "set these for the whole run")
-    return children
-
-
-def load_voices_grid(path, cfg) -> tuple[dict, str]:
-    """``({child: Config}, default model child)`` of a voices grid; the children may not change
-    what the run's Motion Units or faces are made from (seed, units, tracker, visual source).
-    A child that trains on the real speaker (``voices.real_face``) is left out when the run has
-    none (:func:`talkingface.stages.real_speaker.real_speaker_applies`); the default model may not be one of those then."""
-    what = VOICES.what
-    children = load_grid(path, cfg, what=what, extra_keys=("model",))
-    model = (read_yaml(path, what) or {}).get("model")
-    if model not in children:
-        raise ParameterError(f"{path}: 'model' is {model!r}; allowed: the name of a child "
-                             f"({', '.join(children)})")
-    if not real_speaker_applies(cfg):  # the children that ask for the real speaker: left out
-        if children[model].voices.real_face != "none":
-            raise ParameterError(f"{path}: 'model' {model!r} trains on the real speaker "
-                                 f"(voices.real_face: {children[model].voices.real_face}), "
-                                 "which this run has none of (real_speaker.corpus)")
-        children = {n: c for n, c in children.items() if c.voices.real_face == "none"}
-    for name, child in children.items():
-        if child.seed != cfg.seed or child.units != cfg.units:
-            raise ParameterError(f"{path}: child {name!r} changes the seed or the Motion Units; "
-                                 "the children share the run's, so set these for the whole run")
-        same_faces = replace(child.synth, voices=cfg.synth.voices,
-                             voice_weights=cfg.synth.voice_weights, workers=cfg.synth.workers)
-        if same_faces != cfg.synth:
-            raise ParameterError(f"{path}: child {name!r} changes synth settings other than "
-                                 "synth.voices and synth.voice_weights; its corpus must show "
-                                 "the run's faces saying the run's sentences")
-    return children, model
-
-
-def _voices_children(path, cfg) -> dict:
-    """The children of a voices grid (:func:`load_voices_grid` without its default model)."""
-    return load_voices_grid(path, cfg)[0]
 
 
 @dataclass(frozen=True)
@@ -295,7 +186,7 @@ REAL_STEPS = GridStage("real_steps", tag="real_steps", prefix="real_steps",
                        title="Where the real speaker's R goes: the trained steps",
                        row_key="step")
 VOICES = GridStage("voices", tag="voices", prefix="voices", what="voices grid",
-                   default=_CONFIGS / "voices.yaml", load=_voices_children,
+                   default=_CONFIGS / "voices.yaml", load=voices_children,
                    title="Voice-robust models", replicated=False)
 GRID_STAGES = {g.name: g for g in (ABLATIONS, CEILING, REAL_STEPS, VOICES)}  # kind (the grid tag) → stage
 _BY_TAG = {g.tag: g for g in GRID_STAGES.values()}

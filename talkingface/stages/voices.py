@@ -1,7 +1,7 @@
 """The voice-robust models (issue 12): the ``voices`` stage.
 
 Its grid (``voices.grid``, by default ``configs/voices.yaml``) has the form of the ablation grid
-(:func:`talkingface.stages.grid.load_grid`) plus ``model``, the child that ``animate``,
+(:func:`talkingface.stages.grid_files.load_grid`) plus ``model``, the child that ``animate``,
 ``stream`` and the study's synthetic face use by default. Every child trains the paper's mapping
 (its ``mapping.method``) on the run's Motion Units:
 
@@ -33,7 +33,7 @@ drawn by sentence with the run's seed), measured as :mod:`analysis.evaluation` m
 with the child's own Motion Units, on the expressions those have (a real face: neutral speech).
 
 The stage is described by :data:`talkingface.stages.grid.VOICES` (its grid is read by
-:func:`talkingface.stages.grid.load_voices_grid`; its children's MLflow tags are
+:func:`talkingface.stages.grid_files.load_voices_grid`; its children's MLflow tags are
 ``voices.setting``, ``voices.seed``, …).
 """
 from __future__ import annotations
@@ -57,7 +57,8 @@ from talkingface.stages.base import read_done, write_csv
 from talkingface.stages.child_runs import log_for
 from talkingface.stages.foundation import fit_units_folder
 from talkingface.stages.given_corpus import combine_corpora, link_or_copy
-from talkingface.stages.grid import VOICES, grid_corpus, load_voices_grid, run_children
+from talkingface.stages.grid import VOICES, grid_corpus, run_children
+from talkingface.stages.grid_files import load_voices_grid
 from talkingface.stages.motion import training_corpus
 from talkingface.stages.real_speaker import copy_training_part, real_corpus, real_inputs
 

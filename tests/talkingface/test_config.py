@@ -302,7 +302,7 @@ def test_a_bad_value_in_a_file_names_the_file_and_the_key(tmp_path):
 
 
 def test_the_ablation_grid_of_the_project_is_valid():
-    from talkingface.stages.grid import load_grid
+    from talkingface.stages.grid_files import load_grid
 
     assert len(load_grid(REPO / "configs" / "ablations.yaml", Config())) > 10
 

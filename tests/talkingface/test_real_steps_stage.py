@@ -13,7 +13,8 @@ from analysis.real_steps_report import TRAINED_QUESTIONS, trained_rows, trained_
 from face_model.corpus import load_corpus
 from groundwork.errors import ParameterError
 from talkingface.config import Config, load_config
-from talkingface.stages.grid import REAL_STEPS, load_real_steps_grid
+from talkingface.stages.grid import REAL_STEPS
+from talkingface.stages.grid_files import load_real_steps_grid
 from talkingface.stages.real_speaker import copy_training_part, training_part
 from tests.talkingface.full_run import real_speaker_part
 

@@ -213,7 +213,7 @@ def test_ablate_leaves_a_parent_run_with_one_child_per_setting(workdir, capsys):
 ])
 def test_bad_grids_are_refused_with_the_file_and_the_problem(workdir, capsys, grid_text,
                                                              message):
-    from talkingface.stages.grid import load_grid
+    from talkingface.stages.grid_files import load_grid
     from talkingface.config import Config
     from groundwork.errors import ParameterError
 

@@ -93,7 +93,7 @@ def test_closed_choices_are_checked_when_the_config_is_read(assignment, message)
 
 
 def test_an_ablation_child_may_not_change_the_visual_source(tmp_path):
-    from talkingface.stages.grid import load_grid
+    from talkingface.stages.grid_files import load_grid
 
     grid = tmp_path / "g.yaml"
     grid.write_text("children:\n  t: {mapping.visual_source: tracked}\n")

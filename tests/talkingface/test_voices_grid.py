@@ -5,7 +5,8 @@ import pytest
 
 from groundwork.errors import ParameterError
 from talkingface.config import Config, load_config
-from talkingface.stages.grid import VOICES, load_voices_grid
+from talkingface.stages.grid import VOICES
+from talkingface.stages.grid_files import load_voices_grid
 
 GRID = """model: {model}
 base:
