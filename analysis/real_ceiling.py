@@ -235,3 +235,27 @@ def learning_curve(features: list, targets: list, sizes, *, seed: int,
             scores.append(pearson_r(project(ys), project(_ridge(xf, yf, alpha)(xs))))
         out[n] = float(np.mean(scores))
     return out
+
+
+def curve_projection(curve: dict, n: int) -> dict:
+    """What a learning curve ``{sentences: R}`` (:func:`learning_curve`) projects for ``n``
+    sentences: the rise of R per doubling of the data, the least-squares slope of R on
+    log2(sentences), continued from the largest size measured to ``n``. A straight line in
+    log data is the optimistic reading of a curve that flattens (it never bends down).
+
+    Raises
+    ------
+    ParameterError
+        Fewer than two sizes, or ``n`` not above the largest.
+    """
+    sizes = sorted(int(k) for k in curve)
+    if len(sizes) < 2:
+        raise ParameterError(f"a projection needs R at two or more sizes, got {sizes}")
+    if n <= sizes[-1]:
+        raise ParameterError(f"project to more sentences than measured ({sizes[-1]}), got {n}")
+    x = np.log2(sizes)
+    y = np.array([float(curve[k] if k in curve else curve[str(k)]) for k in sizes])
+    slope = float(np.polyfit(x, y, 1)[0])
+    return {"per_doubling": slope, "sentences": int(n),
+            "r": float(y[-1] + slope * (np.log2(n) - x[-1]))}
+

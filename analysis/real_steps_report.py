@@ -59,9 +59,12 @@ def step_rows(steps: dict) -> list[list[str]]:
     curve = {int(k): v for k, v in steps.get("learning_curve", {}).items()}
     if len(curve) > 1:
         sizes = sorted(curve)
+        proj = steps.get("learning_projection")
+        more = (f"; {proj['per_doubling']:+.3f} per doubling, so {proj['sentences']} sentences "
+                f"would give about {_f(proj['r'])}" if proj else "")
         rows.append(["More data", "What do more training sentences buy? (the probe fitted on "
-                     + ", ".join(f"{n}: {_f(curve[n])}" for n in sizes) + " sentences)",
-                     _f(curve[sizes[-1]])])
+                     + ", ".join(f"{n}: {_f(curve[n])}" for n in sizes) + " sentences"
+                     + more + ")", _f(curve[sizes[-1]])])
     if "oracle_and_audio" in steps:
         rows.append(["Oracle phones and audio", "Both together (±6 frames)",
                      _f(steps["oracle_and_audio"])])

@@ -47,8 +47,11 @@ def show(res: dict) -> None:
     print("oracle, true phones (context: R): " + ", ".join(
         f"{k}: {v:.3f}" for k, v in res["oracle"].items())
         + f"; phones and audio: {res['oracle_and_audio']:.3f}")
+    proj = res.get("learning_projection")
     print("more data (sentences the probe is fitted on: R): " + ", ".join(
-        f"{k}: {v:.3f}" for k, v in res["learning_curve"].items()))
+        f"{k}: {v:.3f}" for k, v in res["learning_curve"].items())
+        + (f"; {proj['per_doubling']:+.3f} per doubling, {proj['sentences']} sentences: "
+           f"{proj['r']:.3f}" if proj else ""))
     print("by region (share of what Eq. 6 weighs, the probe's R on it alone): " + ", ".join(
         f"{k} {100 * v['weight']:.0f} % R {v['r']:.3f}" for k, v in res["regions"].items()))
     print(f"{'unit':>4s} {'var':>6s} {'lips':>6s} {'cheeks':>6s} {'brows':>6s} {'x':>6s} "

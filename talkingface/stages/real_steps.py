@@ -29,6 +29,8 @@ Rows (``steps.json``):
   ``oracle_and_audio`` — both (6 frames);
 * ``learning_curve`` — R of the probe (±3 frames) fitted on 25, 50, 100 sentences of one half
   (cut to the half's size; nested, seeded with the run seed) and scored on the other half;
+* ``learning_projection`` — the curve's rise per doubling of the sentences and the R it
+  projects for twice the largest size (:func:`analysis.real_ceiling.curve_projection`);
 * ``regions`` — per region of the face (lips, cheeks, forehead, the glasses the alignment
   holds still): its share of what Eq. 6 weighs (the normalised truth's variance on its
   coordinates) and the probe's R (±3 frames) on its coordinates alone;
@@ -54,8 +56,9 @@ from pathlib import Path
 import numpy as np
 
 from analysis.metrics import normalization_scale
-from analysis.real_ceiling import (best_offset, learning_curve, offset_scores, phone_onehot,
-                                   reconstruction_r, region_loadings, smoothing_floor)
+from analysis.real_ceiling import (best_offset, curve_projection, learning_curve, offset_scores,
+                                   phone_onehot, reconstruction_r, region_loadings,
+                                   smoothing_floor)
 from face_model.alignment import corpus_deformations
 from face_model.corpus import load_corpus
 from face_model.layout import REGIONS
@@ -127,6 +130,9 @@ def measure_steps(corpus_dir: Path, cfg) -> dict:
                                             [0], context=PER_UNIT_CONTEXT, project=paper)[0]
     out["learning_curve"] = learning_curve(feats, mups, LEARNING_SIZES, seed=cfg.seed,
                                            project=paper)
+    if len(out["learning_curve"]) > 1:  # what twice the probe's data would give
+        out["learning_projection"] = curve_projection(out["learning_curve"],
+                                                      2 * max(out["learning_curve"]))
     truth = np.concatenate([r / scale for r in recon])
     weight = truth.var(0)  # what each coordinate weighs in Eq. 6's trace form
     out["regions"] = {}

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from analysis.metrics import normalization_scale, pearson_r
-from analysis.real_ceiling import (best_offset, nested_subsets, offset_scores,
+from analysis.real_ceiling import (best_offset, curve_projection, nested_subsets, offset_scores,
                                    reconstruction_r, shifted, smoothing_floor, truth_r)
 from groundwork.errors import ParameterError
 
@@ -167,3 +167,15 @@ def test_the_probe_scores_through_a_projection_and_against_given_truths():
     assert same == pytest.approx(paper, abs=1e-12)
     with pytest.raises(ParameterError, match="need as many target sequences"):
         offset_scores(feats, mups, [0], truths=[mups[0]])
+
+
+def test_the_projection_continues_a_straight_line_in_log_data():
+    curve = {25: 0.30, 50: 0.32, 100: 0.34}  # +0.02 per doubling
+    proj = curve_projection(curve, 400)
+    assert proj["per_doubling"] == pytest.approx(0.02)
+    assert proj["r"] == pytest.approx(0.38) and proj["sentences"] == 400
+    assert curve_projection({"25": 0.3, "50": 0.32}, 100)["r"] == pytest.approx(0.34)
+    with pytest.raises(ParameterError, match="more sentences than measured"):
+        curve_projection(curve, 100)
+    with pytest.raises(ParameterError, match="two or more sizes"):
+        curve_projection({25: 0.3}, 50)

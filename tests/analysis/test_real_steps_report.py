@@ -16,6 +16,7 @@ STEPS = {
     "context": {"0": 0.438, "3": 0.513, "15": 0.543},
     "oracle": {"3": 0.537, "6": 0.541}, "oracle_and_audio": 0.566,
     "learning_curve": {"25": 0.47, "50": 0.49, "78": 0.501},
+    "learning_projection": {"per_doubling": 0.0194, "sentences": 156, "r": 0.5204},
     "definition": {"paper": 0.36, "markers": 0.348, "pixels": 0.5134},
     "regions": {"lips": {"weight": 0.306, "r": 0.48}, "forehead": {"weight": 0.303, "r": 0.219}},
     "units": [
@@ -40,8 +41,8 @@ def test_the_rows_are_the_stages_figures_each_with_its_question():
     assert rows["Audio–video offset"][2] == "0.514" and "+1" in rows["Audio–video offset"][1]
     assert rows["Wider audio context"][2] == "0.543" and "±15" in rows["Wider audio context"][1]
     assert rows["Oracle phones"][2] == "0.541" and rows["Oracle phones and audio"][2] == "0.566"
-    assert rows["More data"][2] == "0.501" and "25: 0.470, 50: 0.490, 78: 0.501" in \
-        rows["More data"][1]
+    assert rows["More data"][2] == "0.501" and "25: 0.470, 50: 0.490, 78: 0.501 sentences; " \
+        "+0.019 per doubling, so 156 sentences would give about 0.520" in rows["More data"][1]
     assert rows["Lips only"][2] == "0.480" and "(31 % of what Eq. 6 weighs)" in \
         rows["Lips only"][1]
     assert rows["Brows and forehead only"][2] == "0.219" and "brows and forehead'" in \
