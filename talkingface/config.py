@@ -143,7 +143,7 @@ class RealStepsConfig:
     the grid (the gate's GMMs, the recognisers, the oracle's true phones) trained and scored on
     the real speaker's training sentences only, on both splits."""
 
-    grid: str = "default"  # default: configs/real_steps.yaml of the project | none | a file
+    grid: str = "default"  # default: configs/real_steps.yaml of the project | none (off) | a file
     workers: int = integer(0, ge=0)  # processes (0: all cores)
     seeds: int = integer(3, ge=1, le=100)  # training seeds per step, as ceiling.seeds
 

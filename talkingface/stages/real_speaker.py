@@ -146,8 +146,10 @@ def real_inputs(paths, cfg) -> dict:
     check_folder(src, SETTING, also=ALSO)
     videos = real_videos(cfg)
     if videos is not None and not videos.is_dir():
-        raise CorpusError(f"real_speaker.videos {videos}: not a folder (builtin, empty for "
-                          "none, or the folder of the corpus's videos, <utt_id>.mpg …)")
+        raise CorpusError(f"real_speaker.videos {videos}: "
+                          f"{'not a folder' if videos.exists() else 'not found'} (builtin, "
+                          "empty for none, or the folder of the corpus's videos, "
+                          "<utt_id>.mpg …)")
     return {"real_corpus": hashlib.sha256((src / "manifest.csv").read_bytes()).hexdigest(),
             "scoring": SCORING_VERSION,
             "videos": {k: p.stat().st_size for k, p in video_files(videos).items()}}

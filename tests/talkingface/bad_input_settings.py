@@ -54,7 +54,7 @@ CASES: list = [
     (_replicate("--set", "real_speaker.corpus=c", "--set", "real_steps.grid=grid_unknown.yaml"),
      ["real_steps.grid", "grid_unknown.yaml"]),
     (_replicate("--set", "real_speaker.corpus=c", "--set", "real_speaker.videos=no_videos"),
-     ["real_speaker.videos", "no_videos", "not a folder"]),
+     ["real_speaker.videos", "no_videos", "not found"]),
     (_replicate("--set", "voices.grid=grid.yaml"), ["voices.grid", "grid.yaml", "'model'"]),
     (["train", "--name", "G", *RUN, "--set", "corpus.source=rs_nan_corpus"],
      ["corpus.source", "rs_nan_corpus", "NaN"]),

@@ -276,7 +276,7 @@ def test_every_setting_that_names_data_is_one_checked_before_a_run():
     """A setting whose name says it names a folder or a file is in DATA_SETTINGS, the list of
     those the stages check before any of them runs (the test below)."""
     named = {key for key, value in flatten(Config()).items() if isinstance(value, str)
-             and re.fullmatch(r"(corpus|source|grid|file|dir|folder|path)|"
+             and re.fullmatch(r"(corpus|source|grid|file|dir|folder|path|videos)|"
                               r"\w+_(corpus|grid|file|files|dir|folder|path)",
                               key.rsplit(".", 1)[-1])}
     assert named == set(DATA_SETTINGS)
