@@ -106,6 +106,9 @@ def training_speakers(corpus_dir) -> frozenset:
     :data:`data_synth.flite.VOICE`), through :func:`data_synth.backends.voice_speaker`. A given
     corpus (``corpus.json`` names its ``source``, or there is no ``corpus.json``): its
     manifest's ``speaker`` ids (lowercase), and the speakers of any ``voice`` it lists too.
+    Corpora combined into one (``corpus.json``'s ``parts``, each with its ``folder`` and its
+    own ``info``: :func:`talkingface.stages.given_corpus.combine_corpora`): the union over the
+    parts, each part's rows (their audio under its folder) by its own rule.
 
     Raises
     ------
@@ -116,8 +119,22 @@ def training_speakers(corpus_dir) -> frozenset:
     rows = read_manifest(root / "manifest.csv", (), not_found="the training corpus's manifest "
                          "is needed to tell seen from unseen speakers")
     info_file = root / "corpus.json"
-    info = json.loads(info_file.read_text(encoding="utf-8")) if info_file.is_file() else {}
-    given = not info_file.is_file() or bool(info.get("source"))
+    info = json.loads(info_file.read_text(encoding="utf-8")) if info_file.is_file() else None
+    if info and info.get("parts"):  # corpora combined: each part by its own rule
+        out = set()
+        for part in info["parts"]:
+            prefix = f"{part['folder']}/" if part.get("folder") else ""
+            out |= _speakers([r for r in rows if (r.get("audio") or "").startswith(prefix)],
+                             part.get("info"))
+        return frozenset(out)
+    return _speakers(rows, info)
+
+
+def _speakers(rows: list, info: dict | None) -> frozenset:
+    """:func:`training_speakers` of manifest ``rows`` under their corpus's ``corpus.json``
+    ``info`` (None: the corpus has none, so it is a given one)."""
+    given = info is None or bool(info.get("source"))
+    info = info or {}
     out = set()
     if given:
         out |= {(r.get("speaker") or "").strip().lower() for r in rows} - {""}

@@ -213,8 +213,10 @@ def combine_corpora(parts: list, dst: Path) -> Path:
     ``(source folder, utterance ids to keep or None for all, subfolder)``; each kept row's files
     are hard-linked (:func:`link_or_copy`) under ``dst/<subfolder>/`` (its file cells prefixed
     so; ``""``: ``dst`` itself), the rows listed in ``parts``' order under the union of their columns (empty where a
-    part has none), ``corpus.json`` says where each part came from (``parts``) and carries the
-    first part's licence, a part's ``NOTICE.md`` is kept as ``<subfolder>/NOTICE.md``. The
+    part has none), ``corpus.json`` says where each part came from (``parts``: its folder, its
+    source and its own ``corpus.json``, or None, so that a reader of speakers applies each
+    part's rule: :func:`analysis.speech_eval.training_speakers`) and carries the first part's
+    licence, a part's ``NOTICE.md`` is kept as ``<subfolder>/NOTICE.md``. The
     manifest is written last, so a folder with one is complete (a resumed build keeps it).
 
     Raises
@@ -243,10 +245,10 @@ def combine_corpora(parts: list, dst: Path) -> Path:
                     row[column] = f"{sub}/{cell}" if sub else cell
         rows += part
         src_info = json.loads((src / INFO).read_text(encoding="utf-8")) \
-            if (src / INFO).is_file() else {}
+            if (src / INFO).is_file() else None
         info["parts"].append({"folder": sub, "source": str(src.resolve()),
-                              "utterances": len(part), "licence": src_info.get("licence", "")})
-        info.setdefault("licence", src_info.get("licence", ""))
+                              "utterances": len(part), "info": src_info})
+        info.setdefault("licence", (src_info or {}).get("licence", ""))
         if (src / "NOTICE.md").is_file():
             link_or_copy(src / "NOTICE.md", dst / sub / "NOTICE.md")
     (dst / INFO).write_text(json.dumps(info, indent=1) + "\n", encoding="utf-8")

@@ -188,6 +188,7 @@ def _check_voices_and_real_speech(run, table_rows, text):
     assert voices["real"]["real_face"] == "alone"
     seen = {r["model"]: int(r["files"]) for r in scores if r["split"] == "seen"}
     assert seen["voices-many"] == 1 and seen["voices-one"] == 0
+    assert seen["voices-real"] >= 1  # the real speaker's own recordings are not unseen
     assert any(m.startswith("pocketsphinx") for m in models)
     assert any(m.startswith("hama") for m in models)
     # the test part apart by where its labels came from, and the front ends' look-ahead curve

@@ -257,6 +257,12 @@ def test_two_corpora_combined_keep_every_row_and_file(tmp_path, neutral_corpus_d
         assert (a.markers == b.markers).all() and (a.audio == b.audio).all()
         assert a.phones == b.phones and a.speaker == b.speaker
     assert (both / "real" / "NOTICE.md").is_file()
+    # the speakers a model trained on it has heard: each part by its own rule, so the real
+    # speaker's recordings in the speech set count as seen
+    from analysis.speech_eval import training_speakers
+
+    assert training_speakers(both) == training_speakers(neutral_corpus_dir) | {"grid-s1"}
+    assert "grid-s1" not in training_speakers(neutral_corpus_dir)
     assert [p["folder"] for p in combined.info["parts"]] == ["synthetic", "real"]
     with pytest.raises(CorpusError, match=r"utterance '.+' is in two of the corpora"):
         combine_corpora([(real, None, "a"), (real, None, "b")], tmp_path / "twice")

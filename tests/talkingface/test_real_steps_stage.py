@@ -32,6 +32,9 @@ def test_the_copy_holds_exactly_the_training_sentences(tmp_path):
         assert (a.markers == b.markers).all() and (a.audio == b.audio).all()
     held = {u.text for u in whole.utterances} - {u.text for u in copied.utterances}
     assert held and not held & {u.text for u in copied.utterances}
+    from analysis.speech_eval import training_speakers
+
+    assert training_speakers(dst) == training_speakers(src) == {"grid-s1"}  # a seen speaker
     stamp = (dst / "manifest.csv").stat().st_mtime_ns
     assert copy_training_part(src, dst, cfg) == dst  # a finished copy is kept as it is
     assert (dst / "manifest.csv").stat().st_mtime_ns == stamp
