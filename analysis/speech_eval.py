@@ -120,19 +120,22 @@ def training_speakers(corpus_dir) -> frozenset:
                          "is needed to tell seen from unseen speakers")
     info_file = root / "corpus.json"
     info = json.loads(info_file.read_text(encoding="utf-8")) if info_file.is_file() else None
-    if info and info.get("parts"):  # corpora combined: each part by its own rule
-        out = set()
-        for part in info["parts"]:
-            prefix = f"{part['folder']}/" if part.get("folder") else ""
-            out |= _speakers([r for r in rows if (r.get("audio") or "").startswith(prefix)],
-                             part.get("info"))
-        return frozenset(out)
     return _speakers(rows, info)
 
 
 def _speakers(rows: list, info: dict | None) -> frozenset:
     """:func:`training_speakers` of manifest ``rows`` under their corpus's ``corpus.json``
-    ``info`` (None: the corpus has none, so it is a given one)."""
+    ``info`` (None: the corpus has none, so it is a given one); corpora combined (``parts``),
+    each part's rows — their audio under its folder, the folder taken off — by its own
+    ``info``, which may itself be combined."""
+    if info and info.get("parts"):
+        out = set()
+        for part in info["parts"]:
+            prefix = f"{part['folder']}/" if part.get("folder") else ""
+            mine = [{**r, "audio": (r.get("audio") or "")[len(prefix):]} for r in rows
+                    if (r.get("audio") or "").startswith(prefix)]
+            out |= _speakers(mine, part.get("info"))
+        return frozenset(out)
     given = info is None or bool(info.get("source"))
     info = info or {}
     out = set()

@@ -263,6 +263,13 @@ def test_two_corpora_combined_keep_every_row_and_file(tmp_path, neutral_corpus_d
 
     assert training_speakers(both) == training_speakers(neutral_corpus_dir) | {"grid-s1"}
     assert "grid-s1" not in training_speakers(neutral_corpus_dir)
+    # a combined corpus made of a combined one (the voices stage's copy of the training
+    # sentences, beside the drawn faces) is read part by part down to the sources
+    copy = combine_corpora([(real, None, "")], tmp_path / "copy")
+    nested = combine_corpora([(neutral_corpus_dir, None, "synthetic"), (copy, None, "real")],
+                             tmp_path / "nested")
+    assert training_speakers(copy) == {"grid-s1"}
+    assert training_speakers(nested) == training_speakers(both)
     assert [p["folder"] for p in combined.info["parts"]] == ["synthetic", "real"]
     with pytest.raises(CorpusError, match=r"utterance '.+' is in two of the corpora"):
         combine_corpora([(real, None, "a"), (real, None, "b")], tmp_path / "twice")
