@@ -11,7 +11,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
+from face_model.corpus import FPS
 from groundwork.settings import check_fields, fraction, integer, number
+from mapping.config import MappingConfig
+
+# The paper's look-ahead window (its context, 3 frames after the current one at 30 fps: 100 ms)
+# plus one frame (33.3 ms): the bound on the live latency of a default model, in ms. Computed
+# from the paper's values (MappingConfig's default context_forward, the corpus's FPS), not typed.
+PAPER_STREAM_LATENCY_MS = 1000.0 * (MappingConfig().context_forward + 1) / FPS
 
 
 @dataclass(frozen=True)
@@ -37,6 +44,10 @@ class TargetsConfig:
     rate_tolerance: float = number(0.02, ge=0, le=1)
     # streaming front end: per-frame compute, 99th percentile (bench/bench_streaming.py)
     frame_cost_p99_ms: float = number(3.0, gt=0, le=1000)
+    # the development rule: a model whose measured latency in `talkingface stream` (a recording
+    # paced in real time; talkingface.stages.latency), 99th percentile, exceeds this cannot be
+    # the default, whatever its accuracy; default: the paper's window plus one frame
+    stream_latency_p99_ms: float = number(PAPER_STREAM_LATENCY_MS, gt=0, le=10000)
 
     def __post_init__(self):
         check_fields(self)
@@ -74,4 +85,7 @@ TARGET_TEXT = {
                      "at least",
     "rate_tolerance": "a score at 16 kHz input within this of its score at 22.05 kHz",
     "frame_cost_p99_ms": "streaming front end: per-frame compute p99, ms, at most",
+    "stream_latency_p99_ms": "live latency of the default model (`talkingface stream`, paced "
+                             "in real time), p99, ms, at most: the paper's window plus one "
+                             "frame",
 }

@@ -29,7 +29,7 @@ from scipy import stats
 
 from analysis.figures import report_figure
 from analysis.replicates import paired_tests, summarise_replicates
-from analysis.speech_report import dev_choice
+from analysis.dev_rule import dev_choice
 
 VERDICTS = ("reference", "better", "worse", "no difference", "not tested")
 # The columns of a summary row, in order.
@@ -326,7 +326,7 @@ VOICE_FIGURES = (("viseme_acc", "viseme acc"), ("viseme_acc_stream_100ms", "vise
 def voices_summary(voices: list[dict], speech: list[dict]) -> list[dict]:
     """One row per voice-robust model (``voices``: the voices stage's results.csv rows): its
     in-domain R (Table II's footing), its development score under the rule that picks the
-    default (:func:`analysis.speech_report.dev_choice`) and its figures on the unseen test
+    default (:func:`analysis.dev_rule.dev_choice`) and its figures on the unseen test
     speakers (``speech``: speech_eval's results.csv rows). One seed per model: no intervals."""
     _, scores = dev_choice(speech)
     test = {r["model"]: r for r in speech if r["split"] == "unseen-test"}

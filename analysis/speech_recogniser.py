@@ -40,14 +40,17 @@ from face_model.phones import PHONE_INDEX
 from groundwork.audio import resample
 from groundwork.cache import content_key
 from groundwork.errors import ParameterError
-from mapping import hama_front
-from mapping.recogniser import (RECOGNISER_FPS as FRAMES_PER_S, RECOGNISER_NAME,
+from mapping import causal_front, hama_front
+from mapping.recogniser import (RECOGNISER_FPS as FRAMES_PER_S,
                                 RECOGNISER_RATE as SAMPLE_RATE, audio_digest, heard_entry,
-                                new_decoder, phone_index, to_pcm16)
+                                new_decoder, phone_index, recogniser_name, recogniser_speakers,
+                                split_recogniser, to_pcm16)
 
 LOOKAHEAD_FRAMES = (0, 1, 2, 3, 4, 5, 6)  # the look-ahead curve, video frames (0–200 ms)
 LABELS = ("independent", "aligned")  # the test part by where its labels came from
-NAMES = {"pocketsphinx": RECOGNISER_NAME, "hama": hama_front.RECOGNISER_NAME}
+# the recognisers scored by default: pocketsphinx, hama and the shipped causal front end (a run
+# scores its own front end's model file instead: "causal:<file>", mapping.recogniser)
+RECOGNISERS = ("pocketsphinx", "hama", "causal")
 
 
 class PhoneRecogniser:
@@ -125,11 +128,12 @@ class PhoneRecogniser:
 
 def recognised(recogniser: str, y: np.ndarray, sr: int, fps: int = 30) -> tuple:
     """``(whole-utterance phones, {look-ahead frames: streaming phones})`` of one recording by
-    ``recogniser`` (pocketsphinx | hama), per video frame; audio at another rate than 16 kHz is
-    resampled to it first (as each front end does live). Read from (and written to) the cache
-    of :func:`mapping.recogniser.hearing_cache` when one is set (:func:`recognised_key`)."""
-    if recogniser not in NAMES:
-        raise ParameterError(f"unknown recogniser {recogniser!r}; allowed: {', '.join(NAMES)}")
+    ``recogniser`` (pocketsphinx | hama | causal[:<model file>]), per video frame; audio at
+    another rate than 16 kHz is resampled to it first (as each front end does live). The causal
+    front end has no whole-utterance reading of its own: its "whole" is its stream at its
+    largest look-ahead. Read from (and written to) the cache of
+    :func:`mapping.recogniser.hearing_cache` when one is set (:func:`recognised_key`)."""
+    split_recogniser(recogniser)  # an unknown one is refused in one line
     job = Recognised(recogniser, np.asarray(y, np.float32), int(sr), int(fps))
     arrays = heard_entry(job.key(), job.compute, job.names)
     return arrays["whole"], {k: arrays[f"stream_{k}"] for k in LOOKAHEAD_FRAMES}
@@ -139,10 +143,14 @@ def _recognised_now(recogniser: str, y: np.ndarray, sr: int, fps: int) -> tuple:
     if sr != SAMPLE_RATE:
         y, sr = resample(np.asarray(y, np.float32), sr_in=int(sr), sr_out=SAMPLE_RATE), \
             SAMPLE_RATE
-    if recogniser == "pocketsphinx":
+    kind, model = split_recogniser(recogniser)
+    if kind == "pocketsphinx":
         rec = PhoneRecogniser(fps)
         streams = rec.streaming_delays(y, sr, [k / fps for k in LOOKAHEAD_FRAMES])
         return rec.whole(y, sr), dict(zip(LOOKAHEAD_FRAMES, streams))
+    if kind == "causal":
+        streams = causal_front.labels_at_delays(y, sr, fps, LOOKAHEAD_FRAMES, model=model)
+        return streams[LOOKAHEAD_FRAMES[-1]], streams
     n = int(np.ceil(len(y) * fps / sr))
     return (hama_front.whole_utterance(y, n, fps),
             hama_front.labels_at_delays(y, sr, fps, LOOKAHEAD_FRAMES))
@@ -172,7 +180,7 @@ class Recognised:
         """The SHA-256 of the audio (:func:`mapping.recogniser.audio_digest`), the
         recogniser's name and version, ``fps``, the look-aheads and
         :data:`RECOGNISED_VERSION`."""
-        return content_key("recognised", RECOGNISED_VERSION, NAMES[self.recogniser],
+        return content_key("recognised", RECOGNISED_VERSION, recogniser_name(self.recogniser),
                            audio_digest(self.y, self.sr),
                            {"fps": self.fps, "lookahead_frames": list(LOOKAHEAD_FRAMES)})
 
@@ -182,7 +190,7 @@ class Recognised:
                 **{f"stream_{k}": np.asarray(streams[k]) for k in LOOKAHEAD_FRAMES}}
 
 
-def recogniser_jobs(items, *, recognisers=tuple(NAMES), rates=("native",),
+def recogniser_jobs(items, *, recognisers=RECOGNISERS, rates=("native",),
                     fps: int = 30) -> list[Recognised]:
     """The :class:`Recognised` jobs :func:`recogniser_scores` hears (each recogniser, rate
     and recording), for :func:`mapping.hearing.hear_all`."""
@@ -196,7 +204,7 @@ def recogniser_jobs(items, *, recognisers=tuple(NAMES), rates=("native",),
 
 
 def recogniser_scores(items, seen=frozenset(), *, delay_s: float = 0.1, fps: int = 30,
-                      recognisers=tuple(NAMES), rates=("native",), summary: bool = True,
+                      recognisers=RECOGNISERS, rates=("native",), summary: bool = True,
                       progress: bool = True) -> tuple[list, list, list]:
     """``(per-file rows, pooled rows, look-ahead rows)`` of each recogniser on the recordings
     ``items`` (``analysis.speech_set``) at each input rate of ``rates``
@@ -217,13 +225,12 @@ def recogniser_scores(items, seen=frozenset(), *, delay_s: float = 0.1, fps: int
                              f"{[round(k / fps, 3) for k in LOOKAHEAD_FRAMES]} s")
     files, curve_hits = [], {}
     for recogniser in recognisers:
-        if recogniser not in NAMES:
-            raise ParameterError(f"unknown recogniser {recogniser!r}; allowed: "
-                                 f"{', '.join(NAMES)}")
+        split_recogniser(recogniser)  # an unknown one is refused before any work
     with tqdm(total=len(recognisers) * len(rates) * len(items), desc="recognisers",
               unit="recording", file=sys.stderr, disable=not progress) as bar:
         for recogniser in recognisers:
-            name = NAMES[recogniser]
+            name = recogniser_name(recogniser)
+            own = seen | recogniser_speakers(recogniser)  # its own training speakers too
             bar.set_postfix_str(recogniser, refresh=False)
             for rate in rates:
                 for it in items:
@@ -240,7 +247,7 @@ def recogniser_scores(items, seen=frozenset(), *, delay_s: float = 0.1, fps: int
                             **{k: vtrue == viseme_index(s) for k, s in streams.items()}}
                     chance = chance_scores(true, fps, it.phones, visemes=vis)
                     row = {"model": name, "id": it.id, "speaker": it.speaker,
-                           "split": "seen" if it.speaker in seen else "unseen", "part": it.part,
+                           "split": "seen" if it.speaker in own else "unseen", "part": it.part,
                            "labels": LABELS[0] if it.independent else LABELS[1],
                            "input_rate": str(rate), "rate_note": note,
                            "seconds": round(len(y) / sr, 3), "frames": n,

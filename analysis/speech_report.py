@@ -14,59 +14,16 @@ from pathlib import Path
 
 from analysis.config import TargetsConfig
 from analysis.speaker_bootstrap import N_BOOT, SEED, speaker_interval
+from analysis.dev_rule import (LATENCY_FILE, dev_choice, excluded_by_latency, latency_p99,
+                               read_latency)
 from analysis.speech_pooling import SPLITS as KEEP
 
-# The rule that picks the default voice-robust model on the development speakers (never on the
-# test speakers): the highest mean of these figures over the unseen development recordings.
-DEV_RULE = ("viseme_acc", "bilabial_closed_frac", "labiodental_contact_frac", "r_reference")
 SPLITS = (("unseen-test", "unseen speakers, test part"),
           ("unseen-test-independent", "unseen speakers, test part, labels independent of both "
                                       "recognisers"),
           ("unseen-dev", "unseen speakers, development part"),
           ("seen", "speakers the model was trained on (seen)"))
-RECOGNISERS = ("pocketsphinx", "hama")  # the recogniser rows' model names start so
-
-
-def _dev_rows(results: list[dict], prefix: str) -> dict:
-    """``{model: {figure: value}}`` of :data:`DEV_RULE` on the native-rate ``unseen-dev`` rows of
-    the models named ``prefix``* (NaN where a figure is missing)."""
-    out = {}
-    for r in results:
-        if r["split"] != "unseen-dev" or not r["model"].startswith(prefix) or \
-                str(r.get("input_rate") or "native") != "native":
-            continue
-        vals = {}
-        for k in DEV_RULE:
-            try:
-                vals[k] = float(r[k])
-            except (KeyError, TypeError, ValueError):
-                vals[k] = float("nan")
-        out[r["model"]] = vals
-    return out
-
-
-def dev_rule_figures(results: list[dict], prefix: str = "voices-") -> tuple[str, ...]:
-    """The figures of :data:`DEV_RULE` the development part measures: a figure it measures for
-    no candidate (the digits of the development speakers hold no /p b m/, so no closure can be
-    scored) is left out of the rule for all of them alike."""
-    rows = _dev_rows(results, prefix)
-    return tuple(k for k in DEV_RULE if any(math.isfinite(v[k]) for v in rows.values()))
-
-
-def dev_choice(results: list[dict], prefix: str = "voices-") -> tuple[str | None, dict]:
-    """``(model, {model: score})``: among the models named ``prefix``*, the one with the highest
-    mean of :func:`dev_rule_figures` (the figures of :data:`DEV_RULE` the development part
-    measures) on the ``unseen-dev`` rows of ``results`` (speech_eval's results.csv rows); a
-    model missing one of those figures gets no score; an exact tie goes to the later name; None
-    when no such model has development figures."""
-    rows = _dev_rows(results, prefix)
-    used = dev_rule_figures(results, prefix)
-    if not used:
-        return None, {}
-    scores = {m: sum(v[k] for k in used) / len(used) for m, v in rows.items()
-              if all(math.isfinite(v[k]) for k in used)}
-    best = max(scores, key=lambda m: (scores[m], m)) if scores else None
-    return best, scores
+RECOGNISERS = ("pocketsphinx", "hama", "causal")  # the recogniser rows' model names start so
 
 
 def _rows(path: Path) -> list[dict]:
@@ -224,15 +181,7 @@ def speech_section(rep, speech_dir: Path, voices_rows: list, *, table_ii_R: floa
            f"animate`, `stream` and the study use by default." if robust else
            "This run trained no voice-robust models, so `animate` and `stream` use the "
            "single-voice mapping."))
-    best, scores = dev_choice(results)
-    if best is not None:
-        rep.paragraph(
-            "The development rule, computed on the development part only (unseen speakers, "
-            "independent labels; a configuration may be chosen there, never on the test part): "
-            "the highest mean of viseme accuracy, /p b m/ closure, /f v/ contact and r picks "
-            f"<b>{best}</b> ({scores[best]:.3f}); the run's default is <b>{robust}</b>"
-            + (" (the same)." if best == robust else
-               f" ({scores.get(robust, float('nan')):.3f}), set in configs/voices.yaml."))
+    _dev_rule(rep, results, speech_dir, robust, targets)
     for split, title in SPLITS:
         rows = [r for r in results if r["split"] == split and r.get("files") not in ("", "0")]
         if not rows:
@@ -272,6 +221,69 @@ def speech_section(rep, speech_dir: Path, voices_rows: list, *, table_ii_R: floa
             rep.figure(fig, f"Predicted lip opening of {model} on a real sentence, against the "
                             "reference drawn from its phone labels; /p b m/ and /f v/ shaded.",
                        key=k)
+
+
+def _dev_rule(rep, results: list, speech_dir: Path, robust: str | None,
+              targets: TargetsConfig) -> None:
+    """The development rule's pick beside the run's default, and the bound on live latency it
+    applies (``targets.stream_latency_p99_ms``) with each candidate's measured latency
+    (``latency.json``; absent: said not measured, and the bound not applied)."""
+    latency, bound = read_latency(speech_dir), targets.stream_latency_p99_ms
+    p99 = latency_p99(latency)
+    best, scores = dev_choice(results, latency=p99, bound_ms=bound)
+    if not scores:
+        return
+    out = excluded_by_latency(results, p99, bound)
+    bound_text = (f"{bound:.1f} ms (targets.stream_latency_p99_ms; the paper's window plus one "
+                  "frame)")
+    if latency is None:
+        lat = (f"The live latency of the candidates was not measured (no {LATENCY_FILE}), so "
+               f"the bound on it, {bound_text}, was not applied. ")
+    else:
+        lat = ("A model whose measured live latency (99th percentile) exceeds "
+               f"{bound_text}, or whose latency was not measured, cannot be the pick, whatever "
+               "its score; the bound excluded "
+               + (", ".join(f"<b>{m}</b>" for m in sorted(out)) if out else "none")
+               + " ({label:speech_latency}). ")
+    pick = (f"<b>{best}</b> ({scores[best]:.3f})" if best is not None else
+            "none (the bound excluded every model with a score)")
+    same = best is not None and best == robust
+    rep.paragraph(
+        "The development rule, computed on the development part only (unseen speakers, "
+        "independent labels; a configuration may be chosen there, never on the test part): "
+        "the highest mean of viseme accuracy, /p b m/ closure, /f v/ contact and r picks "
+        f"{pick}. " + lat + f"The run's default is <b>{robust}</b>"
+        + (" (the same)." if same else
+           f" ({scores.get(robust, float('nan')):.3f}"
+           + (", over the latency bound" if robust in out else "")
+           + "), set in configs/voices.yaml."))
+    if latency is not None:
+        _latency_table(rep, latency, scores, out, bound)
+
+
+def _latency_table(rep, latency: dict, scores: dict, out: dict, bound: float) -> None:
+    """Each candidate's and each measured model's live latency, and the bound's verdict."""
+    measured = latency.get("models") or {}
+    body = []
+    for m in dict.fromkeys([*sorted(scores), *measured]):
+        v = measured.get(m, {})
+        verdict = ("not a candidate" if m not in scores else
+                   ("excluded: not measured" if out[m] is None else "excluded") if m in out
+                   else "within")
+        body.append([m, _num(scores.get(m), 3), _num(v.get("latency_p50_ms"), 0),
+                     _num(v.get("latency_p99_ms"), 0), _num(v.get("compute_p99_ms"), 1),
+                     _num(v.get("algorithmic_latency_ms"), 1), verdict])
+    rep.table(f"Live latency of each model in `talkingface stream`, and the bound of "
+              f"{bound:.1f} ms on its 99th percentile",
+              ["model", "development score", "latency p50, ms", "latency p99, ms",
+               "compute p99, ms", "look-ahead + window, ms", "bound"], body,
+              note=f"{latency.get('recording', '?')} ({_num(latency.get('seconds'), 1)} s) "
+                   f"streamed in chunks of {1000 * float(latency.get('chunk_s') or 0):g} ms, "
+                   "paced in real time, one model after the other "
+                   "(talkingface/stages/latency.py); latency of a frame: the wall-clock time "
+                   "it was emitted minus the time its instant was captured (look-ahead, "
+                   "buffering and compute); –: not measured, or not paced.",
+              key="speech_latency")
 
 
 def _stream_text(info: dict, default: str) -> str:

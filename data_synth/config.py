@@ -16,7 +16,7 @@ from groundwork.settings import (SettingError, check_fields, choice, integer, nu
 
 
 @dataclass(frozen=True)
-class _Voices:
+class VoicesRule:
     """A list of distinct strings (each an ``"engine:voice"``, checked by ``__post_init__``)."""
 
     def accepts(self, v) -> bool:
@@ -57,7 +57,7 @@ class SynthConfig:
     # Voices drawn per utterance, "engine:voice" (data_synth.backends). Empty: `backend`,
     # `voice` and the per-speaker espeak variants (the paper's single-speaker design); else
     # those three are not used, and rate and pitch reach each engine through its own controls.
-    voices: tuple = field(default=(), metadata={"rule": _Voices()})
+    voices: tuple = field(default=(), metadata={"rule": VoicesRule()})
     voice_weights: tuple = field(default=(), metadata={"rule": _Weights()})  # empty: equal
     # speech (pitch and its range on espeak's 0–100 scale)
     voice: str = "en-us+m3"

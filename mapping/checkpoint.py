@@ -17,6 +17,10 @@ gives a defined face. The expression MUPs are kept.
 The file (``.tfmap``, kind ``audio_mapping``, version :data:`VERSION`) is data, never code: a
 :mod:`groundwork.modelfile` holding the method's arrays (``mapper/...``, from the method's
 ``to_arrays``, see :mod:`mapping.state`) and a JSON metadata record, with a SHA-256 of both.
+A mapping whose recogniser is a causal front end of its own model file (``causal:<file>``,
+:mod:`mapping.causal_front`) keeps a copy of that file beside it (:func:`front_file`) and the
+front end's checksummed name in its record; loading finds it there and refuses another.
+
 Loading reads numbers and JSON only; it refuses a truncated or damaged file, a member holding
 Python objects, a checksum mismatch and the pickled models of formats /1 and /2 (never
 unpickled), naming the file. Files of format /3 (the record under ``header``) still load.
@@ -24,6 +28,8 @@ unpickled), naming the file. Files of format /3 (the record under ``header``) st
 from __future__ import annotations
 
 import json
+import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -35,7 +41,7 @@ from mapping.baselines import BASELINES, Baseline
 from mapping.features import audio_features, check_align, frame_rms_dbfs
 from mapping.filterbank import check_mel_fmax
 from mapping.gated_mlp import GatedMLP
-from mapping.recogniser import fit_length, recognise_windows
+from mapping.recogniser import fit_length, recognise_windows, recogniser_name, split_recogniser
 from mapping.state import ArrayGroup
 
 # Versions of the file (formats /1–/3 named themselves "talkingface.mapping/<n>"):
@@ -227,6 +233,7 @@ class AudioMapping:
                   "method_params": params}
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
+        _keep_front(path, params, record)
         return modelfile.write_model(path, arrays, record, kind=KIND, version=VERSION,
                                      default=_json_default)
 
@@ -254,6 +261,7 @@ class AudioMapping:
                                  f"{GatedMLP.name}, {', '.join(BASELINES)}")
         group = ArrayGroup({n[len(MAPPER) + 1:]: a for n, a in arrays.items()})
         try:
+            _find_front(path, record)
             mapper = estimator.from_arrays(group, record["method_params"])
             if mapper.name != method:
                 raise ParameterError(f"the metadata names method {method!r} but its parameters "
@@ -277,6 +285,46 @@ class AudioMapping:
             raise ParameterError(f"{path}: malformed {WHAT} record ({type(e).__name__}: "
                                  f"{e})") from e
         return model
+
+
+def front_file(path) -> Path:
+    """Where the causal front end's model file of the mapping ``path`` is kept: beside it,
+    ``<stem>.front.npz``."""
+    path = Path(path)
+    return path.with_name(f"{path.stem}.front.npz")
+
+
+def _keep_front(path: Path, params: dict, record: dict) -> None:
+    """A mapping whose recogniser is a causal front end of its own model file
+    (``causal:<file>``) keeps a copy of that file beside it (:func:`front_file`), named in
+    ``params`` by its file name, with its checksum in ``record`` (``front_name``)."""
+    kind, model = split_recogniser(params.get("recogniser", "pocketsphinx"))
+    if kind != "causal" or model is None:
+        return
+    record["front_name"] = recogniser_name(params["recogniser"])
+    target = front_file(path)
+    if Path(model).resolve() != target.resolve():
+        tmp = target.with_name(target.name + ".tmp")
+        shutil.copyfile(model, tmp)
+        os.replace(tmp, target)
+    params["recogniser"] = f"causal:{target.name}"
+
+
+def _find_front(path: Path, record: dict) -> None:
+    """The inverse of :func:`_keep_front`: the recogniser ``causal:<file name>`` read back as
+    the file beside ``path``, checked to be the front end the mapping was trained with."""
+    params = record.get("method_params") or {}
+    recogniser = params.get("recogniser") if isinstance(params, dict) else None
+    if not isinstance(recogniser, str) or not recogniser.startswith("causal:"):
+        return
+    kept = path.parent / Path(recogniser.partition(":")[2]).name
+    if not kept.is_file():
+        raise ParameterError(f"its causal front end {kept} is missing (it is kept beside the "
+                             "mapping)")
+    params["recogniser"] = f"causal:{kept.resolve()}"
+    if recogniser_name(params["recogniser"]) != record.get("front_name"):
+        raise ParameterError(f"its causal front end {kept} is not the one it was trained with "
+                             f"({record.get('front_name')!r})")
 
 
 def _json_default(obj):

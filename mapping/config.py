@@ -19,8 +19,10 @@ are unchanged:
   labels — an oracle for the ceiling of any audio model on the corpus, which cannot animate
   audio;
 * ``recogniser`` — with the recogniser gate, which recogniser hears the phones: "pocketsphinx"
-  (its en-US allphone decoder) or "hama" (a multilingual CTC phoneme model; issue 29,
-  :mod:`mapping.hama_front`), one interface (:func:`mapping.recogniser.phone_stream`);
+  (its en-US allphone decoder), "hama" (a multilingual CTC phoneme model; issue 29,
+  :mod:`mapping.hama_front`) or "causal" (our small causal front end taught by hama; issue 40,
+  :mod:`mapping.causal_front`, its model file ``front_model``), one interface
+  (:func:`mapping.recogniser.phone_stream`);
 * ``mlp_input`` — what the MLP bank reads: "mfcc", the paper's MFCC context, or "phones", the
   recogniser's window of phones around the frame (one-hot; the phone-posterior front end, the
   route Rhubarb Lip Sync takes), which needs the recogniser gate;
@@ -61,8 +63,36 @@ GATE_FRONT_END_NAMES = ("mfcc", "recogniser", "labels")  # mapping.gated_mlp.GAT
 MLP_INPUT_NAMES = ("mfcc", "phones")  # mapping.gated_mlp.MLP_INPUTS
 WINDOW_ALIGN_NAMES = ("centre", "right")  # mapping.features.WINDOW_ALIGNS
 PHONE_TRAINING_NAMES = ("recognised", "labels")  # mapping.gated_mlp.PHONE_TRAINING
-RECOGNISER_NAMES = ("pocketsphinx", "hama")  # mapping.recogniser.RECOGNISERS
+RECOGNISER_NAMES = ("pocketsphinx", "hama", "causal")  # mapping.recogniser.RECOGNISERS
 MEL_FMAX_HZ = 4000.0  # the pick of tools/choose_feature_band.py (its --check keeps them equal)
+
+
+FRONT_MAX_LOOKAHEAD_MS = 100  # mapping.front_net.MAX_LOOKAHEAD_MS (a test keeps them equal)
+
+
+@dataclass(frozen=True)
+class FrontSettings:
+    """The causal front end's network and training (config section ``front_end.train``;
+    :mod:`mapping.front_training`; a refused value names its key)."""
+
+    hidden: int = integer(128, ge=1)  # GRU and convolution width H
+    n_mels: int = integer(40, ge=1, le=128)  # mel bands
+    lookahead_ms: int = 100  # the longest head: a multiple of 10 from 0 to 100
+    mel_fmax_hz: float = number(8000.0, ge=1000.0, le=8000.0)  # the filterbank's upper edge
+    epochs: int = integer(8, ge=1)  # at most
+    batch: int = integer(32, ge=1)  # segments per minibatch
+    learning_rate: float = number(1e-3, gt=0)
+    label_weight: float = number(0.5, ge=0)  # weight of the true-label cross-entropy
+    segment_s: float = number(4.0, gt=0)  # seconds per training segment
+    holdout_fraction: float = number(0.1, ge=0, lt=1)  # training utterances held out
+    patience: int = integer(3, ge=0)  # epochs without a better held-out loss (0: no stop)
+
+    def __post_init__(self):
+        check_fields(self)
+        v = self.lookahead_ms
+        require(self, "lookahead_ms", not isinstance(v, bool) and isinstance(v, int)
+                and 0 <= v <= FRONT_MAX_LOOKAHEAD_MS and v % 10 == 0,
+                f"a multiple of 10 from 0 to {FRONT_MAX_LOOKAHEAD_MS} (ms)")
 
 
 @dataclass(frozen=True)
@@ -154,8 +184,12 @@ class MappingConfig:
     # of a recogniser trained on real speech ("recogniser", mapping.recogniser)
     gate_front_end: str = choice(*GATE_FRONT_END_NAMES)
     # with the recogniser gate, which recogniser: pocketsphinx's en-US allphone decoder, or
-    # hama's multilingual CTC phoneme model (issue 29; mapping.hama_front)
+    # hama's multilingual CTC phoneme model (issue 29; mapping.hama_front), or our own causal
+    # front end taught by hama (issue 40; mapping.causal_front)
     recogniser: str = choice(*RECOGNISER_NAMES)
+    # with recogniser "causal": its model file (empty: the run's front_end stage's model in a
+    # run, the shipped file mapping/models/causal_front.npz elsewhere)
+    front_model: str = ""
     # what the MLPs read: the MFCC context (the paper) or the recogniser's window of phones
     mlp_input: str = choice(*MLP_INPUT_NAMES)
     # with the recogniser gate, what training reads: the phones the recogniser heard in the
@@ -188,3 +222,8 @@ class MappingConfig:
         require(self, "mlp_input", self.mlp_input == "mfcc" or self.gate_front_end != "mfcc",
                 "'mfcc' unless gate_front_end is 'recogniser' (the phones are the recogniser's)",
                 ("gate_front_end",))
+        require(self, "front_model", not self.front_model or (
+            self.recogniser == "causal" and self.front_model.strip() == self.front_model
+            and self.front_model.isprintable()),
+            "empty, or with recogniser 'causal' the path of a front-end model file (without "
+            "leading or trailing spaces or control characters)", ("recogniser",))

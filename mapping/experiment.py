@@ -49,8 +49,8 @@ def make_mapper(method: str, mcfg: MappingConfig, *, n_utterance: int = 7,
                         cascade_hidden=mcfg.cascade_hidden, cmvn=mcfg.cmvn,
                         cmvn_warmup_frames=mcfg.cmvn_warmup_frames,
                         gate_front_end=mcfg.gate_front_end, mlp_input=mcfg.mlp_input,
-                        phone_training=mcfg.phone_training, recogniser=mcfg.recogniser,
-                        train=mcfg.train,
+                        phone_training=mcfg.phone_training,
+                        recogniser=recogniser_spec(mcfg), train=mcfg.train,
                         random_state=random_state)
     if method in BASELINES:
         return Baseline(method, context_back=mcfg.context_back,
@@ -110,7 +110,15 @@ def recognise_context(mcfg: MappingConfig) -> tuple | None:
     ``mapping.recogniser``), else None (no recognition)."""
     if mcfg.gate_front_end != "recogniser":
         return None
-    return (mcfg.context_back, mcfg.context_forward, mcfg.recogniser)
+    return (mcfg.context_back, mcfg.context_forward, recogniser_spec(mcfg))
+
+
+def recogniser_spec(mcfg: MappingConfig) -> str:
+    """The recogniser of ``mapping.recogniser`` as :mod:`mapping.recogniser` names it: with
+    ``"causal"`` and a ``front_model``, ``"causal:<front_model>"`` (that model file)."""
+    if mcfg.recogniser == "causal" and mcfg.front_model:
+        return f"causal:{mcfg.front_model}"
+    return mcfg.recogniser
 
 
 def predict_utterance(mapper, d):

@@ -50,7 +50,7 @@ from mapping.features import ContextFeatures, check_context, check_seed
 from mapping.nets import MLP, NetRegressor, fit_many
 from mapping.normalize import check_cmvn
 from mapping.phone_gate import COVARIANCE_TYPES, PhoneGate, class_groups, merge_small_classes
-from mapping.recogniser import RECOGNISERS, N_PHONES, label_windows, phone_inputs
+from mapping.recogniser import N_PHONES, label_windows, phone_inputs, split_recogniser
 from mapping.state import (ArrayGroup, nest, part_name, settings_from_params,
                            settings_to_params)
 
@@ -89,9 +89,9 @@ class GatedMLP:
     mlp_input : {"mfcc", "phones"}
         What the MLPs read: the MFCC context (the paper) or the recogniser's window of phones
         (needs the recogniser gate).
-    recogniser : {"pocketsphinx", "hama"}
+    recogniser : {"pocketsphinx", "hama", "causal"} or "causal:<model file>"
         With the recogniser gate, which recogniser hears the phones
-        (:data:`mapping.recogniser.RECOGNISERS`).
+        (:data:`mapping.recogniser.RECOGNISERS`, :func:`mapping.recogniser.split_recogniser`).
     phone_training : {"recognised", "labels"}
         With the recogniser gate, the phones training reads: those the recogniser heard in the
         training audio, or the corpus's labels (see the module docstring).
@@ -160,9 +160,7 @@ class GatedMLP:
         if self.mlp_input not in MLP_INPUTS:
             raise ParameterError(f"mlp_input must be one of {MLP_INPUTS}, got "
                                  f"{self.mlp_input!r}")
-        if self.recogniser not in RECOGNISERS:
-            raise ParameterError(f"recogniser must be one of {RECOGNISERS}, got "
-                                 f"{self.recogniser!r}")
+        split_recogniser(self.recogniser)  # an unknown one is refused in one line
         if self.phone_training not in PHONE_TRAINING:
             raise ParameterError(f"phone_training must be one of {PHONE_TRAINING}, got "
                                  f"{self.phone_training!r}")

@@ -1,11 +1,14 @@
 """A phone recogniser trained on real speech as the gate's front end (issue 12, part 6; issue 29).
 
-Two recognisers sit behind one interface (``mapping.recogniser``, :data:`RECOGNISERS`):
-``pocketsphinx`` (this module's :class:`PhoneStream`) and ``hama`` (a multilingual CTC phoneme
-model, :class:`mapping.hama_front.HamaStream`). :func:`phone_stream` makes either's stream,
-:func:`recognise_windows` runs one over a whole utterance exactly as live, and
-:func:`recogniser_name` names the model and version (cache keys, reports). Both streams take the
-same arguments and give the same windows; everything below is pocketsphinx's.
+Three recognisers sit behind one interface (``mapping.recogniser``, :data:`RECOGNISERS`):
+``pocketsphinx`` (this module's :class:`PhoneStream`), ``hama`` (a multilingual CTC phoneme
+model, :class:`mapping.hama_front.HamaStream`) and ``causal`` (our own small causal network
+taught by hama, :class:`mapping.causal_front.CausalStream`; ``causal`` is the shipped model
+file, ``causal:<model file>`` another one, e.g. a run's ``front_end/causal_front.npz``).
+:func:`phone_stream` makes any one's stream, :func:`recognise_windows` runs one over a whole
+utterance exactly as live, and :func:`recogniser_name` names the model and version (cache
+keys, reports). The streams take the same arguments and give the same windows; everything
+below is pocketsphinx's.
 
 pocketsphinx's en-US acoustic model (in its PyPI wheel, no download) decodes the audio into
 phones with its phone language model (``allphone`` search; FIELD_NOTES "Real speech available
@@ -74,13 +77,17 @@ from face_model.phones import PHONE_INDEX, PHONES
 from groundwork.audio import seconds_to_samples
 from groundwork.cache import content_key
 from groundwork.errors import ParameterError
-from mapping import hama_front
+from mapping import causal_front, front_net, hama_front
 
 RECOGNISER_RATE = 16000  # Hz, the acoustic model's rate
 RECOGNISER_FPS = 100  # the decoder's frames per second
 DECODER_SETTINGS = {"lw": 2.0, "beam": 1e-20, "pbeam": 1e-20, "bestpath": False}
 RECOGNISER_NAME = "pocketsphinx-5.1.1 allphone"
-RECOGNISERS = ("pocketsphinx", "hama")  # mapping.config.RECOGNISER_NAMES
+RECOGNISERS = ("pocketsphinx", "hama", "causal")  # mapping.config.RECOGNISER_NAMES
+# a recogniser is named by one of RECOGNISERS, or, for the causal front end, by
+# "causal:<model file>": the front end trained by a run's front_end stage (plain "causal" is the
+# shipped model file, mapping.front_net.SHIPPED)
+MODEL_SEPARATOR = ":"
 SILENCE = PHONE_INDEX["sil"]
 N_PHONES = len(PHONES)  # the 44 classes
 MIN_UTTERANCE_S = 5.0  # an utterance may end at a pause once it is this long (s)
@@ -297,24 +304,50 @@ def fit_length(labels: np.ndarray, n: int) -> np.ndarray:
 
 
 def recogniser_name(recogniser: str = "pocketsphinx") -> str:
-    """The model and version of a recogniser of :data:`RECOGNISERS`."""
-    _check_recogniser(recogniser)
-    return RECOGNISER_NAME if recogniser == "pocketsphinx" else hama_front.RECOGNISER_NAME
+    """The model and version of a recogniser of :data:`RECOGNISERS` (for the causal front end,
+    its model file's checksum: a retrained front end is another recogniser to every cache)."""
+    kind, model = split_recogniser(recogniser)
+    if kind == "causal":
+        return front_net.front_name(model)
+    return RECOGNISER_NAME if kind == "pocketsphinx" else hama_front.RECOGNISER_NAME
+
+
+def split_recogniser(recogniser: str) -> tuple[str, str | None]:
+    """``(kind, model file or None)`` of a recogniser's name: ``"hama"`` → ``("hama", None)``,
+    ``"causal:front.npz"`` → ``("causal", "front.npz")``; anything else is the one-line
+    :class:`ParameterError` of an unknown recogniser."""
+    kind, sep, model = (recogniser.partition(MODEL_SEPARATOR) if isinstance(recogniser, str)
+                        else (None, "", ""))
+    if kind not in RECOGNISERS or (sep and (kind != "causal" or not model)):
+        raise ParameterError(f"unknown recogniser {recogniser!r}; allowed: "
+                             f"{', '.join(RECOGNISERS)} (or causal:<model file>)")
+    return kind, (model or None)
+
+
+def recogniser_speakers(recogniser: str) -> frozenset:
+    """The speakers a recogniser of ours was trained on (the causal front end's model file
+    records them; a score on one of them is *seen*); empty for pocketsphinx and hama, whose
+    training speakers are not ours to know."""
+    kind, model = split_recogniser(recogniser)
+    if kind != "causal":
+        return frozenset()
+    return front_net.training_speakers(model)
 
 
 def _check_recogniser(recogniser: str) -> None:
-    if recogniser not in RECOGNISERS:
-        raise ParameterError(f"unknown recogniser {recogniser!r}; allowed: "
-                             f"{', '.join(RECOGNISERS)}")
+    split_recogniser(recogniser)
 
 
 def phone_stream(recogniser: str, sample_rate: int, fps: int = 30, delay_frames: int = 3,
                  back: int = 0):
-    """A fresh stream of the recogniser ``recogniser`` (:data:`RECOGNISERS`): a
-    :class:`PhoneStream` or a :class:`mapping.hama_front.HamaStream`, the same interface."""
-    _check_recogniser(recogniser)
-    if recogniser == "hama":
+    """A fresh stream of the recogniser ``recogniser`` (:data:`RECOGNISERS`, or
+    ``causal:<model file>``): a :class:`PhoneStream`, a :class:`mapping.hama_front.HamaStream`
+    or a :class:`mapping.causal_front.CausalStream`, the same interface."""
+    kind, model = split_recogniser(recogniser)
+    if kind == "hama":
         return hama_front.HamaStream(sample_rate, fps, delay_frames, back)
+    if kind == "causal":
+        return causal_front.CausalStream(sample_rate, fps, delay_frames, back, model=model)
     return PhoneStream(sample_rate, fps, delay_frames, back)
 
 

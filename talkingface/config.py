@@ -32,12 +32,13 @@ from pathlib import Path
 import yaml
 
 from analysis.config import SpeechSetConfig, TargetsConfig
-from data_synth.config import SynthConfig
+from data_synth.backends import voice_problem
+from data_synth.config import SynthConfig, VoicesRule
 from face_model.config import TrackerConfig, UnitsConfig
 from groundwork.errors import ParameterError
-from groundwork.settings import (SettingError, check_fields, choice, choices_of, integer,
+from groundwork.settings import (SettingError, check_fields, choice, choices_of, integer, subset,
                                  require)
-from mapping.config import MappingConfig
+from mapping.config import FrontSettings, MappingConfig
 from study.config import StudyConfig
 from talkingface.executor import scheduler_address
 
@@ -167,6 +168,37 @@ class VoicesConfig:
         check_fields(self)
 
 
+# the many-voice corpus the causal front end learns from: the voices of configs/voices.yaml's
+# many-voice children (ARCTIC slt left out: a speaker of the evaluation set)
+FRONT_VOICES = ("espeak:en-us+m3", "espeak:en-us+f3", "espeak:en+m5", "espeak:en-gb-scotland+f2",
+                "espeak:en-029+m7", "flite:kal16", "flite:awb", "flite:rms",
+                "festival:kal_diphone", "festival:ked_diphone")
+FRONT_CORPORA = ("run", "voices", "real")
+
+
+@dataclass(frozen=True)
+class FrontEndConfig:
+    """The causal phone front end the ``front_end`` stage teaches from hama (issue 40;
+    :mod:`talkingface.stages.front_end`): its corpora, the voices of its many-voice corpus, the
+    augmented copies of every utterance, and its network and training (``train``)."""
+
+    # run: the run's corpus; voices: a many-voice corpus of the run's sentences; real: the real
+    # speaker's training sentences without the evaluation set's recordings (it makes the real
+    # speaker a seen speaker of every model that reads the front end)
+    corpora: tuple = subset(("run", "voices"), FRONT_CORPORA)
+    voices: tuple = field(default=FRONT_VOICES, metadata={"rule": VoicesRule()})
+    copies: int = integer(1, ge=0)  # augmented copies per utterance (mapping.augment's settings)
+    workers: int = integer(0, ge=0)  # processes of the teacher pass (0: all cores)
+    train: FrontSettings = field(default_factory=FrontSettings)
+
+    def __post_init__(self):
+        check_fields(self)
+        for spec in self.voices:
+            problem = voice_problem(spec)
+            if problem is not None:
+                raise SettingError("voices", spec, problem)
+
+
 MAX_SEED = 2**31 - 1  # derived seeds add offsets; scikit-learn takes seeds < 2**32
 
 # The settings that name data outside the run (a folder or a file). Each is read and checked
@@ -192,6 +224,7 @@ class Config:
     mlflow: MlflowConfig = field(default_factory=MlflowConfig)
     ablations: AblationConfig = field(default_factory=AblationConfig)
     cluster: ClusterConfig = field(default_factory=ClusterConfig)
+    front_end: FrontEndConfig = field(default_factory=FrontEndConfig)
     voices: VoicesConfig = field(default_factory=VoicesConfig)
     ceiling: CeilingConfig = field(default_factory=CeilingConfig)
     real_steps: RealStepsConfig = field(default_factory=RealStepsConfig)

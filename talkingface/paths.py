@@ -41,8 +41,8 @@ _NAME = re.compile(r"(?!.*\.\.)[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
 # the environment variable that names the cache folder of every run (default: cache/ beside runs/)
 CACHE_ENV = "TALKINGFACE_CACHE"
 
-STAGE_FOLDERS = ("corpus", "units", "keyframes", "tracking", "tracked", "mapping", "voices",
-                 "speech_eval", "render", "stimuli", "study_data", "analysis", "ablations",
+STAGE_FOLDERS = ("corpus", "units", "keyframes", "tracking", "tracked", "mapping", "front_end",
+                 "voices", "speech_eval", "render", "stimuli", "study_data", "analysis", "ablations",
                  "ceiling", "real_speaker", "real_steps", "report")
 
 

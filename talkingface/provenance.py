@@ -29,7 +29,7 @@ PACKAGES = (
     ("torch", "training and running the audio-to-MUP networks"),
     ("scikit-learn", "the phone gate's and the baselines' fits"),
     ("statsmodels", "Holm's correction, GEE models of the perception study"),
-    ("hama", "the hama phone recogniser (front end and bar)"),
+    ("hama", "the hama phone recogniser (front end, bar, the causal front end's teacher)"),
     ("pocketsphinx", "the pocketsphinx phone recogniser (bar, alignment labels)"),
     ("opencv-python", "rendering marker video, the tracker's optical flow"),
     ("openfacefx", "the openfacefx peer on real speech"),

@@ -5,11 +5,21 @@ development rule's pick on the run's real-speech results.
 
 Reads ``RUN_DIR/speech_eval/results.csv`` (the ``speech_eval`` stage's table) and prints, for
 every voices child (models named ``voices-<child>``), its figures on the unseen development
-recordings (``split`` = ``unseen-dev``) named by :data:`analysis.speech_report.DEV_RULE` and the
-rule's score, their mean; the pick is :func:`analysis.speech_report.dev_choice`'s (the highest
+recordings (``split`` = ``unseen-dev``) named by :data:`analysis.dev_rule.DEV_RULE` and the
+rule's score, their mean; the pick is :func:`analysis.dev_rule.dev_choice`'s (the highest
 score; an exact tie goes to the name later in alphabetical order, as ``dev_choice`` breaks it). A
-child without finite development figures has no score. ``--check`` compares the pick with the
-voices file's ``model`` and exits 1 with one line when they differ.
+child without finite development figures has no score.
+
+Time is weighed too: when ``RUN_DIR/speech_eval/latency.json`` is there
+(:mod:`talkingface.stages.latency`: each model streamed as ``talkingface stream`` streams it,
+paced in real time), each child's measured latency p50/p99 is printed beside its figures, and a
+child whose p99 exceeds the bound, or whose latency was not measured, cannot be the pick,
+whatever its score (:func:`analysis.dev_rule.excluded_by_latency`). The bound is the run's
+``targets.stream_latency_p99_ms`` (``RUN_DIR/speech_eval/config.yaml``; default the paper's
+window plus one frame, :data:`analysis.config.PAPER_STREAM_LATENCY_MS`), or ``--bound-ms``.
+Without the file the latency was not measured: the table says so and no bound is applied.
+``--check`` compares the pick (the same rule) with the voices file's ``model`` and exits 1 with
+one line when they differ.
 """
 from __future__ import annotations
 
@@ -25,8 +35,12 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from analysis.speech_report import DEV_RULE, dev_choice, dev_rule_figures  # noqa: E402
+from analysis.config import TargetsConfig  # noqa: E402
+from analysis.dev_rule import (DEV_RULE, LATENCY_FILE, dev_choice,  # noqa: E402
+                               dev_rule_figures, excluded_by_latency, latency_p99,
+                               read_latency)
 from groundwork.errors import CorpusError, ParameterError  # noqa: E402
+from groundwork.settings import SettingError  # noqa: E402
 
 PREFIX = "voices-"
 SPLIT = "unseen-dev"
@@ -52,9 +66,30 @@ def voices_model(voices=VOICES) -> str:
     return model
 
 
-def choose(results: list[dict]) -> dict:
-    """``{"rows": per-child development figures and score, "pick": child or None}``."""
-    best, scores = dev_choice(results, prefix=PREFIX)
+def run_bound(run_dir) -> float:
+    """The run's ``targets.stream_latency_p99_ms`` (``RUN_DIR/speech_eval/config.yaml``), else
+    the default (:class:`analysis.config.TargetsConfig`)."""
+    path = Path(run_dir) / "speech_eval" / "config.yaml"
+    data = yaml.safe_load(path.read_text(encoding="utf-8")) if path.is_file() else None
+    value = ((data or {}).get("targets") or {}).get("stream_latency_p99_ms")
+    if value is None:
+        return TargetsConfig().stream_latency_p99_ms
+    try:
+        return TargetsConfig(stream_latency_p99_ms=value).stream_latency_p99_ms
+    except SettingError as e:
+        raise ParameterError(f"{path}: targets.{e}") from None
+
+
+def choose(results: list[dict], latency: dict | None = None,
+           bound_ms: float | None = None) -> dict:
+    """``{"rows": per-child development figures, score and latency, "pick": child or None,
+    "figures", "bound_ms", "latency_measured", "excluded": children the bound excluded}``;
+    ``latency``: :func:`analysis.dev_rule.read_latency`'s contents (None: not measured,
+    no bound applied)."""
+    p99 = latency_p99(latency)
+    best, scores = dev_choice(results, prefix=PREFIX, latency=p99, bound_ms=bound_ms)
+    out = excluded_by_latency(results, p99, bound_ms, prefix=PREFIX)
+    measured = (latency or {}).get("models") or {}
     rows = []
     for r in results:
         if r.get("split") != SPLIT or not r.get("model", "").startswith(PREFIX):
@@ -69,10 +104,20 @@ def choose(results: list[dict]) -> dict:
             if r.get(k) not in (None, ""):
                 row[k] = r[k]
         row["score"] = scores.get(r["model"])
+        for k in ("latency_p50_ms", "latency_p99_ms"):
+            row[k] = measured.get(r["model"], {}).get(k)
+        row["excluded"] = r["model"] in out
         rows.append(row)
     rows.sort(key=lambda row: (row["score"] is None, -(row["score"] or 0.0), row["child"]))
     return {"rows": rows, "pick": best[len(PREFIX):] if best else None,
-            "figures": list(dev_rule_figures(results, prefix=PREFIX))}
+            "figures": list(dev_rule_figures(results, prefix=PREFIX)),
+            "bound_ms": bound_ms if latency is not None else None,
+            "latency_measured": latency is not None,
+            "excluded": sorted(m[len(PREFIX):] for m in out)}
+
+
+def _ms(v) -> str:
+    return "–" if v is None else f"{v:.0f}"
 
 
 def table(result: dict, current: str | None) -> str:
@@ -83,13 +128,22 @@ def table(result: dict, current: str | None) -> str:
     lines = [f"voices children on the unseen development recordings ({SPLIT}); score = mean of "
              + ", ".join(used) + (f" ({', '.join(left)}: not measured on the development part, "
                                   "left out for every child)" if left else ""),
-             f"{cols[0]:<{width}}" + "".join(f"{c:>26}" for c in cols[1:])]
+             f"{cols[0]:<{width}}" + "".join(f"{c:>26}" for c in cols[1:])
+             + f"{'latency p50 ms':>16}{'p99 ms':>16}"]
     for r in result["rows"]:
         score = "no score" if r["score"] is None else f"{r['score']:.3f}"
         lines.append(f"{r['child']:<{width}}" + "".join(f"{r[k]:>26.3f}" for k in DEV_RULE)
-                     + f"{score:>26}")
+                     + f"{score:>26}" + f"{_ms(r.get('latency_p50_ms')):>16}"
+                     + f"{_ms(r.get('latency_p99_ms')):>16}"
+                     + ("   over the bound" if r.get("excluded") else ""))
     lines.append("rule: the highest score (analysis/speech_report.py dev_choice); an exact tie "
                  "to the later name")
+    if result.get("latency_measured"):
+        lines.append(f"latency bound: p99 at most {result['bound_ms']:.1f} ms "
+                     "(targets.stream_latency_p99_ms); excluded: "
+                     + (", ".join(result["excluded"]) or "none"))
+    else:
+        lines.append(f"latency: not measured (no speech_eval/{LATENCY_FILE}); no bound applied")
     lines.append(f"pick: {result['pick']}"
                  + (f" (configs/voices.yaml model: {current})" if current else ""))
     return "\n".join(lines)
@@ -97,8 +151,10 @@ def table(result: dict, current: str | None) -> str:
 
 def check_line(result: dict, current: str, voices=VOICES) -> str | None:
     if result["pick"] != current:
-        return (f"{voices}: model is {current!r} but the development rule picks "
-                f"{result['pick']!r}")
+        over = current in result.get("excluded", [])
+        return (f"{voices}: model is {current!r}"
+                + (f" (over the latency bound of {result['bound_ms']:.1f} ms)" if over else "")
+                + f" but the development rule picks {result['pick']!r}")
     return None
 
 
@@ -109,15 +165,28 @@ def main(argv=None) -> int:
     ap.add_argument("--json", action="store_true", help="print the result as JSON")
     ap.add_argument("--check", action="store_true",
                     help="exit 1 with one line if the voices file's model is not the pick")
+    ap.add_argument("--bound-ms", type=float, default=None,
+                    help="the bound on the latency p99, ms (default: the run's "
+                         "targets.stream_latency_p99_ms)")
     args = ap.parse_args(argv)
     try:
-        result = choose(read_results(args.run_dir))
+        bound = (run_bound(args.run_dir) if args.bound_ms is None else
+                 TargetsConfig(stream_latency_p99_ms=args.bound_ms).stream_latency_p99_ms)
+        result = choose(read_results(args.run_dir),
+                        read_latency(args.run_dir / "speech_eval" / LATENCY_FILE), bound)
         current = voices_model(args.voices)
+    except SettingError as e:
+        print(f"--bound-ms: {e}", file=sys.stderr)
+        return 2
     except (CorpusError, ParameterError) as e:
         print(e, file=sys.stderr)
         return 2
     if result["pick"] is None:
-        print(f"{args.run_dir / 'speech_eval' / 'results.csv'}: no voices child has development "
+        scored = any(r["score"] is not None for r in result["rows"])
+        print(f"{args.run_dir / 'speech_eval'}: the latency bound "
+              f"({result['bound_ms']:.1f} ms) excluded every voices child with a score: "
+              + ", ".join(result["excluded"]) if scored else
+              f"{args.run_dir / 'speech_eval' / 'results.csv'}: no voices child has development "
               f"figures ({SPLIT} rows of {', '.join(DEV_RULE)})", file=sys.stderr)
         return 2
     if args.check:

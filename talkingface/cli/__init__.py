@@ -2,4 +2,4 @@
 arguments (:mod:`~talkingface.cli.args`), the run-level commands that run stages and log them
 (:mod:`~talkingface.cli.runs`), the ``study``, ``cache`` and ``server`` commands, and the
 ``animate`` / ``stream`` commands with live audio (:mod:`~talkingface.cli.animate`,
-:mod:`~talkingface.cli.live`)."""
+:mod:`~talkingface.live`)."""

@@ -20,8 +20,7 @@ from groundwork.atomic import atomic_file, check_output_file
 from groundwork.audio import read_wav
 from groundwork.errors import ParameterError
 from groundwork.movie import write_mp4
-from mapping.animator import StreamingAnimator
-from talkingface.cli.live import MicrophoneStats, microphone_chunks, run_stream, wav_chunks
+from talkingface.live import MicrophoneStats, microphone_chunks, run_stream, warm_stream, wav_chunks
 from talkingface.stages.models import load_animator
 
 
@@ -112,10 +111,7 @@ def passes(animator, n_samples: int, sr: int) -> tuple[str, list[str]]:
 def _streaming(model, expression, runs_dir):
     """A warmed-up StreamingAnimator (the first calls load code paths: not latency)."""
     animator, tfmap = load_animator(model, runs_dir)
-    warm = StreamingAnimator(animator, expression)
-    warm.push(np.zeros(animator.mapping.sample_rate // 5, np.float32))
-    warm.flush()
-    return StreamingAnimator(animator, expression), animator, tfmap
+    return warm_stream(animator, expression), animator, tfmap
 
 
 def _summary(stats, tfmap, warn) -> dict:
@@ -127,7 +123,7 @@ def stream_file(wav, *, expression: str = "neutral", model: str | None = None, r
                 on_frame=None, progress: bool = True) -> dict:
     """Play a WAV through the :class:`~mapping.animator.StreamingAnimator` in chunks of
     ``chunk_s`` seconds, paced in real time unless ``paced`` is False; returns the figures of
-    :func:`talkingface.cli.live.run_stream` (``progress``: its cost line and bar on stderr; the
+    :func:`talkingface.live.run_stream` (``progress``: its cost line and bar on stderr; the
     frames are the same either way)."""
     stream, animator, tfmap = _streaming(model, expression, runs_dir)
     y, sr, warn = read_speech(wav)
@@ -141,8 +137,8 @@ def stream_file(wav, *, expression: str = "neutral", model: str | None = None, r
 def stream_microphone(*, expression: str = "neutral", model: str | None = None,
                       runs_dir="runs", seconds: float | None = None, device=None,
                       chunk_s: float = 0.01, show: bool = False, on_frame=None) -> dict:
-    """Animate live from an input device (see :mod:`talkingface.cli.live`) for ``seconds`` of
-    audio or until Ctrl-C; returns the figures of :func:`talkingface.cli.live.run_stream` plus the
+    """Animate live from an input device (see :mod:`talkingface.live`) for ``seconds`` of
+    audio or until Ctrl-C; returns the figures of :func:`talkingface.live.run_stream` plus the
     device, its rate and the number of input overflows (samples the device dropped)."""
     stream, _, tfmap = _streaming(model, expression, runs_dir)
     mic = MicrophoneStats()

@@ -31,7 +31,7 @@ from talkingface.cli.args import (config_args, corpus_arg, grid_args, grid_overr
                                   resolve_config, run_args, visual_source_arg)
 from talkingface.cli.errors import error_line, os_error_line
 from talkingface.cli.interrupts import INTERRUPTED, interrupts_for, end_after_interrupt
-from talkingface.cli.live import input_devices
+from talkingface.live import input_devices
 from talkingface.config import apply_overrides, dump_config, load_config
 from talkingface.experiments.log import (artifact_root, check_tracking, log_speech_eval_model,
                                         mlflow_run, tracking_uri)
@@ -110,6 +110,23 @@ def cmd_track(args) -> int:
           f"{done['error_px_p95']:.3f} px")
     print(f"tracked corpus: {RunPaths.create(args.name).tracked} (train on it with "
           "--visual-source tracked)")
+    return 0
+
+
+def cmd_front_end(args) -> int:
+    done = runs.front_end(args.name, resolve_config(args), overwrite=args.overwrite)
+    minutes = sum(done["minutes_of_audio"].values())
+    print(f"front end taught by hama on {minutes:.1f} min of audio ({done['examples']} "
+          f"examples with the augmented copies; speakers: {', '.join(done['training_speakers'])})"
+          f": teacher pass {done['teacher_seconds']:.0f} s ({done['teacher']['heard']} heard, "
+          f"{done['teacher']['reused']} from the cache), training {done['train_seconds']:.0f} s")
+    t = done["training"]
+    last = t["history"][-1]
+    print(f"  {t['train_minutes']:.1f} min of training audio, {t['utterances']['heldout']} "
+          f"utterances held out; {len(t['history'])} epochs, the weights of epoch "
+          f"{t['best_epoch']} kept (held-out loss {last['heldout_loss']:.3f} at the last)")
+    print(f"model: {RunPaths.create(args.name).stage('front_end') / done['model']} (use it with "
+          "--set mapping.recogniser=causal --set mapping.front_model=FILE)")
     return 0
 
 
@@ -351,6 +368,11 @@ def _run_commands(sub) -> None:
                        "trains on it (its config gets mapping.visual_source=tracked)")
     run_args(s, "run name (its corpus and MUs are made if missing)")
     s.set_defaults(func=cmd_track)
+
+    s = sub.add_parser("front-end", help="teach the run's causal phone front end from hama "
+                       "(runs/<name>/front_end/causal_front.npz)")
+    run_args(s, "run name (its corpus is made if missing)")
+    s.set_defaults(func=cmd_front_end)
 
     s = sub.add_parser("ablate", help="one MLflow child run per setting of an ablation grid")
     grid_args(s, required=True, workers_help="worker processes (0: all cores)")

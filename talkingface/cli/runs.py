@@ -87,6 +87,14 @@ def track(name: str, cfg, *, overwrite: bool = False) -> dict:
     return run(["tracked"], open_run(name, cfg, ["tracked"], overwrite=overwrite), cfg)["tracked"]
 
 
+def front_end(name: str, cfg, *, overwrite: bool = False) -> dict:
+    """The causal phone front end of ``runs/<name>`` (stage ``front_end``: its corpora made if
+    missing, hama's teacher pass, the training)."""
+    refuse_off("front_end", cfg)
+    return run(["front_end"], open_run(name, cfg, ["front_end"], overwrite=overwrite),
+               cfg)["front_end"]
+
+
 def ablate(name: str, cfg, *, overwrite: bool = False) -> dict:
     """The ablation grid ``ablations.grid`` on ``runs/<name>``, one MLflow child run per
     setting under a parent run."""

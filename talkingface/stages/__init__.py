@@ -14,6 +14,7 @@ from talkingface.paths import RunPaths
 from talkingface.stages.base import (Stage, prepare_run, read_done, run_order, run_stages,
                                      stale_stages)
 from talkingface.stages.applies import study_applies, switched_off, synthesised
+from talkingface.stages.front_end import front_end_applies, front_inputs, train_front_end
 from talkingface.stages.foundation import (fit_keyframes, fit_units, make_corpus, sentence_file,
                                            units_inputs)
 from talkingface.stages.given_corpus import corpus_config, corpus_inputs
@@ -62,12 +63,17 @@ STAGES = {s.name: s for s in (
           "tracker.corpus_noise_sd"), upstream=("corpus", "units"), enabled=uses_tracked_corpus),
     Stage("mapping", train, config=("seed", "mapping"), speed_only=("mapping.workers",),
           upstream=_TRAINING_INPUTS),
+    Stage("front_end", train_front_end, config=("seed", "synth", "mapping.augment",
+                                                "mapping.train_fraction", "front_end",
+                                                "real_speaker.corpus"),
+          speed_only=("synth.workers", "front_end.workers"), upstream=("corpus", "tracked"),
+          enabled=front_end_applies, inputs=front_inputs),
     _grid_stage(VOICES, train_voices, config=("seed", "synth", "units", "mapping",
                                               "real_speaker.corpus"),
                 speed_only=("synth.workers", "mapping.workers"), applies=synthesised,
-                inputs=voices_inputs),
+                inputs=voices_inputs, upstream=(*_TRAINING_INPUTS, "front_end")),
     Stage("speech_eval", evaluate_speech, config=("targets.lookahead_ms", "speech_set"),
-          upstream=("corpus", "units", "mapping", "voices"), files=set_files),
+          upstream=("corpus", "units", "mapping", "front_end", "voices"), files=set_files),
     Stage("render", render_held_out, upstream=("corpus", "keyframes", "mapping")),
     Stage("stimuli", make_stimuli, config=("seed", "synth"), speed_only=("synth.workers",),
           upstream=("units", "mapping", "voices"), enabled=study_applies),
@@ -90,8 +96,8 @@ STAGES = {s.name: s for s in (
     Stage("report", build_report, always=True),
 )}
 
-REPLICATION = ("corpus", "units", "keyframes", "tracking", "tracked", "mapping", "voices",
-               "speech_eval", "render", "stimuli", "study_data", "analysis", "ablations",
+REPLICATION = ("corpus", "units", "keyframes", "tracking", "tracked", "mapping", "front_end",
+               "voices", "speech_eval", "render", "stimuli", "study_data", "analysis", "ablations",
                "ceiling", "real_speaker", "real_steps", "report")
 
 

@@ -31,6 +31,10 @@ files named after it: ``FILE``, ``<stem>_per_file.csv``, ``<stem>.json``, ``<ste
                     speakers and recording ids of every split row, and whether each model's
                     live output equals its offline output
     opening_<model>.png  predicted vs reference lip opening on one real sentence with its phones
+    latency.json    each candidate default (the voices children) and the default model streamed
+                    alone through ``talkingface stream``'s animator, paced in real time, on one
+                    recording (:mod:`talkingface.stages.latency`): latency and compute p50/p99;
+                    the development rule excludes a model over ``targets.stream_latency_p99_ms``
 """
 from __future__ import annotations
 
@@ -44,17 +48,21 @@ from analysis.speech_eval import NATIVE, RATES, model_jobs, opening_figure, scor
 from analysis.speech_peers import peer_scores
 from analysis.speech_pooling import SPLITS, compare, summarise
 from analysis.speech_pooling import per_speaker as speaker_rows
-from analysis.speech_recogniser import NAMES, lookahead_figure, recogniser_jobs, \
+from analysis.speech_recogniser import RECOGNISERS, lookahead_figure, recogniser_jobs, \
     recogniser_scores
+from analysis.dev_rule import LATENCY_FILE
+from analysis.speech_report import RECOGNISERS as RECOGNISER_ROWS
 from analysis.speech_set import MANIFEST, SET_DIR, load_speech_set, read_manifest, subset_rows
 from face_model.motion_units import MotionUnits
 from groundwork.cache import ArrayCache
 from groundwork.errors import ParameterError
 from mapping.checkpoint import AudioMapping
 from mapping.hearing import hear_all
-from mapping.recogniser import hearing_cache
+from mapping.recogniser import hearing_cache, recogniser_speakers
 from talkingface.paths import RunPaths
 from talkingface.stages.base import read_done, write_csv
+from talkingface.stages.front_end import front_file
+from talkingface.stages.latency import measure_models
 from talkingface.stages.models import model_run, model_units
 from talkingface.stages.voices import voices_models
 
@@ -94,7 +102,7 @@ def _comparisons(per_file: list, default: str | None, others: list, key: str) ->
     if default is None:
         return out
     for other in others:
-        figs = ((key,) if other in NAMES.values() else
+        figs = ((key,) if other.startswith(RECOGNISER_ROWS) else
                 ("viseme_acc", "bilabial_closed_frac", "r_reference"))
         for fig in figs:
             for split in ("unseen-test", "unseen-test-independent"):
@@ -102,6 +110,22 @@ def _comparisons(per_file: list, default: str | None, others: list, key: str) ->
                 if row is not None:
                     out.append(row)
     return out
+
+
+def front_speakers(mapping) -> frozenset:
+    """The speakers ``mapping``'s recogniser front end was trained on, when it is a causal front
+    end of ours (a score on one of them is seen); else none."""
+    if not mapping.needs_phones:
+        return frozenset()
+    return recogniser_speakers(getattr(mapping.mapper, "recogniser", "pocketsphinx"))
+
+
+def run_recognisers(paths: RunPaths) -> tuple:
+    """The recognisers a run scores: pocketsphinx, hama and its own causal front end (the
+    ``front_end`` stage's model file; the shipped one when the run has none)."""
+    front = front_file(paths)
+    return (*(r for r in RECOGNISERS if r != "causal"),
+            f"causal:{front.resolve()}" if front.is_file() else "causal")
 
 
 def _split_ids(per_file: list) -> dict:
@@ -121,7 +145,8 @@ def _split_ids(per_file: list) -> dict:
 def evaluate_models(models: dict, out_csv, *, set_dir=None, recogniser: bool = True,
                     peers: bool = True, rates=RATES, default_model: str | None = None,
                     all_rates: bool = False, targets: TargetsConfig = TargetsConfig(),
-                    per_speaker: int = 0, progress=None, cache=None, workers: int = 0) -> dict:
+                    per_speaker: int = 0, progress=None, cache=None, workers: int = 0,
+                    recognisers: tuple = RECOGNISERS) -> dict:
     """Score every ``models`` entry (name → ``(tfmap, motion_units.npz, training corpus folder
     or None)``) on the set at ``set_dir`` (default: the shipped set) at the native rate, and
     ``default_model`` (every model with ``all_rates``: each costs a full pass per rate) at each
@@ -138,6 +163,10 @@ def evaluate_models(models: dict, out_csv, *, set_dir=None, recogniser: bool = T
     ``workers`` processes (0: all cores; :func:`mapping.hearing.hear_all`), into the cache,
     and the scores read it (the result's ``recogniser_passes`` counts recordings heard and
     reused); None: heard one by one while scoring. The figures are the same either way.
+    ``recognisers``: the recognisers scored beside the models (``recogniser``: whether any
+    is); a run names its own causal front end's model file (``causal:<file>``). A recording
+    is also *seen* for a model whose recogniser front end is a causal front end trained on its
+    speaker, and for that front end's own rows (:func:`mapping.recogniser.recogniser_speakers`).
     Returns what the JSON file holds."""
     files = output_files(out_csv)
     files["results"].parent.mkdir(parents=True, exist_ok=True)
@@ -155,11 +184,11 @@ def evaluate_models(models: dict, out_csv, *, set_dir=None, recogniser: bool = T
             progress("hearing the recordings (each recogniser front end, the recognisers)")
         jobs = [j for name, mp in mappings.items() for j in model_jobs(mp, items, rates_of[name])]
         if recogniser:
-            jobs += recogniser_jobs(items)
+            jobs += recogniser_jobs(items, recognisers=recognisers)
         passes = hear_all(jobs, cache, workers=workers, desc="hearing the speech set")
     with hearing_cache(cache) if cache is not None else nullcontext():
         res = _score(models, mappings, rates_of, items, files, key, default_model, set_dir,
-                     recogniser=recogniser, peers=peers, rates=rates, targets=targets,
+                     recogniser=recogniser and tuple(recognisers), peers=peers, rates=rates, targets=targets,
                      progress=progress)
     res["speech_set"] = {"per_speaker": per_speaker, "set_recordings": n_set}
     if passes is not None:
@@ -178,7 +207,8 @@ def _score(models, mappings, rates_of, items, files, key, default_model, set_dir
             progress(f"scoring {name} on {len(items)} recordings at {len(rates_of[name])} "
                      "input rate(s)")
         mapping = mappings[name]
-        train_by[name] = training_speakers(corpus) if corpus is not None else frozenset()
+        train_by[name] = ((training_speakers(corpus) if corpus is not None else frozenset())
+                          | front_speakers(mapping))
         scores = score_model(name, mapping, MotionUnits.load(units), items, train_by[name],
                              rates=rates_of[name],
                              lookahead_s=targets.lookahead_ms / 1000,
@@ -195,8 +225,9 @@ def _score(models, mappings, rates_of, items, files, key, default_model, set_dir
     others = []
     if recogniser:
         if progress:
-            progress("the recognisers (pocketsphinx, hama) on the same recordings")
+            progress(f"the recognisers ({', '.join(recogniser)}) on the same recordings")
         rec_files, _, curve = recogniser_scores(items, seen_default, summary=False,
+                                                recognisers=recogniser,
                                                 delay_s=targets.lookahead_ms / 1000)
         per_file += rec_files
         others += list(dict.fromkeys(r["model"] for r in rec_files))
@@ -302,8 +333,13 @@ def evaluate_speech(paths: RunPaths, cfg) -> dict:
     res = evaluate_models(models, paths.stage("speech_eval") / "results.csv",
                           default_model=default, targets=cfg.targets,
                           per_speaker=cfg.speech_set.per_speaker,
-                          cache=ArrayCache(paths.cache), workers=0)
-    return {"summary": res["summary"], "seen_speakers": res["seen_speakers"],
+                          cache=ArrayCache(paths.cache), workers=0,
+                          recognisers=run_recognisers(paths))
+    # after the scores, whose hearing uses every core: each candidate streamed alone
+    timed = {n: m for n, m in models.items() if n.startswith("voices-") or n == default}
+    latency = measure_models(timed, out_json=paths.stage("speech_eval") / LATENCY_FILE)
+    return {"latency": {m: v["latency_p99_ms"] for m, v in latency["models"].items()},
+            "summary": res["summary"], "seen_speakers": res["seen_speakers"],
             "speech_set": {**res["speech_set"], "recordings": len(res["recordings"])},
             "training_speakers": res["training_speakers"], "models": res["models"],
             "recogniser_passes": res["recogniser_passes"]}

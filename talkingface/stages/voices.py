@@ -8,7 +8,11 @@ Its grid (``voices.grid``, by default ``configs/voices.yaml``) has the form of t
 * a child that leaves ``synth`` as the run has it trains on the run's corpus (one voice);
 * a child that changes ``synth`` (``synth.voices``: many voices) trains on a corpus of its own,
   made with the run's seed — the same faces and sentences, the speech drawn from its voices —
-  under ``voices/corpora/<k>/``, built once for every child that asks for the same settings;
+  under ``voices/corpora/<k>/``, built once for every child that asks for the same settings
+  (hard links to the ``front_end`` stage's many-voice corpus when its settings are the same);
+* a child whose recogniser is the causal front end (``mapping.recogniser: causal``) without a
+  ``mapping.front_model`` reads the run's own (the ``front_end`` stage's model file), and its
+  model keeps a copy of it;
 * a child with ``voices.real_face: alone`` trains on the real speaker's training sentences
   (``real_speaker.corpus``, the utterance split of the run seed: its held-out sentences are
   never read) instead, ``added`` on those beside its drawn faces' corpus; each such corpus gets
@@ -39,6 +43,9 @@ The stage is described by :data:`talkingface.stages.grid.VOICES` (its grid is re
 from __future__ import annotations
 
 import csv
+import dataclasses
+import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -56,6 +63,7 @@ from talkingface.paths import RunPaths
 from talkingface.stages.base import read_done, write_csv
 from talkingface.stages.child_runs import log_for
 from talkingface.stages.foundation import fit_units_folder
+from talkingface.stages.front_end import front_file, voices_synth
 from talkingface.stages.given_corpus import combine_corpora, link_or_copy
 from talkingface.stages.grid import VOICES, grid_corpus, run_children
 from talkingface.stages.grid_files import load_voices_grid
@@ -71,9 +79,34 @@ def _synthetic_corpus(child, cfg, paths: RunPaths, out: Path, built: list) -> Pa
     folder = next((f for s, f in built if s == child.synth), None)
     if folder is None:
         folder = out / f"{len(built)}"
+        front = paths.stage("front_end") / "corpora" / "voices"
+        if (child.synth == voices_synth(cfg) and (front / "manifest.csv").is_file()
+                and not (folder / "manifest.csv").is_file()):
+            link_tree(front, folder)  # the front end's many-voice corpus: the same settings
         grid_corpus(folder, child.synth, cfg.seed)
         built.append((child.synth, folder))
     return folder
+
+
+def link_tree(src: Path, dst: Path) -> Path:
+    """A copy of the folder ``src`` at ``dst`` made of hard links (copies where a link cannot be
+    made), swapped into place whole."""
+    tmp = dst.with_name(dst.name + ".partial")
+    shutil.rmtree(tmp, ignore_errors=True)
+    shutil.copytree(src, tmp, copy_function=lambda a, b: link_or_copy(Path(a), Path(b)))
+    os.replace(tmp, dst)
+    return dst
+
+
+def with_front(child, paths: RunPaths):
+    """A child whose recogniser is the causal front end with no model file of its own reads
+    the run's (the ``front_end`` stage's), when the run has one."""
+    m = child.mapping
+    front = front_file(paths)
+    if m.recogniser != "causal" or m.front_model or not front.is_file():
+        return child
+    return dataclasses.replace(child, mapping=dataclasses.replace(
+        m, front_model=str(front.resolve())))
 
 
 def _corpora(children: dict, cfg, paths: RunPaths, out: Path) -> dict:
@@ -138,6 +171,7 @@ def train_voices(paths: RunPaths, cfg) -> dict:
     """Every child of the voices grid, trained (``voices.workers`` processes, 0: all cores)
     and measured (stage ``voices``)."""
     children, model = load_voices_grid(VOICES.grid_path(cfg), cfg)
+    children = {name: with_front(child, paths) for name, child in children.items()}
     out = paths.stage(VOICES.name)
     out.mkdir(parents=True, exist_ok=True)
     corpora = _corpora(children, cfg, paths, out / "corpora")

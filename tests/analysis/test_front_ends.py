@@ -13,13 +13,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from analysis.speech_recogniser import (LABELS, LOOKAHEAD_FRAMES, NAMES, PhoneRecogniser,
+from analysis.speech_recogniser import (LABELS, LOOKAHEAD_FRAMES, RECOGNISERS, PhoneRecogniser,
                                         lookahead_figure, recogniser_scores)
 from analysis.speech_set import load_speech_set
 from groundwork.cache import ArrayCache
 from groundwork.errors import ParameterError
 from mapping import hama_front
-from mapping.recogniser import hearing_cache
+from mapping.recogniser import hearing_cache, recogniser_name
 
 
 @pytest.fixture(scope="module")
@@ -61,9 +61,9 @@ def test_pocketsphinx_curve_from_one_decoding_equals_a_decoding_per_look_ahead(t
 def test_the_recognisers_rows_split_the_test_part_by_label_source(two, heard, tmp_path):
     with hearing_cache(heard):
         files, summary, curve = recogniser_scores(two)
-    assert {r["model"] for r in files} == set(NAMES.values())
+    assert {r["model"] for r in files} == {recogniser_name(r) for r in RECOGNISERS}
     by = {(r["model"], r["split"]): r for r in summary}
-    for name in NAMES.values():
+    for name in map(recogniser_name, RECOGNISERS):
         # slt_a0009 is a test recording with HTS labels, ps_cards_001 (aligned) put in a
         # development part by the fixture
         assert by[(name, "unseen-test-independent")]["files"] == 1

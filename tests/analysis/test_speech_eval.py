@@ -17,7 +17,7 @@ from analysis.speech_eval import (NATIVE, closed_threshold, rate_audio, referenc
 from analysis.speech_scores import (Contact, correlation, fit_frames, frame_accuracy,
                                     phone_frames, segment_contact, viseme_index)
 from analysis.speech_recogniser import PhoneRecogniser
-from analysis.speech_report import DEV_RULE, dev_choice
+from analysis.dev_rule import DEV_RULE, dev_choice
 from analysis.speech_set import (SET_DIR, SPEAKER_ID, load_speech_set, phone_class,
                                  read_manifest)
 from data_synth.config import SynthConfig

@@ -116,7 +116,8 @@ def test_make_mapper():
 # source).
 NOT_HYPER_PARAMETERS = {"method", "baselines", "splits", "train_fraction", "n_mfcc", "deltas",
                         "visual_source", "vtlp_range", "augment", "window_align",
-                        "mel_fmax_hz", "workers"}  # where the methods train: the speed only
+                        "mel_fmax_hz", "workers",  # where the methods train: the speed only
+                        "front_model"}  # folded into the recogniser (mapping.experiment)
 
 
 def estimator_parameters(cls) -> set:
@@ -149,6 +150,11 @@ def test_make_mapper_passes_every_config_field():
         for name in sorted(estimator_parameters(Baseline)):
             assert getattr(b, name) == getattr(mcfg, name) != getattr(Baseline(kind), name), name
         assert b.train is train and b.random_state == 4
+    causal = make_mapper("gated_mlp", dataclasses.replace(mcfg, recogniser="causal",
+                                                          front_model="f.npz"))
+    assert causal.recogniser == "causal:f.npz"  # the front end's model file rides on the name
+    assert make_mapper("gated_mlp", dataclasses.replace(mcfg, recogniser="causal")
+                       ).recogniser == "causal"
 
 
 # -- the saved model ---------------------------------------------------------------------------

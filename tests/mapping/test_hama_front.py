@@ -407,10 +407,13 @@ def test_spikes_label_frames_as_the_rule_says(vocab, symbols, reach):
 # -- the interface -------------------------------------------------------------------------------
 
 def test_an_unknown_recogniser_is_refused_naming_the_allowed_ones():
-    assert RECOGNISERS == ("pocketsphinx", "hama")
-    with pytest.raises(ParameterError, match="unknown recogniser 'nope'; allowed: pocketsphinx, "
-                                             "hama"):
+    assert RECOGNISERS == ("pocketsphinx", "hama", "causal")
+    with pytest.raises(ParameterError, match=r"^unknown recogniser 'nope'; allowed: pocketsphinx, "
+                                             r"hama, causal \(or causal:<model file>\)$"):
         phone_stream("nope", HAMA_RATE)
+    for bad in ("hama:x.npz", "causal:", ":x", None):  # a model file only for causal
+        with pytest.raises(ParameterError, match=r"^unknown recogniser "):
+            phone_stream(bad, HAMA_RATE)
     with pytest.raises(ParameterError, match="unknown recogniser 'nope'"):
         recogniser_name("nope")
     with pytest.raises(ParameterError, match="unknown recogniser 'Hama'"):

@@ -23,7 +23,7 @@ from tests.mapping.small_mapping import train_small
 
 SR = 22050  # the mapping's rate: both streams resample from it
 IDS = ["ps_cards_001", "praatio_bobby", "fsdd_0_george_0"]  # 1.1 s, 1.2 s, 0.4 s (8 kHz)
-RECOGNISERS = ("pocketsphinx", "hama")
+RECOGNISERS = ("pocketsphinx", "hama", "causal")
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +49,7 @@ def fresh(monkeypatch):
 
 @pytest.fixture(scope="module")
 def heard(tmp_path_factory, audio, items):
-    """One parallel pass (2 processes) over every job kind: the windows of both recognisers and
+    """One parallel pass (2 processes) over every job kind: the windows of each recogniser and
     the recognisers' whole and streaming labels of the same recordings."""
     cache = ArrayCache(tmp_path_factory.mktemp("cache"))
     jobs = [j for w in RECOGNISERS for j in window_jobs(audio, w)] + recogniser_jobs(items)
@@ -67,7 +67,7 @@ def no_hearing(monkeypatch):
 
 def test_the_parallel_pass_hears_every_recording_once(heard):
     cache, passes, n = heard
-    assert passes == Passes(heard=n, reused=0) and n == 2 * len(IDS) + 2 * len(IDS)
+    assert passes == Passes(heard=n, reused=0) and n == 3 * len(IDS) + 3 * len(IDS)
     assert (cache.misses, cache.hits) == (n, 0)
     assert len(list((cache.root / HEARD_KIND).glob("*.npz"))) == n
 
@@ -182,9 +182,9 @@ def test_the_tables_are_the_same_with_the_cache_on_and_off(small_corpus, items, 
     cache = ArrayCache(tmp_path / "cache")
     shutil.copytree(heard[0].root, cache.root)
     jobs = model_jobs(t.mapping, items, rates) + recogniser_jobs(items)
-    assert len(jobs) == len(rates) * len(items) + 2 * len(items)
+    assert len(jobs) == len(rates) * len(items) + 3 * len(items)
     passes = hear_all(jobs, cache, workers=2, progress=False)
-    assert passes.reused >= 2 * len(items) and passes.heard >= 1  # the model's 8 kHz are new
+    assert passes.reused >= 3 * len(items) and passes.heard >= 1  # the model's 8 kHz are new
     recogniser._HEARD.clear()
     no_hearing(monkeypatch)
     with hearing_cache(cache):

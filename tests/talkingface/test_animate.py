@@ -207,7 +207,7 @@ class _FakeSoundDevice:
 
 
 def test_a_device_at_another_rate_is_resampled(monkeypatch):
-    import talkingface.cli.live as live
+    import talkingface.live as live
 
     fake = _FakeSoundDevice([{"name": "fake mic", "max_input_channels": 1,
                               "default_samplerate": 48000.0}])
@@ -222,7 +222,7 @@ def test_a_device_at_another_rate_is_resampled(monkeypatch):
 
 
 def test_microphone_errors_are_clear(trained, monkeypatch, capsys):
-    import talkingface.cli.live as live
+    import talkingface.live as live
 
     monkeypatch.setattr(live, "_sounddevice", lambda: _FakeSoundDevice(
         [{"name": "speakers", "max_input_channels": 0, "default_samplerate": 48000.0}]))

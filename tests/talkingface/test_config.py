@@ -199,6 +199,14 @@ BAD_VALUES = [
     ("ceiling.seeds=101", "101"),
     ("real_steps.seeds=0", "0"),
     ("real_steps.workers=-1", "-1"),
+    ("front_end.corpora=[run, others]", "['run', 'others']"),
+    ("front_end.copies=-1", "-1"),
+    ("front_end.voices=[nope:x]", "'nope:x'"),
+    ("front_end.train.lookahead_ms=150", "150"),
+    ("front_end.train.lookahead_ms=15", "15"),
+    ("front_end.train.hidden=0", "0"),
+    ("mapping.front_model=x.npz", "'x.npz'"),
+    ("targets.stream_latency_p99_ms=0", "0.0"),
     ("cluster.scheduler=dask", "'dask'"),
     ("cluster.scheduler=tcp://host", "'tcp://host'"),
     ("cluster.scheduler=http://host:8786", "'http://host:8786'"),
@@ -236,8 +244,9 @@ def test_a_given_corpus_has_no_tracked_copy():
 
 def test_every_section_has_a_bad_value_in_the_table():
     tested = {a.split("=")[0].rsplit(".", 1)[0] for a, _ in BAD_VALUES if "." in a}
-    nested = {f"mapping.{f.name}" for f in dataclasses.fields(Config().mapping)
-              if dataclasses.is_dataclass(getattr(Config().mapping, f.name))}
+    nested = {f"{section}.{f.name}" for section in ("mapping", "front_end")
+              for f in dataclasses.fields(getattr(Config(), section))
+              if dataclasses.is_dataclass(getattr(getattr(Config(), section), f.name))}
     ruled = {f.name for f in dataclasses.fields(Config()) if f.name not in ("seed", "mlflow")}
     assert tested == ruled | nested
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from analysis.speech_eval import phone_frames, viseme_index
-from analysis.speech_report import DEV_RULE
+from analysis.dev_rule import DEV_RULE
 from face_model.corpus import PhoneSegment
 from face_model.phones import PHONE_INDEX
 from groundwork.errors import ParameterError

@@ -34,10 +34,12 @@ from tqdm import tqdm
 from face_model.render import FaceRenderer
 from groundwork.audio import seconds_to_samples
 from groundwork.errors import ParameterError
+from mapping.animator import StreamingAnimator
 from mapping.recogniser import AUDIO_BAR
 
 
 COST_SAMPLE_S = 2.0  # seconds of audio whose cost the cost line reports
+WARM_S = 0.2  # seconds of silence pushed through a first animator, not measured
 
 
 @dataclass
@@ -52,6 +54,15 @@ class StreamStats:
     latency_p50_s: float | None
     latency_p99_s: float | None
     overflows: int = 0
+
+
+def warm_stream(animator, expression: str = "neutral") -> StreamingAnimator:
+    """A new :class:`~mapping.animator.StreamingAnimator` of ``animator`` once a first one has
+    run :data:`WARM_S` s of silence (the first calls load code paths: not latency)."""
+    warm = StreamingAnimator(animator, expression)
+    warm.push(np.zeros(round(animator.mapping.sample_rate * WARM_S), np.float32))
+    warm.flush()
+    return StreamingAnimator(animator, expression)
 
 
 def wav_chunks(y: np.ndarray, sr: int, *, chunk_s: float = 0.01, paced: bool = True):
