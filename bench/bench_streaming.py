@@ -19,10 +19,11 @@ bookkeeping and the silence rule, and prints the whole as a multiple of the floo
 ``--look-ahead N`` and ``--window-align right`` set the models' context look-ahead
 (frames) and analysis-window alignment; the algorithmic latency printed follows from them exactly.
 
-The recognisers alone (issue 29): every recording of the real-speech set (at 22,050 Hz, pushed
-one video frame at a time, the look-ahead 3 frames) through pocketsphinx's and hama's streams,
-interleaved recording by recording; per-frame cost p50 / p99 / mean and the decision latency.
-Target: p99 <= 3 ms per frame. ``--no-recognisers`` skips it.
+The recognisers alone (issues 29, 40): every recording of the real-speech set (at 22,050 Hz,
+pushed one video frame at a time, the look-ahead 3 frames) through pocketsphinx's, hama's and
+the shipped causal front end's streams (mapping.recogniser.RECOGNISERS), interleaved recording
+by recording; per-frame cost p50 / p99 / mean and the decision latency. Target: p99 <= 3 ms per
+frame. ``--no-recognisers`` skips it.
 """
 from __future__ import annotations
 

@@ -14,6 +14,7 @@ from analysis.perception_report import perception_section
 from analysis.real_face_report import real_speaker_section
 from analysis.real_steps_report import real_steps_section
 from analysis.report import Report, escape
+from analysis.front_end_report import front_end_section
 from analysis.speech_report import speech_section
 from analysis.study_report import study_section
 from face_model.corpus import load_corpus
@@ -61,6 +62,7 @@ def build_report(paths: RunPaths, cfg) -> dict:
                    table_ii_R=_table_ii_R(mapping, cfg.mapping.method),
                    default_model=default_model, given_corpus=scope["given"] is not None,
                    targets=cfg.targets)
+    front_end_section(rep, read_done(paths.stage("front_end")), paths.stage("speech_eval"))
     if read_done(paths.keyframes):
         motion_section(rep, paths.keyframes, paths.render, paths.tracking)
     if (paths.stimuli / "stimuli.json").is_file():

@@ -21,7 +21,8 @@ TINY = ["--set", "synth.n_sentences=3", "--set", "synth.workers=2",
 # default; the real speaker's 196 sentences train every method on both splits): every stage
 # and its bookkeeping, with less work
 SMALLER = ["--set", "tracker.n_utterances=3", "--set", "ceiling.seeds=2",
-           "--set", "real_steps.seeds=2",
+           "--set", "real_steps.seeds=2", "--set", "front_end.voices=[espeak:en-us+f3]",
+           "--set", "front_end.train.epochs=2", "--set", "front_end.train.hidden=16",
            "--set", "speech_set.per_speaker=2", "--set", "mapping.train.max_epochs=40"]
 # four ceiling steps, small: the run's, one nuisance off (its own corpus), the tracked MUPs
 # (a tracked copy of the run's corpus), the oracle
@@ -44,8 +45,8 @@ children:
   ours: {}
   oracle: {mapping.gate_front_end: labels, mapping.mlp_input: phones}
 """
-# three voice-robust configurations, small: the run's voice, three engines with CMVN, and the
-# real speaker's training sentences alone
+# four voice-robust configurations, small: the run's voice, three engines with CMVN, the real
+# speaker's training sentences alone, and the run's causal front end (the front_end stage)
 VOICES_GRID = """model: many
 base:
   mapping.splits: [utterance]
@@ -56,6 +57,8 @@ children:
     synth.voices: [espeak:en-us+f3, flite:awb, festival:kal_diphone]
     mapping.cmvn: meanvar
   real: {voices.real_face: alone}
+  causal: {mapping.gate_front_end: recogniser, mapping.recogniser: causal,
+           mapping.mlp_input: phones, mapping.phone_training: labels}
 """
 
 

@@ -37,9 +37,21 @@ def test_replicate_writes_runs_report_and_mlflow(full_run_dir, monkeypatch):
     monkeypatch.chdir(workdir)  # read only: find_model looks for runs/ here
     run = workdir / "runs" / "tiny"
     for p in ("config.yaml", "corpus/manifest.csv", "corpus/done.json", "units/motion_units.npz",
-              "units/variance.csv", "report/summary.json", "report/mu_variance.png"):
+              "units/variance.csv", "report/summary.json", "report/mu_variance.png",
+              "front_end/causal_front.npz", "speech_eval/latency.json",
+              "voices/causal/gated_mlp_utterance.front.npz"):
         assert (run / p).is_file(), p
     text = pdf_text(workdir / "reports" / "tiny.pdf")
+    # the causal child read the run's own front end, and keeps a copy of it beside its model
+    from mapping.checkpoint import AudioMapping
+    from mapping.recogniser import recogniser_name
+
+    causal = AudioMapping.load(run / "voices" / "causal" / "gated_mlp_utterance.tfmap")
+    assert recogniser_name(causal.mapper.recogniser) == \
+        recogniser_name(f"causal:{run / 'front_end' / 'causal_front.npz'}")
+    assert "The causal front end's training" in text
+    latency = json.loads((run / "speech_eval" / "latency.json").read_text())
+    assert set(latency["models"]) >= {"voices-one", "voices-many", "voices-causal"}
     # the first page says what the run found, each figure as on the page it cites
     from tests.analysis.findings_check import findings_of, mismatches, page_texts
 

@@ -26,6 +26,7 @@ def test_the_project_grid_holds_the_issue_configurations():
                               "one-voice-recogniser", "one-voice-phones", "many-phones",
                               "many-augment-phones", "one-voice-phones-labels",
                               "many-phones-labels", "one-voice-hama-labels",
+                              "one-voice-causal-labels", "many-causal-labels",
                               "real-face-hama-labels", "real-face-mfcc",
                               "real-and-drawn-hama-labels"]
     assert model == "one-voice-hama-labels"
@@ -42,8 +43,12 @@ def test_the_project_grid_holds_the_issue_configurations():
     assert (hama.recogniser, hama.gate_front_end, hama.mlp_input, hama.phone_training) == \
         ("hama", "recogniser", "phones", "labels")
     assert children["one-voice-phones"].mapping.recogniser == "pocketsphinx"
+    causal = children["one-voice-causal-labels"].mapping
+    assert causal == children[model].mapping.__class__(**{
+        **hama.__dict__, "recogniser": "causal"})  # the hama child with our front end
+    assert children["many-causal-labels"].synth == children["many-phones-labels"].synth
     for name in ("one-voice", "one-voice-recogniser", "one-voice-phones",
-                 "one-voice-phones-labels", "one-voice-hama-labels"):
+                 "one-voice-phones-labels", "one-voice-hama-labels", "one-voice-causal-labels"):
         assert children[name].synth == Config().synth  # the paper's single voice
     # no evaluation speaker is a training voice of the default model: a0009 stays unseen
     from data_synth.backends import voice_speaker
@@ -55,7 +60,7 @@ def test_the_project_grid_holds_the_issue_configurations():
 def test_the_real_face_children_are_left_out_of_a_run_without_a_real_speaker(tmp_path):
     off = load_config(None, ["real_speaker.corpus="])
     children, model = load_voices_grid(VOICES.default, off)
-    assert all(c.voices.real_face == "none" for c in children.values()) and len(children) == 13
+    assert all(c.voices.real_face == "none" for c in children.values()) and len(children) == 15
     grid = tmp_path / "g.yaml"
     grid.write_text(GRID.format(model="real", extra="").replace(
         "children:", "children:\n  real: {voices.real_face: alone}"))
