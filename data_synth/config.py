@@ -28,6 +28,15 @@ class VoicesRule:
         return "a list of distinct 'engine:voice' strings, e.g. [espeak:en-us+f3, flite:awb]"
 
 
+def check_voices(voices, key: str = "voices") -> None:
+    """Refuse the first voice of ``voices`` that no engine here has (a :class:`SettingError`
+    naming ``key``, the voice and the problem)."""
+    for spec in voices:
+        problem = voice_problem(spec)
+        if problem is not None:
+            raise SettingError(key, spec, problem)
+
+
 @dataclass(frozen=True)
 class _Weights:
     """A list (possibly empty) of finite numbers >= 0."""
@@ -105,10 +114,7 @@ class SynthConfig:
 
     def __post_init__(self):
         check_fields(self)
-        for spec in self.voices:
-            problem = voice_problem(spec)
-            if problem is not None:
-                raise SettingError("voices", spec, problem)
+        check_voices(self.voices)
         w = self.voice_weights
         require(self, "voice_weights", not w or (len(w) == len(self.voices) and sum(w) > 0),
                 f"empty (equal weights), or one number >= 0 per voice of voices "

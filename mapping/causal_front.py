@@ -36,8 +36,9 @@ import numpy as np
 import soxr
 
 from groundwork.errors import ParameterError
+from mapping.block_stream import BlockStream, check_stream_args
 from mapping.front_net import (HOP, MARGIN, N_CLASSES, RATE, RESAMPLE_QUALITY, SILENCE,
-                               STEPS_PER_S, WIN, Front, frames_log_mel, load, n_steps)
+                               STEPS_PER_S, WIN, Front, frames_log_mel, load)
 
 
 # -- streaming -------------------------------------------------------------------------------------
@@ -116,18 +117,7 @@ def _head(front: Front, delay_frames: int, fps: int) -> int:
     return min((int(delay_frames) * STEPS_PER_S) // int(fps), front.heads - 1)
 
 
-def _check(sample_rate, fps, delay_frames, back) -> None:
-    if isinstance(sample_rate, bool) or not isinstance(sample_rate, (int, np.integer)) \
-            or sample_rate <= 0 or isinstance(fps, bool) \
-            or not isinstance(fps, (int, np.integer)) or fps <= 0:
-        raise ParameterError(f"sample rate and fps must be positive integers, got "
-                             f"{sample_rate!r} Hz and {fps!r} fps")
-    for name, v in (("delay_frames", delay_frames), ("back", back)):
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
-            raise ParameterError(f"{name} must be an integer ≥ 0, got {v!r}")
-
-
-class CausalStream:
+class CausalStream(BlockStream):
     """Recognised phones per video frame of one audio stream (see the module docstring); the
     interface of :class:`mapping.recogniser.PhoneStream`.
 
@@ -147,21 +137,11 @@ class CausalStream:
 
     def __init__(self, sample_rate: int, fps: int = 30, delay_frames: int = 3, back: int = 0,
                  model=None):
-        _check(sample_rate, fps, delay_frames, back)
+        check_stream_args(sample_rate, fps, delay_frames, back)
         self.front = load(model)
-        self.sample_rate, self.fps = int(sample_rate), int(fps)
-        self.delay, self.back = int(delay_frames), int(back)
+        self._start(sample_rate, fps, delay_frames, back)
         self.head = _head(self.front, self.delay, self.fps)
         self._steps = _Steps(self.front, self.sample_rate)
-        self._pending = np.zeros(0, np.float32)
-        self._blocks = 0
-        self._n_samples = 0
-        self._windows: list[list[int]] = []
-        self._done = False
-
-    def _boundary(self, k: int) -> int:
-        """The sample at which block k starts: round(k · sample_rate / fps)."""
-        return (2 * k * self.sample_rate + self.fps) // (2 * self.fps)
 
     def _decide_due(self, until: int, at_end: bool = False) -> list[list[int]]:
         out = []
@@ -175,60 +155,29 @@ class CausalStream:
         self._steps.forget(_frame_step(len(self._windows), self.fps))
         return out
 
-    def push(self, chunk: np.ndarray) -> list[int]:
-        """Add mono samples (any length); return the phones of the frames newly decided."""
-        return [w[self.back] for w in self.push_windows(chunk)]
-
     def push_windows(self, chunk: np.ndarray) -> list[list[int]]:
         """Add mono samples (any length); return the windows of the frames newly decided."""
-        if self._done:
-            raise ParameterError("the phone stream has ended; start a new one")
-        chunk = np.asarray(chunk, dtype=np.float32)
-        if chunk.ndim != 1 or not np.all(np.isfinite(chunk)):
-            raise ParameterError("the audio chunk must be mono and finite")
-        self._n_samples += len(chunk)
-        audio = np.concatenate([self._pending, chunk])
-        out, used = [], 0
-        while True:
-            size = self._boundary(self._blocks + 1) - self._boundary(self._blocks)
-            if len(audio) - used < size:
-                break
-            self._steps.feed(audio[used:used + size])
-            used += size
+        out = []
+        for block in self._blocks_of(chunk):
+            self._steps.feed(block)
             self._blocks += 1
             out += self._decide_due(min(self._blocks - self.delay + 1, self._blocks))
-        self._pending = audio[used:]
         return out
-
-    def flush(self) -> list[int]:
-        """End of the audio: the phones of the remaining frames (``ceil(n_samples · fps /
-        sample_rate)`` in all)."""
-        return [w[self.back] for w in self.flush_windows()]
 
     def flush_windows(self) -> list[list[int]]:
         """End of the audio: the windows of the remaining frames, each from the largest head
         the audio allows."""
-        if self._done:
+        rest = self._end()
+        if rest is None:
             return []
-        self._done = True
-        self._steps.feed(self._pending, last=True)
-        return self._decide_due(-(-self._n_samples * self.fps // self.sample_rate), True)
-
-    @property
-    def windows(self) -> np.ndarray:
-        """Every window decided so far (n_decided, back + 1 + delay_frames), frame 0 first."""
-        return np.asarray(self._windows, dtype=np.int64).reshape(-1, self.back + 1 + self.delay)
-
-    @property
-    def labels(self) -> np.ndarray:
-        """Every phone decided so far, frame 0 first."""
-        return self.windows[:, self.back]
+        self._steps.feed(rest, last=True)
+        return self._decide_due(self.n_total, True)
 
 
 def _run(front: Front, y: np.ndarray, sample_rate: int, fps: int) -> tuple:
     """``(steps, steps computed after each number of whole blocks, whole blocks)``: audio
     ``y`` fed as a stream feeds it, block by block, then drained; every step kept."""
-    _check(sample_rate, fps, 0, 0)
+    check_stream_args(sample_rate, fps, 0, 0)
     y = np.asarray(y, np.float32)
     if y.ndim != 1 or not np.all(np.isfinite(y)):
         raise ParameterError("the audio must be mono and finite")

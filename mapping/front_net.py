@@ -27,7 +27,6 @@ from pathlib import Path
 
 import librosa
 import numpy as np
-import soxr
 from scipy.special import expit
 
 from face_model.phones import PHONE_INDEX, PHONES

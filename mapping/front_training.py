@@ -6,7 +6,7 @@ among blanks, so a frame-wise copy of them would teach "blank"; the target of a 
 instead read with hama's own timing rule (:func:`teacher_rows`): the step's instant s · 10 ms
 reads output frame ⌊50 · s / 100⌋ + SPIKE_LAG (the edge rule past the decode's end, as
 :func:`mapping.hama_front.read_frame`); the spike that :func:`mapping.hama_front.output_classes`
-gives that frame (BOUNDARY between two spikes, REACH on each side; :func:`assigned_spikes`) is
+gives that frame (BOUNDARY between two spikes, REACH on each side; :func:`mapping.hama_front.assigned_spikes`) is
 the one read, and the target row is that spike frame's posterior mass summed per phone class
 over the tokens that map to a class, renormalised; a step no spike reaches is silence (one-hot
 ``sil``), so the student learns hama's silence rule too. :class:`Teacher` is the job of
@@ -37,7 +37,6 @@ from tqdm import tqdm
 from face_model.phones import PHONES
 from groundwork.cache import content_key
 from groundwork.errors import ParameterError
-from groundwork.settings import check_fields, integer, number, require
 from mapping import front_net, hama_front
 from mapping.config import FrontSettings
 from mapping.recogniser import audio_digest, heard_entry
@@ -48,29 +47,6 @@ TEACHER_VERSION = 1  # bump when the targets of the same audio change
 
 
 # -- the teacher -----------------------------------------------------------------------------------
-
-def assigned_spikes(log_probs: np.ndarray, classes: np.ndarray, blank: int, *,
-                    reach: int = hama_front.REACH,
-                    boundary: float = hama_front.BOUNDARY) -> np.ndarray:
-    """The spike each output frame belongs to (n_out,) int64 (−1: none), by the rule of
-    :func:`mapping.hama_front.output_classes` (whose classes are those of these spikes' best
-    tokens, silence at −1) on log posteriors (n_out, n_tokens) with token classes
-    ``classes`` (n_tokens,) (−1: none) and the blank's id."""
-    best = np.asarray(log_probs).argmax(axis=1)
-    before = np.r_[-1, best[:-1]]
-    spikes = np.nonzero((best != blank) & (classes[best] >= 0) & (best != before))[0]
-    out = np.full(len(best), -1, dtype=np.int64)
-    if not len(spikes):
-        return out
-    frames = np.arange(len(best))
-    right = np.clip(np.searchsorted(spikes, frames), 0, len(spikes) - 1)
-    left = np.clip(right - 1, 0, len(spikes) - 1)
-    nearest = np.where(frames - spikes[left] <= boundary * (spikes[right] - spikes[left]),
-                       spikes[left], spikes[right])
-    near = np.abs(nearest - frames) <= reach
-    out[near] = nearest[near]
-    return out
-
 
 def class_mass(log_probs: np.ndarray, classes: np.ndarray) -> np.ndarray:
     """Posterior mass per phone class (n, 44) float64 of log posteriors (n, n_tokens): each
@@ -93,7 +69,7 @@ def teacher_rows(log_probs: np.ndarray | None, pad: int, n: int, classes: np.nda
     out[:, SILENCE] = 1.0
     if log_probs is None or len(log_probs) <= pad:
         return out
-    spike = assigned_spikes(log_probs, classes, blank, reach=timing.reach,
+    spike = hama_front.assigned_spikes(log_probs, classes, blank, reach=timing.reach,
                             boundary=timing.boundary)[pad:]
     n_out = len(spike)
     g0 = np.arange(n) * hama_front.OUTPUT_FPS // front_net.STEPS_PER_S

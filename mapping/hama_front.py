@@ -53,6 +53,7 @@ import soxr
 
 from face_model.phones import PHONE_INDEX
 from groundwork.errors import ParameterError
+from mapping.block_stream import BlockStream, check_stream_args
 from mapping.ipa import BLANK, check_vocabulary
 
 HAMA_RATE = 16000  # Hz, the model's rate
@@ -116,10 +117,22 @@ def output_classes(log_probs: np.ndarray, *, reach: int = REACH,
         raise ParameterError(f"boundary must be a fraction of the way between two spikes in "
                              f"(0, 1), got {boundary!r}")
     _, classes, blank = model()
+    spike = assigned_spikes(log_probs, classes, blank, reach=reach, boundary=boundary)
+    best = np.asarray(log_probs).argmax(axis=1)
+    return np.where(spike >= 0, classes[best[np.maximum(spike, 0)]], SILENCE).astype(np.int64)
+
+
+def assigned_spikes(log_probs: np.ndarray, classes: np.ndarray, blank: int, *,
+                    reach: int = REACH,
+                    boundary: float = BOUNDARY) -> np.ndarray:
+    """The spike each output frame belongs to (n_out,) int64 (−1: none), by the rule of
+    :func:`output_classes` (whose classes are those of these spikes' best tokens, silence at
+    −1) on log posteriors (n_out, n_tokens) with token classes
+    ``classes`` (n_tokens,) (−1: none) and the blank's id."""
     best = np.asarray(log_probs).argmax(axis=1)
     before = np.r_[-1, best[:-1]]
     spikes = np.nonzero((best != blank) & (classes[best] >= 0) & (best != before))[0]
-    out = np.full(len(best), SILENCE, dtype=np.int64)
+    out = np.full(len(best), -1, dtype=np.int64)
     if not len(spikes):
         return out
     frames = np.arange(len(best))
@@ -128,11 +141,11 @@ def output_classes(log_probs: np.ndarray, *, reach: int = REACH,
     nearest = np.where(frames - spikes[left] <= boundary * (spikes[right] - spikes[left]),
                        spikes[left], spikes[right])
     near = np.abs(nearest - frames) <= reach
-    out[near] = classes[best[nearest[near]]]
+    out[near] = nearest[near]
     return out
 
 
-class HamaStream:
+class HamaStream(BlockStream):
     """Recognised phones per video frame of one audio stream (see the module docstring); the
     same interface as :class:`mapping.recogniser.PhoneStream`.
 
@@ -160,15 +173,10 @@ class HamaStream:
     def __init__(self, sample_rate: int, fps: int = 30, delay_frames: int = 3, back: int = 0,
                  *, window_s: float = WINDOW_S, hop_frames: int = HOP_FRAMES,
                  timing: "Timing | None" = None, resample_quality: str = RESAMPLE_QUALITY):
-        if isinstance(sample_rate, bool) or not isinstance(sample_rate, (int, np.integer)) \
-                or sample_rate <= 0 or isinstance(fps, bool) \
-                or not isinstance(fps, (int, np.integer)) or fps <= 0:
-            raise ParameterError(f"sample rate and fps must be positive integers, got "
-                                 f"{sample_rate!r} Hz and {fps!r} fps")
-        for name, v, lo in (("delay_frames", delay_frames, 0), ("back", back, 0),
-                            ("hop_frames", hop_frames, 1)):
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
-                raise ParameterError(f"{name} must be an integer ≥ {lo}, got {v!r}")
+        check_stream_args(sample_rate, fps, delay_frames, back)
+        if isinstance(hop_frames, bool) or not isinstance(hop_frames, (int, np.integer)) \
+                or hop_frames < 1:
+            raise ParameterError(f"hop_frames must be an integer ≥ 1, got {hop_frames!r}")
         if not np.isfinite(window_s) or window_s <= 0:
             raise ParameterError(f"window_s must be a positive number of seconds, got "
                                  f"{window_s!r}")
@@ -177,20 +185,15 @@ class HamaStream:
                                  f"{resample_quality!r}")
         self.timing = Timing() if timing is None else timing
         model()  # load (and check the vocabulary) before the first block
-        self.sample_rate, self.fps = int(sample_rate), int(fps)
-        self.delay, self.back, self.hop_frames = int(delay_frames), int(back), int(hop_frames)
+        self._start(sample_rate, fps, delay_frames, back)
+        self.hop_frames = int(hop_frames)
         self.window = int(round(window_s * HAMA_RATE))
         self._resampler = (None if self.sample_rate == HAMA_RATE else
                            soxr.ResampleStream(self.sample_rate, HAMA_RATE, 1,
                                                dtype="float32", quality=resample_quality))
-        self._pending = np.zeros(0, np.float32)  # samples of the block not yet complete
         self._heard = np.zeros(0, np.float32)  # 16 kHz audio from sample self._h0 on
         self._h0 = 0
         self._fed = 0  # 16 kHz samples heard
-        self._blocks = 0
-        self._n_samples = 0
-        self._windows: list[list[int]] = []
-        self._done = False
         self.decodes = 0  # model runs so far
         self.record: list | None = None  # a list: every decode kept as (blocks heard, decode)
         self._latest = (0, np.zeros(0, np.int64))  # the latest decode (none yet: silence)
@@ -242,26 +245,11 @@ class HamaStream:
             out.append(window)
         return out
 
-    def push(self, chunk: np.ndarray) -> list[int]:
-        """Add mono samples (any length); return the phones of the frames newly decided."""
-        return [w[self.back] for w in self.push_windows(chunk)]
-
     def push_windows(self, chunk: np.ndarray) -> list[list[int]]:
         """Add mono samples (any length); return the windows of the frames newly decided."""
-        if self._done:
-            raise ParameterError("the phone stream has ended; start a new one")
-        chunk = np.asarray(chunk, dtype=np.float32)
-        if chunk.ndim != 1 or not np.all(np.isfinite(chunk)):
-            raise ParameterError("the audio chunk must be mono and finite")
-        self._n_samples += len(chunk)
-        audio = np.concatenate([self._pending, chunk])
-        out, used = [], 0
-        while True:
-            size = self._boundary(self._blocks + 1) - self._boundary(self._blocks)
-            if len(audio) - used < size:
-                break
-            self._feed(audio[used:used + size])
-            used += size
+        out = []
+        for block in self._blocks_of(chunk):
+            self._feed(block)
             self._blocks += 1
             if self._blocks % self.hop_frames == 0:
                 self._latest = self._decode()
@@ -269,38 +257,17 @@ class HamaStream:
             # follows its instant: the last frame exists only if it does): the latest decode
             out += self._decide_due(self._latest, min(self._blocks - self.delay + 1,
                                                       self._blocks))
-        self._pending = audio[used:]
         return out
-
-    def _boundary(self, k: int) -> int:
-        """The sample at which block k starts: round(k · sample_rate / fps)."""
-        return (2 * k * self.sample_rate + self.fps) // (2 * self.fps)
-
-    def flush(self) -> list[int]:
-        """End of the audio: the phones of the remaining frames (``ceil(n_samples · fps /
-        sample_rate)`` in all), from one last decode."""
-        return [w[self.back] for w in self.flush_windows()]
 
     def flush_windows(self) -> list[list[int]]:
         """End of the audio: the windows of the remaining frames, from one last decode."""
-        if self._done:
+        rest = self._end()
+        if rest is None:
             return []
-        self._done = True
-        self._feed(self._pending, last=True)
-        n_total = -(-self._n_samples * self.fps // self.sample_rate)
-        if n_total <= len(self._windows):
+        self._feed(rest, last=True)
+        if self.n_total <= len(self._windows):
             return []
-        return self._decide_due(self._decode(), n_total)
-
-    @property
-    def windows(self) -> np.ndarray:
-        """Every window decided so far (n_decided, back + 1 + delay_frames), frame 0 first."""
-        return np.asarray(self._windows, dtype=np.int64).reshape(-1, self.back + 1 + self.delay)
-
-    @property
-    def labels(self) -> np.ndarray:
-        """Every phone decided so far, frame 0 first."""
-        return self.windows[:, self.back]
+        return self._decide_due(self._decode(), self.n_total)
 
 
 def read_frame(decode: tuple, j: int, fps: int, *, lag: int = SPIKE_LAG,

@@ -78,6 +78,7 @@ from groundwork.audio import seconds_to_samples
 from groundwork.cache import content_key
 from groundwork.errors import ParameterError
 from mapping import causal_front, front_net, hama_front
+from mapping.block_stream import BlockStream
 
 RECOGNISER_RATE = 16000  # Hz, the acoustic model's rate
 RECOGNISER_FPS = 100  # the decoder's frames per second
@@ -129,7 +130,7 @@ def to_pcm16(y: np.ndarray) -> bytes:
     return np.round(np.asarray(y, np.float64) * 32768).clip(-32768, 32767).astype("<i2").tobytes()
 
 
-class PhoneStream:
+class PhoneStream(BlockStream):
     """Recognised phones per video frame of one audio stream (see the module docstring).
 
     Parameters
@@ -153,19 +154,13 @@ class PhoneStream:
                                  f"{delay_frames!r}")
         if isinstance(back, bool) or not isinstance(back, (int, np.integer)) or back < 0:
             raise ParameterError(f"back must be a non-negative integer, got {back!r}")
-        self.sample_rate, self.fps, self.delay = int(sample_rate), int(fps), int(delay_frames)
-        self.back = int(back)
-        self.hop = self.sample_rate // self.fps
+        self._start(sample_rate, fps, delay_frames, back)
+        self.hop = self.sample_rate // self.fps  # blocks of one hop each
         self.decoder = new_decoder()
         self.decoder.start_utt()
         self._resampler = (None if self.sample_rate == RECOGNISER_RATE else
                            soxr.ResampleStream(self.sample_rate, RECOGNISER_RATE, 1,
                                                dtype="float32", quality="HQ"))
-        self._pending = np.zeros(0, np.float32)  # samples of the block not yet complete
-        self._blocks = 0  # whole blocks fed
-        self._n_samples = 0
-        self._windows: list[list[int]] = []  # per decided frame: phones of k - back .. k + delay
-        self._done = False
         self._fed = 0  # samples (at RECOGNISER_RATE) fed to the decoder
         self._utt_start = 0  # the sample at which the current utterance starts
         self._closed: dict[int, int] = {}  # frame -> final phone, frames of ended utterances
@@ -225,57 +220,27 @@ class PhoneStream:
         self._windows.append(window)
         return window
 
-    def push(self, chunk: np.ndarray) -> list[int]:
-        """Add mono samples (any length); return the phones of the frames newly decided (their
-        windows: :meth:`push_windows`)."""
-        return [w[self.back] for w in self.push_windows(chunk)]
-
     def push_windows(self, chunk: np.ndarray) -> list[list[int]]:
         """Add mono samples (any length); return the windows of the frames newly decided."""
-        if self._done:
-            raise ParameterError("the phone stream has ended; start a new one")
-        chunk = np.asarray(chunk, dtype=np.float32)
-        if chunk.ndim != 1 or not np.all(np.isfinite(chunk)):
-            raise ParameterError("the audio chunk must be mono and finite")
-        self._n_samples += len(chunk)
-        audio = np.concatenate([self._pending, chunk])
         out = []
-        n_whole = len(audio) // self.hop
-        for b in range(n_whole):
-            self._feed(audio[b * self.hop:(b + 1) * self.hop])
+        for block in self._blocks_of(chunk):
+            self._feed(block)
             self._blocks += 1
             segs = self._segments()
             while len(self._windows) + self.delay <= self._blocks:
                 out.append(self._decide(segs))
             self._maybe_end_utterance(segs)
-        self._pending = audio[n_whole * self.hop:]
         return out
-
-    def flush(self) -> list[int]:
-        """End of the audio: the phones of the remaining frames (``ceil(n_samples / hop)`` in
-        all), from the final hypothesis (their windows: :meth:`flush_windows`)."""
-        return [w[self.back] for w in self.flush_windows()]
 
     def flush_windows(self) -> list[list[int]]:
         """End of the audio: the windows of the remaining frames, from the final hypothesis."""
-        if self._done:
+        rest = self._end()
+        if rest is None:
             return []
-        self._done = True
-        self._feed(self._pending, last=True)
+        self._feed(rest, last=True)
         self.decoder.end_utt()
-        n_total = -(-self._n_samples // self.hop)
         segs = self._segments()
-        return [self._decide(segs) for _ in range(len(self._windows), n_total)]
-
-    @property
-    def windows(self) -> np.ndarray:
-        """Every window decided so far (n_decided, back + 1 + delay_frames), frame 0 first."""
-        return np.asarray(self._windows, dtype=np.int64).reshape(-1, self.back + 1 + self.delay)
-
-    @property
-    def labels(self) -> np.ndarray:
-        """Every phone decided so far, frame 0 first."""
-        return self.windows[:, self.back]
+        return [self._decide(segs) for _ in range(len(self._windows), self.n_total)]
 
 
 def label_windows(phones: np.ndarray, back: int, forward: int) -> np.ndarray:

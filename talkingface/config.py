@@ -32,8 +32,7 @@ from pathlib import Path
 import yaml
 
 from analysis.config import SpeechSetConfig, TargetsConfig
-from data_synth.backends import voice_problem
-from data_synth.config import SynthConfig, VoicesRule
+from data_synth.config import SynthConfig, VoicesRule, check_voices
 from face_model.config import TrackerConfig, UnitsConfig
 from groundwork.errors import ParameterError
 from groundwork.settings import (SettingError, check_fields, choice, choices_of, integer, subset,
@@ -193,10 +192,7 @@ class FrontEndConfig:
 
     def __post_init__(self):
         check_fields(self)
-        for spec in self.voices:
-            problem = voice_problem(spec)
-            if problem is not None:
-                raise SettingError("voices", spec, problem)
+        check_voices(self.voices)
 
 
 MAX_SEED = 2**31 - 1  # derived seeds add offsets; scikit-learn takes seeds < 2**32

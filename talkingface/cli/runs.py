@@ -17,6 +17,7 @@ from talkingface.paths import RunPaths
 from talkingface.stages import (ABLATIONS, CEILING, GRID_STAGES, REAL_STEPS, REPLICATION,
                                 VOICES, off_for_corpus, preflight, prepare_run, run)
 from talkingface.stages.base import time_summary
+from talkingface.stages.front_end import front_end_applies
 
 
 def open_run(name: str, cfg, stages, *, overwrite: bool = False, runs_dir="runs",
@@ -91,6 +92,11 @@ def front_end(name: str, cfg, *, overwrite: bool = False) -> dict:
     """The causal phone front end of ``runs/<name>`` (stage ``front_end``: its corpora made if
     missing, hama's teacher pass, the training)."""
     refuse_off("front_end", cfg)
+    if not front_end_applies(cfg):
+        raise ParameterError("talkingface front-end teaches the front end that the voices "
+                             "grid's causal children read (mapping.recogniser: causal, no "
+                             f"mapping.front_model); voices.grid {cfg.voices.grid} has none "
+                             "(default: the project's configs/voices.yaml has two)")
     return run(["front_end"], open_run(name, cfg, ["front_end"], overwrite=overwrite),
                cfg)["front_end"]
 

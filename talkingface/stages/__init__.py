@@ -14,7 +14,8 @@ from talkingface.paths import RunPaths
 from talkingface.stages.base import (Stage, prepare_run, read_done, run_order, run_stages,
                                      stale_stages)
 from talkingface.stages.applies import study_applies, switched_off, synthesised
-from talkingface.stages.front_end import front_end_applies, front_inputs, train_front_end
+from talkingface.stages.front_end import (front_end_applies, front_inputs, front_model_inputs,
+                                          train_front_end)
 from talkingface.stages.foundation import (fit_keyframes, fit_units, make_corpus, sentence_file,
                                            units_inputs)
 from talkingface.stages.given_corpus import corpus_config, corpus_inputs
@@ -62,7 +63,7 @@ STAGES = {s.name: s for s in (
     Stage("tracked", make_tracked_corpus, config=("seed", "tracker.init",
           "tracker.corpus_noise_sd"), upstream=("corpus", "units"), enabled=uses_tracked_corpus),
     Stage("mapping", train, config=("seed", "mapping"), speed_only=("mapping.workers",),
-          upstream=_TRAINING_INPUTS),
+          upstream=_TRAINING_INPUTS, inputs=front_model_inputs),
     Stage("front_end", train_front_end, config=("seed", "synth", "mapping.augment",
                                                 "mapping.train_fraction", "front_end",
                                                 "real_speaker.corpus"),

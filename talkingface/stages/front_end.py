@@ -50,7 +50,7 @@ from face_model.phones import PHONE_INDEX
 from groundwork.audio import resample
 from groundwork.cache import ArrayCache
 from groundwork.errors import ParameterError
-from mapping import causal_front, front_net
+from mapping import front_net
 from mapping.augment import augment, retime_labels
 from mapping.front_training import FrontExample, Teacher, train_front
 from mapping.hearing import hear_all
@@ -134,6 +134,19 @@ def front_inputs(paths, cfg) -> dict:
                              "corpus; allowed: run, voices, and real with a real speaker")
     rows = sorted(f"{r['speaker']}/{Path(r['wav']).stem}" for r in read_manifest(SET_DIR))
     return {"real_corpus": real_inputs(paths, cfg)["real_corpus"], "set_recordings": rows}
+
+
+def front_model_inputs(paths, cfg) -> dict:
+    """``mapping.front_model`` (a causal front end's model file): read and checked before any
+    stage runs, its checksummed name joining the key of the stages that read it."""
+    model = cfg.mapping.front_model
+    if not model:
+        return {}
+    if not Path(model).is_file():
+        raise ParameterError(f"mapping.front_model {model}: not found (a causal front end's "
+                             "model file, e.g. runs/<name>/front_end/causal_front.npz; empty: "
+                             "the run's or the shipped one)")
+    return {"front_model": front_net.front_name(model)}
 
 
 def _labels(u, n_steps: int) -> np.ndarray:

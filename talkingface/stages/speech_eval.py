@@ -61,7 +61,7 @@ from mapping.hearing import hear_all
 from mapping.recogniser import hearing_cache, recogniser_speakers
 from talkingface.paths import RunPaths
 from talkingface.stages.base import read_done, write_csv
-from talkingface.stages.front_end import front_file
+from talkingface.stages.front_end import front_end_applies, front_file
 from talkingface.stages.latency import measure_models
 from talkingface.stages.models import model_run, model_units
 from talkingface.stages.voices import voices_models
@@ -120,12 +120,13 @@ def front_speakers(mapping) -> frozenset:
     return recogniser_speakers(getattr(mapping.mapper, "recogniser", "pocketsphinx"))
 
 
-def run_recognisers(paths: RunPaths) -> tuple:
+def run_recognisers(paths: RunPaths, cfg) -> tuple:
     """The recognisers a run scores: pocketsphinx, hama and its own causal front end (the
-    ``front_end`` stage's model file; the shipped one when the run has none)."""
+    ``front_end`` stage's model file; the shipped one when the stage does not run)."""
     front = front_file(paths)
+    own = front_end_applies(cfg) and front.is_file()
     return (*(r for r in RECOGNISERS if r != "causal"),
-            f"causal:{front.resolve()}" if front.is_file() else "causal")
+            f"causal:{front.resolve()}" if own else "causal")
 
 
 def _split_ids(per_file: list) -> dict:
@@ -334,7 +335,7 @@ def evaluate_speech(paths: RunPaths, cfg) -> dict:
                           default_model=default, targets=cfg.targets,
                           per_speaker=cfg.speech_set.per_speaker,
                           cache=ArrayCache(paths.cache), workers=0,
-                          recognisers=run_recognisers(paths))
+                          recognisers=run_recognisers(paths, cfg))
     # after the scores, whose hearing uses every core: each candidate streamed alone
     timed = {n: m for n, m in models.items() if n.startswith("voices-") or n == default}
     latency = measure_models(timed, out_json=paths.stage("speech_eval") / LATENCY_FILE)

@@ -8,6 +8,7 @@ from face_model.phones import PHONE_INDEX
 from groundwork.errors import ParameterError
 from groundwork.modelfile import ModelFileError, write_model
 from mapping import front_net
+from tests.mapping.streams import feed
 from mapping.causal_front import CausalStream, labels_at_delays, posteriors
 from mapping.front_net import (front_name, load, make_front, random_front, read_front, resolve,
                                write_front)
@@ -34,14 +35,7 @@ def sound(sr, seconds=1.5, seed=0):
 
 def run(stream, y, sizes=None):
     """Windows of ``y`` pushed in chunks of ``sizes`` (cycled; None: one push), flushed."""
-    out, i, j = [], 0, 0
-    sizes = [len(y)] if sizes is None else sizes
-    while i < len(y):
-        n = int(sizes[j % len(sizes)])
-        out += stream.push_windows(y[i:i + n])
-        i, j = i + n, j + 1
-    out += stream.flush_windows()
-    return np.asarray(out, np.int64).reshape(-1, stream.back + 1 + stream.delay)
+    return feed(stream, y, [max(len(y), 1)] if sizes is None else sizes)
 
 
 # -- causality ---------------------------------------------------------------------------------

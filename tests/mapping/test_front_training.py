@@ -16,9 +16,10 @@ from groundwork.settings import SettingError
 from mapping import front_net, front_training, hama_front
 from mapping.causal_front import CausalStream
 from mapping.front_net import make_front, random_front
-from mapping.front_training import (FrontExample, FrontSettings, Teacher, assigned_spikes,
-                                    cached_targets, class_mass, teacher_rows, teacher_targets,
-                                    torch_net, train_front)
+from mapping.front_training import (FrontExample, FrontSettings, Teacher, cached_targets,
+                                    class_mass, teacher_rows, teacher_targets, torch_net,
+                                    train_front)
+from mapping.hama_front import assigned_spikes
 from mapping.hearing import hear_all
 from mapping.recogniser import HEARD_KIND, hearing_cache
 

@@ -19,6 +19,7 @@ from mapping.hama_front import (HAMA_RATE, HamaStream, labels_at_delays,
                                 output_classes, whole_utterance)
 from mapping.recogniser import (RECOGNISERS, phone_stream, recogniser_name,
                                 recognise_windows)
+from tests.mapping.streams import feed
 
 SIL = PHONE_INDEX["sil"]
 FPS = 30
@@ -38,18 +39,6 @@ def a0009():
 
 def at_rate(y16, sr):
     return y16 if sr == HAMA_RATE else soxr.resample(y16, HAMA_RATE, sr)
-
-
-def feed(stream, y, sizes):
-    """Push ``y`` to ``stream`` in chunks of ``sizes`` (cycled until the audio is used up), then
-    flush; the windows returned, in order."""
-    out, i, j = [], 0, 0
-    while i < len(y):
-        n = int(sizes[j % len(sizes)])
-        out += stream.push_windows(y[i:i + n])
-        i, j = i + n, j + 1
-    out += stream.flush_windows()
-    return np.asarray(out, np.int64).reshape(-1, stream.back + 1 + stream.delay)
 
 
 @pytest.fixture(scope="module")

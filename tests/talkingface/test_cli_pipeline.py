@@ -130,7 +130,8 @@ def test_replicate_writes_runs_report_and_mlflow(full_run_dir, monkeypatch):
     # the voice-robust models: a parent with one child per model and the models side by side
     voices = next(c for c in runs if c.data.tags.get("stage") == "voices")
     kids = [c for c in runs if c.data.tags.get("mlflow.parentRunId") == voices.info.run_id]
-    assert sorted(c.info.run_name for c in kids) == ["many/2002", "one/2002", "real/2002"]
+    assert sorted(c.info.run_name for c in kids) == ["causal/2002", "many/2002", "one/2002",
+                                                     "real/2002"]
     assert {c.data.tags["grid"] for c in kids} == {"voices"}
     assert voices.data.params["default"] == "many"
     note = voices.data.tags["mlflow.note.content"]
