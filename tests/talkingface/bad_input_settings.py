@@ -64,7 +64,7 @@ CASES: list = [
                 "--set", "mapping.front_model=speech.wav"),
      ["speech.wav", "not a phone front model file"]),
     (_replicate("--set", "mapping.front_model=x.npz"),
-     ["mapping.front_model", "x.npz", "with recogniser 'causal'"]),
+     ["mapping.front_model", "x.npz", "with mapping.recogniser 'causal'"]),
     (_replicate("--set", "mapping.recogniser=Causal"), ["mapping.recogniser", "'Causal'"]),
     (["front-end", "--name", "F", *RUN, "--set", "front_end.train.lookahead_ms=150"],
      ["front_end.train.lookahead_ms", "150", "a multiple of 10 from 0 to 100"]),

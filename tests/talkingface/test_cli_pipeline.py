@@ -179,7 +179,7 @@ def _check_voices_and_real_speech(run, table_rows, text):
 
     with open(run / "voices" / "results.csv", newline="") as f:
         voices = {r["model"]: r for r in csv.DictReader(f)}
-    assert set(voices) == {"one", "many", "real"} and voices["many"]["default"] == "True"
+    assert set(voices) == {"one", "many", "real", "causal"} and voices["many"]["default"] == "True"
     # the child with the run's own settings is the run's mapping again: its in-domain R is
     # Table II's mean test R (utterance split), recomputed from its predictions
     ours = [float(r["R"]) for r in table_rows if r["method"] == "gated_mlp"
@@ -191,7 +191,8 @@ def _check_voices_and_real_speech(run, table_rows, text):
     with open(run / "speech_eval" / "results.csv", newline="") as f:
         scores = list(csv.DictReader(f))
     models = {r["model"] for r in scores}
-    assert {"gated_mlp_utterance", "voices-one", "voices-many", "voices-real"} <= models
+    assert {"gated_mlp_utterance", "voices-one", "voices-many", "voices-real",
+            "voices-causal"} <= models
     # the real-face child: the real speaker's training sentences only, its own Motion Units
     real_part = {r.split(",")[0] for r in
                  (run / "voices" / "corpora" / "real" / "manifest.csv").read_text().split()[1:]}
@@ -204,6 +205,13 @@ def _check_voices_and_real_speech(run, table_rows, text):
     assert seen["voices-real"] >= 1  # the real speaker's own recordings are not unseen
     assert any(m.startswith("pocketsphinx") for m in models)
     assert any(m.startswith("hama") for m in models)
+    # the run's own causal front end is scored beside them, its training speakers seen: the
+    # run's espeak voice and the front end's voices (front_end.voices: espeak only here)
+    front = next(m for m in models if m.startswith("causal-front"))
+    from mapping.recogniser import recogniser_name
+
+    assert front == recogniser_name(f"causal:{run / 'front_end' / 'causal_front.npz'}")
+    assert {r["split"] for r in scores if r["model"] == front} >= {"unseen-test-independent"}
     # the test part apart by where its labels came from, and the front ends' look-ahead curve
     splits = {r["split"] for r in scores if r["model"].startswith("hama")}
     assert {"unseen-test-independent", "unseen-test-aligned"} <= splits
