@@ -136,7 +136,7 @@ def table(result: dict, current: str | None) -> str:
                      + f"{score:>26}" + f"{_ms(r.get('latency_p50_ms')):>16}"
                      + f"{_ms(r.get('latency_p99_ms')):>16}"
                      + ("   over the bound" if r.get("excluded") else ""))
-    lines.append("rule: the highest score (analysis/speech_report.py dev_choice); an exact tie "
+    lines.append("rule: the highest score (analysis/dev_rule.py dev_choice); an exact tie "
                  "to the later name")
     if result.get("latency_measured"):
         lines.append(f"latency bound: p99 at most {result['bound_ms']:.1f} ms "

@@ -29,10 +29,10 @@ def test_the_project_grid_holds_the_issue_configurations():
                               "one-voice-causal-labels", "many-causal-labels",
                               "real-face-hama-labels", "real-face-mfcc",
                               "real-and-drawn-hama-labels"]
-    assert model == "one-voice-hama-labels"
+    assert model == "one-voice-causal-labels"
     assert [children[n].voices.real_face for n in list(children)[-4:]] == \
         ["none", "alone", "alone", "added"]
-    assert children["real-face-hama-labels"].mapping == children[model].mapping
+    assert children["real-face-hama-labels"].mapping == children["one-voice-hama-labels"].mapping
     full = children["many-cmvn-warp-augment"].mapping
     assert full.cmvn == "meanvar" and full.vtlp_range == (0.9, 1.1) and full.augment.copies >= 1
     default = children[model].mapping
