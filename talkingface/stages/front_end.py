@@ -49,7 +49,7 @@ from face_model.corpus import Corpus, load_corpus
 from face_model.phones import PHONE_INDEX
 from groundwork.audio import resample
 from groundwork.cache import ArrayCache
-from groundwork.errors import ParameterError
+from groundwork.errors import ParameterError, TalkingFaceError
 from mapping import front_net
 from mapping.augment import augment, retime_labels
 from mapping.front_training import FrontExample, Teacher, train_front
@@ -77,8 +77,12 @@ def front_end_applies(cfg) -> bool:
     reads the shipped one, and speech_eval scores the shipped one)."""
     if not synthesised(cfg) or not VOICES.has_grid(cfg):
         return False
+    try:
+        children = VOICES.children(cfg)
+    except TalkingFaceError:  # a bad grid is refused by the voices stage, naming its setting
+        return False
     return any(c.mapping.gate_front_end == "recogniser" and c.mapping.recogniser == "causal"
-               and not c.mapping.front_model for c in VOICES.children(cfg).values())
+               and not c.mapping.front_model for c in children.values())
 
 
 def front_file(paths: RunPaths) -> Path:
