@@ -82,7 +82,7 @@ def front_end_section(rep, done: dict | None, speech_dir: Path) -> None:
                   "corpus's labels. {label:front_end_training} gives what it learned from and "
                   "what teaching it cost.")
     rep.table("The causal front end's training (front_end/done.json)", ["", ""],
-              training_rows(done), key="front_end_training",
+              training_rows(done), key="front_end_training", stage="front_end",
               note="A recording of a training speaker is seen, and scored apart, for the front "
                    "end and for every model that reads it.")
     results = _rows(Path(speech_dir) / "results.csv")
