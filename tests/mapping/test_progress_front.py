@@ -13,6 +13,7 @@ from analysis.speech_set import load_speech_set
 from mapping import recogniser
 from mapping.recogniser import (COST_SAMPLE_S, cost_line, phone_stream, progress_bars,
                                 recognise_windows)
+from tests.terminal_text import screen_lines
 
 SR = 22050  # a rate both streams resample from, as the mapping's audio is
 COST = re.compile(r"(pocketsphinx|hama): (\d+\.\d) s of audio, ~(\d+\.\d\d) s of work per s "
@@ -51,8 +52,8 @@ def test_a_recording_heard_with_progress_gives_the_same_windows(speech, which, f
     s.flush_windows()
     np.testing.assert_array_equal(shown, s.windows)
     err = capsys.readouterr().err
-    (line,) = [ln for ln in err.splitlines() if COST.fullmatch(ln.strip())]
-    m = COST.fullmatch(line.strip())
+    (line,) = [ln for ln in screen_lines(err) if COST.fullmatch(ln)]
+    m = COST.fullmatch(line)
     assert m[1] == which and float(m[2]) == round(len(speech) / SR, 1)
     assert float(m[3]) > 0 and float(m[5]) == COST_SAMPLE_S
     total = f"{len(speech) / SR:.1f}"
@@ -65,7 +66,7 @@ def test_progress_bars_turns_the_bar_on_for_a_block_only(speech, fresh, capsys):
         recognise_windows(y, SR, recogniser="pocketsphinx")
         recognise_windows(y, SR, recogniser="pocketsphinx")  # heard already: no work, no bar
     err = capsys.readouterr().err
-    assert len([ln for ln in err.splitlines() if COST.fullmatch(ln.strip())]) == 1
+    assert len([ln for ln in screen_lines(err) if COST.fullmatch(ln)]) == 1
     assert "measured on the first 1.5 s" in err
     recogniser._HEARD.clear()
     recognise_windows(y, SR, recogniser="pocketsphinx")

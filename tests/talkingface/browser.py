@@ -61,6 +61,16 @@ def alive_processes(procs) -> list[psutil.Process]:
     return out
 
 
+def command_lines(procs) -> str:
+    """The whole command lines of the processes of ``procs`` still running, joined by spaces
+    (a process that ends or becomes a zombie meanwhile has none to read)."""
+    out = []
+    for p in alive_processes(procs):
+        with contextlib.suppress(psutil.Error):
+            out.append(" ".join(p.cmdline()))
+    return " ".join(out)
+
+
 def alive(procs) -> list[str]:
     """:func:`alive_processes` as ``"pid command line"``, for assertion messages."""
     out = []

@@ -37,7 +37,7 @@ from talkingface.cli.lab_server import EXPERIMENT
 from talkingface.experiments.mlflow_app import (WORKFLOW_KEY, grid_link_text, link_text,
                                                 pipeline_url)
 from talkingface.experiments.server import PG_SEARCH, lab_server, postgres_bin, warn_trusting
-from tests.talkingface.browser import (alive, alive_processes, local_storage,
+from tests.talkingface.browser import (alive, alive_processes, command_lines, local_storage,
                                        processes_mentioning, save_png, wait_gone)
 from tests.talkingface.test_ui_landing import KIND, ML, RUNS, STAGE, assert_runs_table
 
@@ -109,7 +109,7 @@ def test_server_makes_its_database_once_reuses_it_and_leaves_nothing_running(
         # every process of the server: its command line names the folder (postgres -D
         # DIR/pgdata, mlflow --artifacts-destination DIR/artifacts), or it descends from one
         procs = processes_mentioning(str(lab_folder))
-        cmdlines = " ".join(" ".join(p.cmdline()) for p in procs)
+        cmdlines = command_lines(procs)
         assert "postgres" in cmdlines and "mlflow" in cmdlines and "uvicorn" in cmdlines
         assert not _port_free(port) and not _port_free(db_port)
         # the database asks for the password, which only the folder's owner can read
@@ -192,7 +192,7 @@ def test_server_makes_its_database_once_reuses_it_and_leaves_nothing_running(
         assert again.data.metrics[METRIC] == 0.625
         assert [a.path for a in client.list_artifacts(run.info.run_id)] == ["note.txt"]
         procs = processes_mentioning(str(lab_folder))
-        cmdlines = " ".join(" ".join(p.cmdline()) for p in procs)
+        cmdlines = command_lines(procs)
         assert "mlflow.server.jobs" in cmdlines and "--app-name talkingface" in cmdlines
         # the names listed are accepted (with the port a browser adds), others are not
         api = f"{base}/api/2.0/mlflow/experiments/search?max_results=1"

@@ -17,6 +17,7 @@ from talkingface.cli.animate import animate_file, stream_file
 from talkingface.cli.main import main
 from tests.mapping.small_mapping import train_small
 from tests.talkingface.test_animate import _speech, _write, trained  # noqa: F401 (a fixture)
+from tests.terminal_text import screen_lines
 
 COST = re.compile(r"(pocketsphinx|stream): (\d+\.\d) s of audio, ~\d+\.\d\d s of work per s of "
                   r"audio \(about \d+ (s|min)(, paced in real time)? on this machine, measured "
@@ -44,7 +45,7 @@ def wav(trained, tmp_path):
 
 
 def _cost_lines(err: str) -> list[str]:
-    return [ln.strip() for ln in err.splitlines() if COST.fullmatch(ln.strip())]
+    return [ln for ln in screen_lines(err) if COST.fullmatch(ln)]
 
 
 def test_animate_says_what_it_will_do_and_what_the_recogniser_costs(trained, phones_model, wav,

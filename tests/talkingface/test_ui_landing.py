@@ -43,7 +43,7 @@ from talkingface.experiments.mlflow_app import (ASSISTANT_KEY, DEFAULT_WORKFLOW_
                                     PIPELINE_FILTER, RUN_NAME, WORKFLOW_KEY, create_app,
                                     find_experiment, grid_filter, grid_link_text, grid_url,
                                     pipeline_url, runs_url, with_default_workflow)
-from tests.talkingface.browser import (alive_processes, click, displayed_with_text,
+from tests.talkingface.browser import (alive_processes, click, command_lines, displayed_with_text,
                                        local_storage, page_headings, processes_mentioning,
                                        save_png, set_local_storage,
                                        wait_gone, wait_until)
@@ -268,8 +268,8 @@ def test_ui_prints_its_address_and_the_link_to_the_runs(ui, store):
     assert ui.link_line.split()[2] == pipeline_url(ui.base, store.experiment_id)
     assert ui.grid_line.split()[2] == grid_url(ui.base, store.experiment_id)
     # the server runs the project's app
-    cmdlines = [" ".join(p.cmdline()) for p in alive_processes(ui.procs)]
-    assert any("--app-name talkingface" in c for c in cmdlines), cmdlines
+    cmdlines = command_lines(ui.procs)
+    assert "--app-name talkingface" in cmdlines, cmdlines
 
 
 def test_a_fresh_browser_goes_from_the_front_page_to_the_runs(ui, store, fresh_browser):
