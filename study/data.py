@@ -32,7 +32,7 @@ from filelock import FileLock
 
 from groundwork.atomic import atomic_file
 from groundwork.errors import ParameterError
-from study.columns import COLUMNS, csv_text, read_data_file
+from study.columns import COLUMNS, SITES, WEB_COLUMNS, csv_text, read_data_file
 from study.design import (
     N_TRIALS,
     RESPONSES,
@@ -194,6 +194,9 @@ class SessionFile:
         if len(self.trials) != N_TRIALS:
             raise ParameterError(f"a session has {N_TRIALS} trials, got {len(self.trials)}")
         rows, torn = check_session_file(study_dir, self.pid, self.trials, resume=resume)
+        # a file begun by an older version keeps its own columns (appended rows match them)
+        fields = read_data_file(self.path)[0] if rows else None
+        self.fields = tuple(fields) if fields and set(fields) <= set(COLUMNS) else COLUMNS
         if torn:  # the trial in progress when the session died: it is asked again
             with open(self.path, "r+b") as f:
                 data = f.read()
@@ -243,19 +246,22 @@ class SessionFile:
                                  f"{expected.trial_index})")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         new = not self.path.is_file() or self.path.stat().st_size == 0
-        text = csv_text([row], header=new)
+        text = csv_text([row], header=new, fields=self.fields if not new else COLUMNS)
         fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
         try:
             os.write(fd, text.encode("utf-8"))
             os.fsync(fd)
         finally:
             os.close(fd)
-        self.done.append({c: str(row[c]) for c in COLUMNS})
+        if new:
+            self.fields = COLUMNS
+        self.done.append({c: str(row[c]) for c in self.fields})
 
 
 def trial_row(trial: Trial, *, participant_id: str, sequence: str, response: str,
               response_key: str, rt_s: float, simulated: bool, responder_model: str,
-              session: int, qc: dict | None = None, timestamp: str | None = None) -> dict:
+              session: int, site: str, qc: dict | None = None, web: dict | None = None,
+              timestamp: str | None = None) -> dict:
     """A data row for one judgment, with every column of the contract.
 
     Parameters
@@ -275,9 +281,15 @@ def trial_row(trial: Trial, *, participant_id: str, sequence: str, response: str
         ``human``, or the model that answered.
     session : int
         1 for a first session, 2 … for a resumed one.
+    site : str
+        Where the session ran (:data:`study.columns.SITES`: ``lab``, ``web``, or ``none`` for
+        files a simulation writes directly).
     qc : dict, optional
         The frame-timing columns (``n_frames``, ``frames_late``, ``frame_interval_ms_mean``,
         ``frame_interval_ms_max`` in ms, ``audio_onset_s`` in s); blank when absent.
+    web : dict, optional
+        What a browser measured (:data:`study.columns.WEB_COLUMNS`: times in ms, the browser,
+        the refresh rate in Hz, ``fullscreen`` and ``focused`` as booleans); blank when absent.
     timestamp : str, optional
         The wall-clock time of the answer, now by default; simulated rows pass "".
 
@@ -286,7 +298,9 @@ def trial_row(trial: Trial, *, participant_id: str, sequence: str, response: str
     dict
         Column → value (numbers formatted as the file holds them).
     """
-    qc = qc or {}
+    if site not in SITES:
+        raise ParameterError(f"site {site!r}; allowed: {', '.join(SITES)}")
+    qc, web = qc or {}, web or {}
     return {"participant_id": participant_id, "group": group_of(sequence), "sequence": sequence,
             **{k: v for k, v in trial.as_dict().items()},
             "response": response, "response_key": response_key, "rt_s": f"{rt_s:.4f}",
@@ -296,11 +310,24 @@ def trial_row(trial: Trial, *, participant_id: str, sequence: str, response: str
             "frame_interval_ms_mean": _fmt(qc.get("frame_interval_ms_mean")),
             "frame_interval_ms_max": _fmt(qc.get("frame_interval_ms_max")),
             "audio_onset_s": _fmt(qc.get("audio_onset_s")),
-            "timestamp": now_iso() if timestamp is None else timestamp}
+            "timestamp": now_iso() if timestamp is None else timestamp, "site": site,
+            **{c: _web_value(web.get(c)) for c in WEB_COLUMNS}}
 
 
 def _fmt(v) -> str:
     return "" if v is None else f"{float(v):.4f}"
+
+
+def _web_value(v) -> str:
+    """A browser's measure as the file holds it: booleans ``true``/``false``, numbers with
+    two decimals (times in ms, Hz), text as it is, blank when absent."""
+    if v is None:
+        return ""
+    if isinstance(v, bool):
+        return str(v).lower()
+    if isinstance(v, (int, float)):
+        return f"{float(v):.2f}"
+    return str(v)
 
 
 class Allocation:

@@ -360,7 +360,8 @@ def _judgments(screen: _Screen, plan: SessionPlan, psy, exp) -> None:
         row = sdata.trial_row(step.trial, participant_id=plan.participant_id,
                               sequence=plan.sequence, response=response, response_key=key,
                               rt_s=rt, simulated=plan.simulated,
-                              responder_model=plan.responder_model, session=plan.session, qc=qc)
+                              responder_model=plan.responder_model, session=plan.session,
+                              site="lab", qc=qc)
         plan.file.append(row)
         for c in sdata.COLUMNS:
             exp.addData(c, row[c])

@@ -52,7 +52,7 @@ class SimulatedParticipant:
             self.rows.append(trial_row(
                 trial, participant_id=pid, sequence=self.sequence, response=response,
                 response_key=key_of[response], rt_s=rt, simulated=True,
-                responder_model=RESPONDER_MODEL, session=1, qc=None,
+                responder_model=RESPONDER_MODEL, session=1, site="none", qc=None,
                 timestamp=""))  # no session happened at any time: reproducible files
         side = {"participant_id": pid, "participant_index": sidecar["participant_index"],
                 "sequence": self.sequence, "group": group_of(self.sequence),

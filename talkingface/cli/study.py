@@ -3,6 +3,8 @@
     talkingface study stimuli  --name RUN            runs/RUN/stimuli from the run's mapping
     talkingface study allocate --study-dir D         the pre-generated SR/RS list (seeded)
     talkingface study run --participant P01          one PsychoPy session (--resume, --fullscreen)
+    talkingface study web --out web                  the same study as a jsPsych web page
+    talkingface study serve --web web                serve it; its data into the study folder
     talkingface study release --participant P01      give an aborted session's slot back
     talkingface study simulate --n 20                simulated participants (FLMP observers;
                                                      again, with the same settings, to resume)
@@ -31,21 +33,13 @@ from study.simulate import RESPONDER_MODEL, make_observers, responder, simulate_
 from study.stimuli import load_manifest
 from talkingface.cli import runs
 from talkingface.cli.args import config_args, resolve_config, run_args
+from talkingface.cli.study_web import add_parsers as add_web_parsers
+from talkingface.cli.study_web import stimuli_folder
 from talkingface.config import MAX_SEED
 from talkingface.paths import check_run_name
 from talkingface.provenance import git_commit
 
 DEFAULT_STUDY_DIR = Path("study_data")
-
-
-def _stimuli_dir(args) -> Path:
-    if args.stimuli:
-        return Path(args.stimuli)
-    found = sorted(Path("runs").glob("*/stimuli/manifest.csv"), key=lambda p: p.stat().st_mtime)
-    if not found:
-        raise ParameterError("no stimuli found under runs/: make them with `talkingface study "
-                             "stimuli --name RUN` (or `make replicate`), or pass --stimuli DIR")
-    return found[-1].parent
 
 
 def monte_carlo_seed(seed) -> int:
@@ -187,7 +181,7 @@ def _replay_answers(answer, study_dir: Path, pid: str, seed: int) -> None:
 
 def cmd_run(args) -> int:
     cfg = resolve_config(args)
-    stim = _stimuli_dir(args)
+    stim = stimuli_folder(args)
     resp, model = _injected(args, stim, cfg, args.participant)
     s = cfg.study
     res = run_session(args.study_dir, stim, args.participant, study_seed=cfg.seed,
@@ -214,7 +208,7 @@ def cmd_release(args) -> int:
 
 def cmd_simulate(args) -> int:
     cfg = resolve_config(args)
-    stim = _stimuli_dir(args)
+    stim = stimuli_folder(args)
     stimuli = load_manifest(stim)  # a missing or damaged stimulus set is named first
     clf = observer_classifier(stim, cfg.seed)
     res = simulate_study(args.study_dir, stimuli, clf, n=args.n, seed=cfg.seed,
@@ -266,6 +260,8 @@ def add_parser(sub) -> None:
     s.add_argument("--screenshot", type=Path, help="save a PNG of the first bimodal trial")
     config_args(s)
     s.set_defaults(func=cmd_run)
+
+    add_web_parsers(ss, study_dir)
 
     s = ss.add_parser("release", help="free an aborted participant's allocation slot")
     s.add_argument("--participant", required=True)

@@ -197,15 +197,19 @@ def test_a_session_written_by_the_study_is_read_with_every_contract_column(tmp_p
     """study.columns is the one definition of the data file: rows appended by the study's
     SessionFile come back from the analysis with every column and value as written."""
     written = {}
-    for pid, seq in (("P01", "SR"), ("P02", "RS")):
+    qc = {"n_frames": 90, "frames_late": 0, "frame_interval_ms_mean": 16.7,
+          "frame_interval_ms_max": 17.2, "audio_onset_s": 0.004}
+    web = {"browser": "Chrome 156", "refresh_hz": 60.02, "stimulus_onset_ms": 1520.5,
+           "stimulus_end_ms": 3020.25, "response_onset_ms": 3021.0, "response_ms": 3830.75,
+           "fullscreen": True, "focused": False}
+    for pid, seq, site in (("P01", "SR", "lab"), ("P02", "RS", "web")):
         trials = session_trials(pid, seq, 5)
         session = SessionFile(tmp_path, pid, trials)
         for t, response in zip(trials, RESPONSES * 7):
             row = trial_row(t, participant_id=pid, sequence=seq, response=response,
                             response_key=response[0], rt_s=0.8, simulated=False,
-                            responder_model="human", session=1,
-                            qc={"n_frames": 90, "frames_late": 0, "frame_interval_ms_mean": 16.7,
-                                "frame_interval_ms_max": 17.2, "audio_onset_s": 0.004},
+                            responder_model="human", session=1, site=site,
+                            qc=qc if site == "lab" else None, web=web if site == "web" else None,
                             timestamp="2024-05-01T10:00:00+0200")
             session.append(row)
             written[(pid, t.trial_index)] = row

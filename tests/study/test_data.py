@@ -30,7 +30,7 @@ from study.design import N_TRIALS, RESPONSES, session_trials
 def _row(trial, response="neutral"):
     return trial_row(trial, participant_id="P01", sequence="SR", response=response,
                      response_key="n", rt_s=0.5, simulated=False, responder_model="human",
-                     session=1)
+                     session=1, site="lab")
 
 
 def _write(tmp_path, k):

@@ -76,7 +76,7 @@ def judge(p, k):
     for trial in p.trials[:k]:
         p.file.append(trial_row(trial, participant_id=p.participant_id, sequence=p.sequence,
                                 response="sad", response_key="s", rt_s=0.5, simulated=False,
-                                responder_model="test", session=p.session))
+                                responder_model="test", session=p.session, site="lab"))
 
 
 def crash(p):
