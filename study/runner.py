@@ -59,6 +59,8 @@ BLOCK_TEXT = {("visual", 0): "Part 1 of 4: faces without sound.\n\nWatch the fac
                               "listen."}
 QUESTION = "Which emotion did the person show?"
 PRACTICE_TEXT = "First, one practice trial with a voice only."
+PRACTICE_OVER = "The practice is over. The study begins now."
+END_TEXT = "Thank you! The session is over."
 CONTINUE = "\n\nPress SPACE to continue."
 
 
@@ -350,7 +352,7 @@ def _judgments(screen: _Screen, plan: SessionPlan, psy, exp) -> None:
     if plan.practice:
         screen.text(PRACTICE_TEXT + CONTINUE)
         screen.trial(PRACTICE, plan.stimuli[PRACTICE.stimulus_id], practice=True, **opts)
-        screen.text("The practice is over. The study begins now." + CONTINUE)
+        screen.text(PRACTICE_OVER + CONTINUE)
     for step in plan.steps:
         if step.part is not None:
             screen.text(BLOCK_TEXT[step.part] + CONTINUE)
@@ -399,7 +401,7 @@ def _execute(plan: SessionPlan, psy, responder) -> str:
         this["frame_period_s"] = screen.period
         _judgments(screen, plan, psy, exp)
         end_state = "complete"
-        screen.text("Thank you! The session is over.", wait=False,
+        screen.text(END_TEXT, wait=False,
                     seconds=1.0 if responder is None else 0.1)
     except _Abort:  # Escape (on the closing screen of a complete session, too late to abort)
         end_state = "complete" if plan.file.complete else "aborted"

@@ -10,19 +10,25 @@
 #   bash tools/setup.sh face     base + the face environment (`$VENV-face`, requirements/face.txt):
 #                                MediaPipe Face Mesh for landmarks from real video
 #                                (`talkingface corpus from-video`, `talkingface evaluate-face`)
-#   bash tools/setup.sh test     base + server + face + what the tests need (`make test`): Debian
-#                                chromium and chromium-driver, and requirements/lab.txt (selenium)
+#   bash tools/setup.sh web      base + the web study's page (`talkingface study web`): Debian
+#                                nodejs and npm when node or npm is missing, and jsPsych with its
+#                                plugins, pinned by study/web/package-lock.json, in
+#                                study/web/node_modules (`npm ci`)
+#   bash tools/setup.sh test     base + server + face + web + what the tests need (`make test`):
+#                                Debian chromium and chromium-driver, and requirements/lab.txt
+#                                (selenium)
 #
-# Re-running is cheap: the venv is rebuilt only when the lock file or pyproject changes, and the
+# Re-running is cheap: the venv is rebuilt only when the lock file or pyproject changes, the
 # lab's extras are reinstalled only when requirements/lab.txt (or what it is pinned against) does
-# (one stamp file each in the venv).
+# (one stamp file each in the venv), and study/web/node_modules only when
+# study/web/package-lock.json does (a stamp file in node_modules).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 MODE=${1:-base}
 case "$MODE" in
-  base|server|face|test) ;;
-  *) echo "setup: unknown mode '$MODE'; allowed: base (the default), server, face, test" >&2
+  base|server|face|web|test) ;;
+  *) echo "setup: unknown mode '$MODE'; allowed: base (the default), server, face, web, test" >&2
      exit 2;;
 esac
 VENV=${VENV:-.venv}
@@ -41,6 +47,11 @@ DEB_PKGS="python3 python3-venv python3-pip flite festival festlex-cmu festlex-po
 # test: chromium and chromium-driver (the MLflow UI opened in a real, headless browser).
 case "$MODE" in server|test) DEB_PKGS="$DEB_PKGS postgresql";; esac
 if [ "$MODE" = test ]; then DEB_PKGS="$DEB_PKGS chromium chromium-driver"; fi
+# web and test: nodejs and npm (jsPsych's packages, the page's simulation tests), unless a node
+# and an npm are already on the PATH (e.g. from nodesource or nvm).
+if [ "$MODE" = web ] || [ "$MODE" = test ]; then
+  { command -v node && command -v npm; } >/dev/null 2>&1 || DEB_PKGS="$DEB_PKGS nodejs npm"
+fi
 
 missing=()
 for p in $DEB_PKGS; do
@@ -106,5 +117,17 @@ if [ "$MODE" = face ] || [ "$MODE" = test ]; then
       || { echo "setup: the face environment $FACE_VENV does not import mediapipe" >&2; exit 1; }
     echo "$want_face" > "$FACE_STAMP"
     echo "setup: the face environment (requirements/face.txt) ready in $FACE_VENV"
+  fi
+fi
+
+# The web study (web and test modes): jsPsych and its plugins exactly as package-lock.json pins
+# them (`npm ci` removes node_modules first, so nothing else stays in it).
+if [ "$MODE" = web ] || [ "$MODE" = test ]; then
+  WEB_STAMP=study/web/node_modules/.talkingface-web-installed
+  want_web=$(sha256sum study/web/package-lock.json | cut -d' ' -f1)
+  if [ ! -f "$WEB_STAMP" ] || [ "$(cat "$WEB_STAMP")" != "$want_web" ]; then
+    npm ci --prefix study/web --no-audit --no-fund --loglevel=error
+    echo "$want_web" > "$WEB_STAMP"
+    echo "setup: the web study's jsPsych (study/web/package-lock.json) ready in study/web/node_modules"
   fi
 fi

@@ -3,22 +3,23 @@ lab's trial order and slot; every judgment is kept as it is answered; a closed p
 at the next trial; bad requests change no file; a completed participant is not run again;
 another participant's data can be neither read nor written.
 
-The requests go through Starlette's test client to the app ``talkingface study serve`` runs
-(``study.web.app.make_app``); the load test (50 participants at once, over real sockets) is in
+The requests go over a socket to the app as ``talkingface study serve`` runs it
+(tests/study/web_serving.py); the load test (50 participants at once) is in
 tests/study/test_web_load.py and a whole session in a browser in tests/study/test_web_browser.py."""
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 
 import pytest
-from starlette.testclient import TestClient
 
 from study.data import Allocation, data_path, read_rows, sidecar_path
 from study.design import N_TRIALS, RESPONSES, allocation_sequences, session_trials
-from study.web.app import MAX_BODY, make_app
+from study.web.app import MAX_BODY
 from study.web.server_session import WebStudy, token_digest
 from talkingface.config import Config
+from tests.study import web_serving
 
 SEED = Config().seed
 KEYS = dict(zip(RESPONSES, ("n", "h", "s", "u")))
@@ -29,9 +30,16 @@ MEASURES = {"browser": "Chrome 156", "refresh_hz": 60.0, "stimulus_onset_ms": 10
             "fullscreen": True, "focused": True}
 
 
-def serve(study_dir, **kw) -> TestClient:
-    study = WebStudy(study_dir, SITE, study_seed=SEED, n_slots=kw.pop("n_slots", 8), **kw)
-    return TestClient(make_app(study_dir, study))
+@pytest.fixture
+def serve(tmp_path):
+    """``serve(study_dir, **settings)``: an httpx client on a running server of a WebStudy
+    (stopped when the test ends)."""
+    with contextlib.ExitStack() as stack:
+        def start(study_dir, **kw):
+            study = WebStudy(study_dir, SITE, study_seed=SEED, n_slots=kw.pop("n_slots", 8),
+                             **kw)
+            return stack.enter_context(web_serving.client(tmp_path, study))
+        yield start
 
 
 def answer(trial) -> str:
@@ -57,7 +65,7 @@ def study_dir(tmp_path):
     return tmp_path / "study_data"
 
 
-def test_a_new_participant_gets_the_labs_slot_order_and_a_token(study_dir):
+def test_a_new_participant_gets_the_labs_slot_order_and_a_token(study_dir, serve):
     client = serve(study_dir)
     r = client.post("/api/session", json={"params": {"participant": "P01"}})
     assert r.status_code == 200, r.text
@@ -81,7 +89,8 @@ def test_a_new_participant_gets_the_labs_slot_order_and_a_token(study_dir):
     assert second["sequence"] == allocation_sequences(8, SEED)[1]
 
 
-def test_a_whole_session_writes_the_contract_rows_with_what_the_browser_measured(study_dir):
+def test_a_whole_session_writes_the_contract_rows_with_what_the_browser_measured(study_dir,
+                                                                               serve):
     client = serve(study_dir, completion_code="C0DE42",
                    completion_url="https://app.prolific.com/submissions/complete?cc={code}")
     params = {"PROLIFIC_PID": "5f3a9c0e1b2d4e5f6a7b8c9d", "STUDY_ID": "abc", "SESSION_ID": "x1"}
@@ -117,7 +126,7 @@ def test_a_whole_session_writes_the_contract_rows_with_what_the_browser_measured
     assert snapshot(study_dir) == before
 
 
-def test_a_page_closed_mid_way_continues_at_the_next_trial(study_dir):
+def test_a_page_closed_mid_way_continues_at_the_next_trial(study_dir, serve):
     client = serve(study_dir)
     plan = client.post("/api/session", json={"params": {"participant": "P07"}}).json()
     for t in plan["trials"][:11]:
@@ -139,7 +148,7 @@ def test_a_page_closed_mid_way_continues_at_the_next_trial(study_dir):
     assert [s["end_state"] for s in side["sessions"]] == ["interrupted", "complete"]
 
 
-def test_a_row_cut_short_is_asked_again(study_dir):
+def test_a_row_cut_short_is_asked_again(study_dir, serve):
     client = serve(study_dir)
     plan = client.post("/api/session", json={"params": {"participant": "P03"}}).json()
     for t in plan["trials"][:5]:
@@ -155,7 +164,7 @@ def test_a_row_cut_short_is_asked_again(study_dir):
                                   "malformed JSON", "not an object", "huge body", "wrong token",
                                   "no token", "bad id", "bad key", "other stimulus",
                                   "bad measure", "negative rt", "other's token"])
-def test_bad_requests_get_one_line_and_change_no_file(study_dir, case):
+def test_bad_requests_get_one_line_and_change_no_file(study_dir, case, serve):
     client = serve(study_dir)
     plan = client.post("/api/session", json={"params": {"participant": "P01"}}).json()
     other = client.post("/api/session", json={"params": {"participant": "P02"}}).json()
@@ -219,7 +228,7 @@ def test_bad_requests_get_one_line_and_change_no_file(study_dir, case):
     assert snapshot(study_dir) == before
 
 
-def test_another_browser_cannot_continue_or_read_a_session(study_dir):
+def test_another_browser_cannot_continue_or_read_a_session(study_dir, serve):
     client = serve(study_dir)
     plan = client.post("/api/session", json={"params": {"participant": "P01"}}).json()
     post_trial(client, plan, plan["trials"][0])
@@ -231,7 +240,7 @@ def test_another_browser_cannot_continue_or_read_a_session(study_dir):
     assert snapshot(study_dir) == before
 
 
-def test_bad_session_requests_are_refused_before_any_file(study_dir):
+def test_bad_session_requests_are_refused_before_any_file(study_dir, serve):
     client = serve(study_dir)
     before = snapshot(study_dir)
     for body, status, message in [
@@ -247,7 +256,7 @@ def test_bad_session_requests_are_refused_before_any_file(study_dir):
     assert client.post("/api/other", json={}).status_code in (404, 405)
 
 
-def test_a_lab_participant_is_not_continued_in_a_browser(study_dir):
+def test_a_lab_participant_is_not_continued_in_a_browser(study_dir, serve):
     """A participant whose sidecar was written by ``study run`` (no web token) is refused."""
     sidecar_path(study_dir, "P05").parent.mkdir(parents=True)
     sidecar_path(study_dir, "P05").write_text(json.dumps({"participant_id": "P05",
@@ -259,7 +268,7 @@ def test_a_lab_participant_is_not_continued_in_a_browser(study_dir):
     assert snapshot(study_dir) == before
 
 
-def test_a_full_list_refuses_a_new_participant(study_dir):
+def test_a_full_list_refuses_a_new_participant(study_dir, serve):
     client = serve(study_dir, n_slots=2)
     for pid in ("P01", "P02"):
         assert client.post("/api/session", json={"params": {"participant": pid}}).status_code \
@@ -270,7 +279,7 @@ def test_a_full_list_refuses_a_new_participant(study_dir):
     assert snapshot(study_dir) == before
 
 
-def test_a_participant_without_an_id_gets_one(study_dir):
+def test_a_participant_without_an_id_gets_one(study_dir, serve):
     client = serve(study_dir)
     plan = client.post("/api/session", json={"params": {}}).json()
     assert plan["participant_id"].startswith("W") and len(plan["participant_id"]) == 13
@@ -279,7 +288,7 @@ def test_a_participant_without_an_id_gets_one(study_dir):
     assert again["participant_id"] == plan["participant_id"] and again["session"] == 2
 
 
-def test_simulated_observers_answer_as_in_the_lab(study_dir):
+def test_simulated_observers_answer_as_in_the_lab(study_dir, serve):
     """``serve --inject flmp``: the answers reaching the page are those the lab's injected
     observer gives the same participant, keyed by trial index; on reopening, the remaining
     ones, from the same random stream."""
