@@ -127,6 +127,7 @@ def analyze_study(study_dir, out_dir, *, seed: int = 0, bootstrap: int = 200,
                "incomplete": [asdict(i) for i in study.incomplete],
                "sequences": {s: int(df[df["sequence"] == s]["participant_id"].nunique())
                              for s in ("SR", "RS")},
+               "sites": session_sites(df),
                "simulated": bool(df["simulated"].all()),
                "any_simulated": bool(df["simulated"].any()),
                "tallies": {k: {"rows": list(t.rows), "columns": [list(c) if isinstance(c, tuple)
@@ -160,6 +161,43 @@ def _json(v):
     if hasattr(v, "__dataclass_fields__"):
         return asdict(v)
     return str(v)
+
+
+def session_sites(df) -> dict:
+    """Where the participants' sessions ran (``lab``, ``web``, ``none``: simulated files, and
+    ``unknown`` for files written before the ``site`` column), and of the web participants how
+    many left fullscreen or lost the page's focus during at least one trial (the browser's
+    measures: an analysis may exclude them)."""
+    site = df["site"].fillna("").astype(str).replace("", "unknown") if "site" in df else \
+        "unknown"
+    frame = df.assign(site=site)
+    first = frame.groupby("participant_id")["site"].first()
+    out = {k: int(v) for k, v in first.value_counts().sort_index().items()}
+    web = frame[frame["site"] == "web"]
+
+    def broke(col: str) -> int:
+        flags = web[col].astype(str).str.lower() == "false"
+        return int(web[flags]["participant_id"].nunique())
+    out["web_left_fullscreen"] = broke("fullscreen") if len(web) else 0
+    out["web_lost_focus"] = broke("focused") if len(web) else 0
+    return out
+
+
+def sites_sentence(summary: dict) -> str:
+    """Where the sessions ran, for the perception section ("" for a summary without it)."""
+    sites = summary.get("sites")
+    if not sites:
+        return ""
+    names = {"lab": "in the lab (PsychoPy)", "web": "online (a browser, study serve)",
+             "none": "simulated without a session", "unknown": "at a site the files do not "
+             "record (written before the site column)"}
+    parts = [f"{sites[k]} {names[k]}" for k in names if sites.get(k)]
+    text = " Sessions: " + "; ".join(parts) + "."
+    if sites.get("web"):
+        text += (f" Of the online participants, {sites['web_left_fullscreen']} left fullscreen "
+                 f"and {sites['web_lost_focus']} lost the page's focus during at least one "
+                 "trial (columns fullscreen and focused of the data files).")
+    return text
 
 
 def incomplete_sentence(summary: dict) -> str:
@@ -197,7 +235,8 @@ def perception_section(report, summary: dict, out_dir: Path) -> None:
         f"{n} {who}: {seqs['SR']} saw the synthetic face first in the bimodal blocks (SR), "
         f"{seqs['RS']} the real face first (RS). Each cell below is our count and, in "
         "parentheses, the paper's count of its 20 subjects. S: synthetic face; R: real face. "
-        "Data: " + escape(summary["study_dir"]) + "." + incomplete_sentence(summary)
+        "Data: " + escape(summary["study_dir"]) + "." + sites_sentence(summary)
+        + incomplete_sentence(summary)
         + " Tables III–VII are " + ", ".join(f"{{label:tally_{k}}}" for k in
                                              ("III", "IV", "V", "VI", "VII"))
         + "; {label:tallies} draws them as proportions.")

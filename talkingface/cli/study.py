@@ -129,7 +129,14 @@ def cmd_analyze(args) -> int:
                                 allow_incomplete=args.allow_incomplete)
     for k, t in summary["tallies"].items():
         print(f"Table {k}: {t['counts']}")
-    print(f"{summary['participants']} participants; tables, statistics and fits in {out}")
+    sites = summary["sites"]
+    where = ", ".join(f"{k} {v}" for k, v in sites.items() if k in ("lab", "web", "none",
+                                                                    "unknown"))
+    print(f"{summary['participants']} participants ({where}); tables, statistics and fits in "
+          f"{out}")
+    if sites.get("web"):
+        print(f"online: {sites['web_left_fullscreen']} left fullscreen and "
+              f"{sites['web_lost_focus']} lost focus during a trial (columns fullscreen, focused)")
     for i in summary["incomplete"]:
         print(f"incomplete: {i['participant_id']} ({i['judgments']} of {N_TRIALS} judgments; "
               f"{i['reason']}): {'analysed' if i['analysed'] else 'left out'}")
