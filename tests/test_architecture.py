@@ -20,7 +20,7 @@ LAYERS = {"groundwork": 0, "face_model": 1, "data_synth": 2, "mapping": 2, "stud
 # May be imported inside a function: heavy or optional, and only needed on some paths.
 LAZY_OK = ("torch", "mlflow", "psychopy", "pyglet", "psychtoolbox", "cv2", "sounddevice",
            "imageio_ffmpeg", "matplotlib", "talkingface.experiments.pyfunc", "distributed",
-           "mediapipe", "soundfile", "hama", "openfacefx", "pylipsync")
+           "mediapipe", "soundfile", "hama", "openfacefx", "pylipsync", "uvicorn")
 
 
 def _module_name(root: Path, path: Path) -> str:

@@ -20,6 +20,9 @@ from study.classifier import observer_classifier, visual_evidence
 from study.design import participant_seed
 from study.simulate import RESPONDER_MODEL, make_observers, responder
 from study.stimuli import load_manifest
+from study.web.app import make_app
+from study.web.build import build_web
+from study.web.server_session import WebStudy
 from talkingface.cli.args import config_args, resolve_config
 
 DEFAULT_HOST, DEFAULT_PORT = "127.0.0.1", 8000
@@ -79,8 +82,6 @@ def check_port(host: str, port: int) -> None:
 
 
 def cmd_web(args) -> int:
-    from study.web.build import build_web  # (ffmpeg, the stimuli's decoding: only here)
-
     cfg = resolve_config(args)
     info = build_web(stimuli_folder(args), args.out, study_cfg=cfg.study,
                      overwrite=args.overwrite)
@@ -91,10 +92,7 @@ def cmd_web(args) -> int:
 
 
 def cmd_serve(args) -> int:
-    import uvicorn
-
-    from study.web.app import make_app
-    from study.web.server_session import WebStudy
+    import uvicorn  # (the server: only here)
 
     cfg = resolve_config(args)
     site = read_site(args.web)

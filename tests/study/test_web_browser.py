@@ -252,8 +252,9 @@ def test_a_page_closed_during_a_trial_asks_that_trial_again(fresh_browser, serve
         assert again.run(until_answered=4) is None
         wait_rows(driver, study, pid, 4)
     assert [k for k, _ in first.shown] == [0, 1] and [k for k, _ in again.shown] == [2, 3]
-    assert ("text:part:visual-0") not in [f"{k}:{d}" for k, d in again.screens]
-    assert [k for k, _ in again.screens if k == "consent"] == []
+    kinds = [k if k != "text" else f"text:{d}" for k, d in again.screens]
+    assert "consent" not in kinds and "text:practice" not in kinds
+    assert kinds[8:10] == ["text:part:visual-0", "response"]  # its part's text again, first
     rows = rows_of(study, pid)
     assert [(int(r["trial_index"]), r["session"]) for r in rows] == \
         [(0, "1"), (1, "1"), (2, "2"), (3, "2")]
@@ -261,3 +262,94 @@ def test_a_page_closed_during_a_trial_asks_that_trial_again(fresh_browser, serve
     assert [b["trial_index"] for b in received(study, pid)] == [0, 1, 2, 3]
     side = json.loads(sidecar_path(study, pid).read_text())
     assert [s["end_state"] for s in side["sessions"]] == ["interrupted", "running"]
+
+
+# --- (3) another browser cannot take a participant's session over ------------------------------
+def test_another_browser_opening_the_same_link_is_refused_and_writes_nothing(
+        fresh_browser, serve, site, tmp_path):
+    study, pid = tmp_path / "study_data", "P04"
+    base = serve(study)
+    with fresh_browser() as driver:
+        first = open_page(driver, site, study, base, pid)
+        assert first.run(until_answered=1) is None
+        wait_rows(driver, study, pid, 1)
+        before = snapshot(study)
+        reset(driver, width=1600, height=1000)  # another browser: a profile with nothing kept
+        other = open_page(driver, site, study, base, pid)
+        end = other.run()
+    assert [k for k, _ in other.screens] == ["consent", "error"]
+    assert end["text"] == (f"The study could not start: participant {pid}'s session was "
+                           "started in another browser (its token does not match); continue "
+                           "it in that browser")
+    assert snapshot(study) == before  # no session, no row, no token replaced
+    assert n_rows(study, pid) == 1
+
+
+# --- (4) simulated observers answer through the page ------------------------------------------
+@contextlib.contextmanager
+def autoplay_chromium(width: int = 1600, height: int = 1000):
+    """A headless Chromium that plays media without a user gesture (jsPsych's visual
+    simulation presses no key before the first sound), quit on leaving with no process left."""
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    with tempfile.TemporaryDirectory(prefix="talkingface-chromium-") as profile:
+        options = webdriver.ChromeOptions()
+        options.binary_location = CHROMIUM
+        for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage",
+                    "--disable-gpu", f"--window-size={width},{height}",
+                    f"--user-data-dir={profile}", "--autoplay-policy=no-user-gesture-required",
+                    "--no-first-run", "--disable-background-networking",
+                    "--disable-component-update", "--disable-sync"):
+            options.add_argument(arg)
+        driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
+        try:
+            yield driver
+        finally:
+            driver.quit()
+            left = wait_gone(processes_mentioning(profile))
+            assert not left, f"chromium outlived driver.quit(): {left}"
+
+
+def flmp_observer(site):
+    """The FLMP observers of ``study serve --inject flmp`` (study.simulate), seeing each video
+    through a fixed table of visual evidence (the tiny test videos carry no markers for the
+    classifier of talkingface/cli/study_web.py: flmp_observers)."""
+    from study.design import EXPRESSIONS, participant_seed
+    from study.simulate import make_observers, responder
+
+    evidence = {}
+    for i, sid in enumerate(sorted(s for s, e in site["stimuli"].items()
+                                   if e["kind"] == "video")):
+        p = np.full(len(EXPRESSIONS), 0.15)
+        p[i % len(EXPRESSIONS)] = 0.7
+        evidence[sid] = p / p.sum()
+
+    def observer(pid: str):
+        return responder(make_observers(1, participant_seed(SEED, pid))[0], evidence)
+    return observer
+
+
+def test_simulated_observers_answer_through_the_page(serve, site, tmp_path):
+    study, pid = tmp_path / "study_data", "P09"
+    observer = flmp_observer(site)
+    base = serve(study, observer=observer, responder_model="flmp-v1")
+    with autoplay_chromium() as driver:
+        driver.get(f"{base}/?participant={pid}&simulate=visual")
+        from tests.talkingface.browser import wait_until
+        wait_until(driver, lambda d: n_rows(study, pid) == N_TRIALS, "27 simulated judgments",
+                   300)
+        end = Participant(driver, site, [], rule).run()  # nothing left to answer
+    assert end["kind"] == "end" and site["texts"]["end"] in end["text"]
+    plan = plan_of(study, pid)
+    answer = observer(pid)
+    expected = [answer(t) for t in plan]
+    rows = rows_of(study, pid)
+    assert [int(r["trial_index"]) for r in rows] == list(range(N_TRIALS))
+    assert [r["response"] for r in rows] == [r for r, _ in expected]
+    assert [r["response_key"] for r in rows] == [site["keys"][r] for r, _ in expected]
+    assert len({r for r, _ in expected}) > 1  # the answers differ between trials
+    for r, (_, rt) in zip(rows, expected):  # the key pressed after the observer's time
+        assert float(r["rt_s"]) >= rt - 0.005, (r["stimulus_id"], r["rt_s"], rt)
+    assert {(r["simulated"], r["responder_model"], r["site"]) for r in rows} == \
+        {("true", "flmp-v1", "web")}

@@ -31,6 +31,7 @@ const scope = content || document.body;
 const text = (scope.innerText || '').trim();
 const out = {el: el, text: text};
 if (scope.querySelector('#jspsych-loading-progress-bar-container')) return null;  // preload
+if (!content && text.startsWith('Loading the study')) return null;  // index.html, until main
 const err = scope.querySelector('.tf-error');
 if (err) return Object.assign(out, {kind: 'error', text: err.innerText.trim()});
 const code = scope.querySelector('.tf-code');
@@ -100,7 +101,7 @@ class Participant:
         for name, first in text_names(self.site).items():
             if text.startswith(first):
                 return name
-        return "text?"
+        return f"text?{text[:60]!r}"
 
     def press(self, key: str) -> None:
         ActionChains(self.driver).send_keys(key).perform()
