@@ -37,6 +37,7 @@ bench: setup
 	$(PY) bench/bench_grid.py
 	$(PY) bench/bench_profile.py
 	$(PY) bench/bench_hearing.py
+	$(PY) bench/bench_web_load.py
 
 ui: setup
 	$(PY) -m talkingface ui

@@ -352,10 +352,9 @@ class WebStudy:
             os.fsync(f.fileno())
         sf.append(row)
         complete = sf.complete
-        session.update(end=sdata.now_iso(), rows_at_end=len(sf.done),
-                       end_state="complete" if complete else "running")
-        self._save_sidecar(pid, side)
-        if complete:
+        if complete:  # (a session closed mid-way is marked interrupted when it is reopened)
+            session.update(end=sdata.now_iso(), rows_at_end=len(sf.done), end_state="complete")
+            self._save_sidecar(pid, side)
             sdata.Allocation(self.dir).set_status(pid, "complete")
         return {"saved": k, "rows": len(sf.done), "complete": complete,
                 "completion": self._completion() if complete else None}
