@@ -21,7 +21,6 @@ import json
 import shutil
 import subprocess
 import sys
-import tempfile
 
 import numpy as np
 import pytest
@@ -35,8 +34,7 @@ from tests.study import web_serving
 from tests.study.test_runner import TIMEOUT, XVFB, _kill_group, env  # noqa: F401 (lab's env)
 from tests.study.web_browser import Participant, shown_stimulus
 from tests.study.web_fixtures import web_build, web_stimuli  # noqa: F401
-from tests.talkingface.browser import CHROMEDRIVER, CHROMIUM, processes_mentioning, \
-    wait_gone, wait_until
+from tests.talkingface.browser import headless_chromium, wait_until
 
 SEED = Config().seed
 N_SLOTS = 8
@@ -298,29 +296,12 @@ def test_another_browser_opening_the_same_link_is_refused_and_writes_nothing(
 
 
 # --- (4) simulated observers answer through the page ------------------------------------------
-@contextlib.contextmanager
 def autoplay_chromium(width: int = 1600, height: int = 1000):
     """A headless Chromium that plays media without a user gesture (jsPsych's visual
     simulation presses no key before the first sound), quit on leaving with no process left."""
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-
-    with tempfile.TemporaryDirectory(prefix="talkingface-chromium-") as profile:
-        options = webdriver.ChromeOptions()
-        options.binary_location = CHROMIUM
-        for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage",
-                    "--disable-gpu", f"--window-size={width},{height}",
-                    f"--user-data-dir={profile}", "--autoplay-policy=no-user-gesture-required",
-                    "--no-first-run", "--disable-background-networking",
-                    "--disable-component-update", "--disable-sync"):
-            options.add_argument(arg)
-        driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
-        try:
-            yield driver
-        finally:
-            driver.quit()
-            left = wait_gone(processes_mentioning(profile))
-            assert not left, f"chromium outlived driver.quit(): {left}"
+    return headless_chromium(width=width, height=height, extra_args=(
+        "--autoplay-policy=no-user-gesture-required", "--no-first-run",
+        "--disable-background-networking", "--disable-component-update", "--disable-sync"))
 
 
 def flmp_observer(site):

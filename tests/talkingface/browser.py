@@ -15,10 +15,10 @@ CHROMEDRIVER = "/usr/bin/chromedriver"
 
 
 @contextlib.contextmanager
-def headless_chromium(*, width: int = 1600, height: int = 1000):
-    """``with headless_chromium() as driver:`` a selenium WebDriver on a fresh profile, quit on
-    leaving; afterwards no process of that browser (its profile folder is in their command
-    lines) is left running."""
+def headless_chromium(*, width: int = 1600, height: int = 1000, extra_args=()):
+    """``with headless_chromium() as driver:`` a selenium WebDriver on a fresh profile (and
+    Chromium's ``extra_args``), quit on leaving; afterwards no process of that browser (its
+    profile folder is in their command lines) is left running."""
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
 
@@ -27,7 +27,7 @@ def headless_chromium(*, width: int = 1600, height: int = 1000):
         options.binary_location = CHROMIUM
         for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage",
                     "--disable-gpu", f"--window-size={width},{height}",
-                    f"--user-data-dir={profile}"):
+                    f"--user-data-dir={profile}", *extra_args):
             options.add_argument(arg)
         driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
         try:
