@@ -295,6 +295,34 @@ def test_another_browser_opening_the_same_link_is_refused_and_writes_nothing(
     assert n_rows(study, pid) == 1
 
 
+def test_two_participants_in_one_browser_each_consent_and_keep_their_own_session(
+        fresh_browser, serve, site, tmp_path):
+    """A lab's shared computer: P05 answers 2 trials, then P06 opens their link in the same
+    browser (consent asked of P06 too), answers 1; P05's link opened again continues P05's
+    session at trial 2, without consent; P06's again at trial 1. Each kept their own token."""
+    study = tmp_path / "study_data"
+    base = serve(study)
+    with fresh_browser() as driver:
+        five = open_page(driver, site, study, base, "P05")
+        assert five.run(until_answered=2) is None
+        wait_rows(driver, study, "P05", 2)
+        six = open_page(driver, site, study, base, "P06")
+        assert six.run(until_answered=1) is None
+        wait_rows(driver, study, "P06", 1)
+        five_again = open_page(driver, site, study, base, "P05", start=2)
+        assert five_again.run(until_answered=3) is None
+        wait_rows(driver, study, "P05", 3)
+        six_again = open_page(driver, site, study, base, "P06", start=1)
+        assert six_again.run(until_answered=2) is None
+        wait_rows(driver, study, "P06", 2)
+    for page, consented in ((five, True), (six, True), (five_again, False),
+                            (six_again, False)):
+        assert ([k for k, _ in page.screens][:1] == ["consent"]) == consented, page.screens[:2]
+    assert [k for k, _ in five_again.shown] == [2] and [k for k, _ in six_again.shown] == [1]
+    for pid, n in (("P05", 3), ("P06", 2)):
+        assert [r["session"] for r in rows_of(study, pid)] == ["1"] * (n - 1) + ["2"]
+
+
 # --- (4) simulated observers answer through the page ------------------------------------------
 def autoplay_chromium(width: int = 1600, height: int = 1000):
     """A headless Chromium that plays media without a user gesture (jsPsych's visual

@@ -425,7 +425,10 @@
   async function main() {
     const study = await (await fetch("study.json", { cache: "no-store" })).json();
     const params = Object.fromEntries(new URLSearchParams(root.location.search));
-    const storeKey = `talkingface:${study.title}`;
+    // what this browser keeps of a participant's session, by the id in the link (one browser may
+    // run several participants: each continues their own session, each gives consent)
+    const linkId = params.PROLIFIC_PID || params.participant || "";
+    const storeKey = `talkingface:${study.title}:${linkId || "(no id in the link)"}`;
     let kept = {};
     try { kept = JSON.parse(root.localStorage.getItem(storeKey) || "{}"); } catch (err) { kept = {}; }
     const mode = params.simulate;
@@ -442,9 +445,11 @@
       participant_id: kept.participant_id ?? null,
       browser: { user_agent: root.navigator.userAgent, refresh_hz: await measureRefresh() } };
     const plan = await postJSON("api/session", sessionBody);
-    try {
-      root.localStorage.setItem(storeKey, JSON.stringify({ participant_id: plan.participant_id,
-        token: plan.token }));
+    try { // (a completed session's reply carries no token: the one kept stays)
+      if (plan.token) {
+        root.localStorage.setItem(storeKey, JSON.stringify({ participant_id: plan.participant_id,
+          token: plan.token }));
+      }
     } catch (err) { /* private windows: a reload starts afresh */ }
     if (plan.complete) { showMessage(completionHtml(study, plan.completion)); return; }
     root.document.body.innerHTML = ""; // the loading message; jsPsych adds its own display
