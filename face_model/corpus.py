@@ -14,9 +14,15 @@
       phones/<utt_id>.csv    start_s, end_s, phone   (44-class set)
       quality/<utt_id>.csv   frame, confidence, interpolated   (one row per frame: the landmark
                              detector's confidence, 1 where the frame's face was interpolated)
+      words/<utt_id>.csv     start_s, end_s, word   (optional: the words' times, when the source
+                             gives them, e.g. GRID's .align; silences sil/sp left out; the words
+                             in order are the manifest's text)
 
 :func:`load_corpus` validates every file before returning: a corpus either loads whole or fails
-with a :class:`CorpusError` naming the file and the problem.
+with a :class:`CorpusError` naming the file and the problem. A ``words/`` file is found by its
+name (no manifest column: a corpus without one, or a copy of some of its rows, stays valid) and
+read whenever it is there (:func:`face_model.transcripts.read_words`); an utterance without one
+has ``words = None``.
 """
 from __future__ import annotations
 
@@ -30,6 +36,7 @@ import numpy as np
 
 from face_model.layout import N_MARKERS
 from face_model.phones import PHONE_INDEX, PHONES
+from face_model.transcripts import WordSegment, read_words, write_words_csv  # noqa: F401
 from groundwork.audio import read_wav, resample, write_wav
 from groundwork.errors import CorpusError, ParameterError
 
@@ -38,6 +45,7 @@ MANIFEST_COLUMNS = ("utt_id", "speaker", "expression", "text", "n_frames", "fps"
                     "sample_rate", "audio", "markers", "phones")
 OPTIONAL_COLUMNS = ("voice", "quality")  # written only when some row has it
 QUALITY_COLUMNS = ("frame", "confidence", "interpolated")
+WORDS_DIR = "words"  # words/<utt_id>.csv, optional
 _FILE_COLUMNS = ("audio", "markers", "phones")  # the columns that name an utterance's files
 FPS = 30
 # Rates with an integer hop at 30 fps; anything else is refused or resampled to DEFAULT_SR.
@@ -78,6 +86,8 @@ class Utterance:
     quality : ndarray, shape (n_frames, 2), or None
         From video: per frame the detector's confidence and 1 where the face was interpolated
         (the manifest's optional ``quality`` file); None for a synthetic corpus.
+    words : tuple of WordSegment, or None
+        The words' times (``words/<utt_id>.csv``), in order; None when the corpus keeps none.
     """
 
     utt_id: str
@@ -91,6 +101,7 @@ class Utterance:
     phones: list = field(repr=False)  # list[PhoneSegment]
     voice: str = ""  # the manifest's optional voice column ("engine:voice"; "" if absent)
     quality: np.ndarray | None = field(default=None, repr=False)  # (n_frames, 2) or None
+    words: tuple | None = field(default=None, repr=False)  # tuple[WordSegment] or None
 
     @property
     def n_frames(self) -> int:
@@ -253,8 +264,12 @@ def _load_utterance(root: Path, row: dict, line: int, resample_to: int | None) -
                           "frames (more than one frame apart)")
     phones = read_phones(paths["phones"], len(y) / sr, fps)
     quality = _read_quality(root, row, where, n_frames) if row.get("quality") else None
+    words_file = words_path(root, row["utt_id"])
+    words = (read_words(words_file, duration_s=len(y) / sr, text=row["text"])
+             if words_file.is_file() else None)
     return Utterance(row["utt_id"], row["speaker"], row["expression"], row["text"], fps, sr,
-                     y, markers, phones, voice=row.get("voice") or "", quality=quality)
+                     y, markers, phones, voice=row.get("voice") or "", quality=quality,
+                     words=words)
 
 
 def _read_quality(root: Path, row: dict, where: str, n_frames: int) -> np.ndarray:
@@ -273,6 +288,30 @@ def _read_quality(root: Path, row: dict, where: str, n_frames: int) -> np.ndarra
                    or not np.all(np.isin(q[:, 1], (0, 1)))):
         raise CorpusError(f"{path}: confidence must be in [0, 1] and interpolated 0 or 1")
     return q.reshape(n_frames, 2)
+
+
+def words_path(root, utt_id: str) -> Path:
+    """Where an utterance's optional words file is: ``root/words/<utt_id>.csv``."""
+    return Path(root) / WORDS_DIR / f"{utt_id}.csv"
+
+
+def write_words(root, utt_id: str, words) -> str:
+    """Write ``root/words/<utt_id>.csv`` (:func:`face_model.transcripts.write_words_csv`: times
+    rounded to 10 µs); return its path relative to ``root``.
+
+    Parameters
+    ----------
+    root : path-like
+        The corpus folder.
+    utt_id : str
+        The utterance.
+    words : iterable of WordSegment or (start_s, end_s, word)
+        In time order, silences left out.
+    """
+    path = words_path(root, utt_id)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_words_csv(path, words)
+    return f"{WORDS_DIR}/{utt_id}.csv"
 
 
 def read_manifest(path, columns=MANIFEST_COLUMNS, *,

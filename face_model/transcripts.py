@@ -5,6 +5,8 @@
                (:data:`ALIGN_UNITS_PER_S`), in order and not overlapping; ``sil`` and ``sp`` are
                silence and are left out of the text. Gives the words' times too.
 ``.txt``       one line of text (blank lines around it are ignored)
+words file     a corpus's ``words/<utt_id>.csv``: ``start_s,end_s,word`` in seconds, silences
+               left out (:func:`read_words`, :func:`write_words_csv`; written from an ``.align``)
 CSV            columns ``clip,text`` (others ignored), one row per clip: ``clip`` is the
                video's file name without its extension
 =============  =================================================================================
@@ -29,7 +31,19 @@ ALIGN_UNITS_PER_S = 25000  # GRID's .align time unit
 SILENCE_WORDS = frozenset({"sil", "sp"})
 END_TOLERANCE_S = 0.1  # how far a transcript may end after its audio
 CSV_COLUMNS = ("clip", "text")
+WORDS_COLUMNS = ("start_s", "end_s", "word")  # a corpus's words/<utt_id>.csv
 _ALIGN_FORMAT = f"'start end word' with times in 1/{ALIGN_UNITS_PER_S} s"
+_SILENCES = ", ".join(sorted(SILENCE_WORDS))
+
+
+@dataclass(frozen=True)
+class WordSegment:
+    """One line of a words file: ``word`` spoken from ``start_s`` to ``end_s``, seconds from the
+    start of the audio."""
+
+    start_s: float
+    end_s: float
+    word: str
 
 
 @dataclass(frozen=True)
@@ -229,6 +243,113 @@ def read_transcript_csv(path) -> dict[str, str]:
         raise CorpusError(f"{path}: no rows; a transcript table has one row per clip under "
                           f"the header {','.join(CSV_COLUMNS)}")
     return table
+
+
+def read_words(path, *, duration_s: float, text: str | None = None) -> tuple:
+    """A corpus's words file (``words/<utt_id>.csv`` of :mod:`face_model.corpus`:
+    ``start_s,end_s,word``).
+
+    Parameters
+    ----------
+    path : path-like
+        The words file.
+    duration_s : float
+        The audio's duration, seconds (a word may end up to
+        :data:`END_TOLERANCE_S` after it, as the import allows).
+    text : str, optional
+        The manifest's text: the words in order must be its words (case aside).
+
+    Returns
+    -------
+    tuple of WordSegment
+        In time order.
+
+    Raises
+    ------
+    CorpusError
+        One line naming the file, the line and what is allowed: a wrong header or number of
+        fields, times that are not numbers, a word ending before it starts or starting before
+        the previous one ends, a silence token or an empty word, a word after the audio, no
+        words, or words other than the text's.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise CorpusError(f"{path}: words file not found")
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as f:
+            rows = list(csv.reader(f))
+    except UnicodeDecodeError as exc:
+        raise CorpusError(f"{path}: not UTF-8 text (byte {exc.start}); allowed: a UTF-8 CSV "
+                          f"with the header {','.join(WORDS_COLUMNS)}") from None
+    header = ",".join(c.strip() for c in rows[0]) if rows else ""
+    if header != ",".join(WORDS_COLUMNS):
+        raise CorpusError(f"{path}, line 1: header {header!r}; allowed: "
+                          f"{','.join(WORDS_COLUMNS)} (times in seconds, one word per line)")
+    words: list[WordSegment] = []
+    lines: list[int] = []
+    for line, row in enumerate(rows[1:], start=2):
+        if not any(c.strip() for c in row):
+            continue
+        where = f"{path}, line {line}"
+        if len(row) != len(WORDS_COLUMNS):
+            raise CorpusError(f"{where}: {len(row)} fields {','.join(row)!r}; allowed: 3, "
+                              "start_s,end_s,word")
+        try:
+            s, e = float(row[0]), float(row[1])
+        except ValueError:
+            s = e = float("nan")
+        if not (math.isfinite(s) and math.isfinite(e)) or s < 0 or e <= s:
+            raise CorpusError(f"{where}: times {row[0]!r}, {row[1]!r}; allowed: numbers of "
+                              "seconds with 0 <= start_s < end_s")
+        if words and s < words[-1].end_s - 1e-6:
+            raise CorpusError(f"{where}: starts at {s:g} s, before the previous word ends "
+                              f"({words[-1].end_s:g} s); allowed: words in time order, not "
+                              "overlapping")
+        word = row[2].strip()
+        if not word or len(word.split()) != 1 or word.lower() in SILENCE_WORDS:
+            raise CorpusError(f"{where}: word {row[2]!r}; allowed: one word per line, "
+                              f"silences ({_SILENCES}) left out")
+        if e > duration_s + END_TOLERANCE_S:
+            raise CorpusError(f"{where}: word {word!r} ends at {e:g} s, after the audio "
+                              f"({duration_s:.3f} s); allowed: up to {END_TOLERANCE_S:g} s "
+                              "after its end")
+        words.append(WordSegment(s, e, word))
+        lines.append(line)
+    if not words:
+        raise CorpusError(f"{path}: no words under the header; allowed: one line per word "
+                          "spoken (a corpus without word times has no words file)")
+    if text is not None:
+        said = text.lower().split()
+        for i, (w, line) in enumerate(zip(words, lines)):
+            if i >= len(said) or w.word.lower() != said[i]:
+                wanted = f"word {i + 1} {said[i]!r}" if i < len(said) else \
+                    f"only {len(said)} words"
+                raise CorpusError(f"{path}, line {line}: word {w.word!r}, but the manifest's "
+                                  f"text {text!r} has {wanted} there; allowed: the text's "
+                                  "words in order, one per line")
+        if len(words) < len(said):
+            raise CorpusError(f"{path}: {len(words)} words, but the manifest's text {text!r} "
+                              f"has {len(said)}; allowed: the text's words in order, one per "
+                              "line")
+    return tuple(words)
+
+
+def write_words_csv(path, words) -> None:
+    """Write a words file (``start_s,end_s,word``, times rounded to 10 µs).
+
+    Parameters
+    ----------
+    path : path-like
+        The file; its folder must exist.
+    words : iterable of WordSegment or (start_s, end_s, word)
+        In time order, silences left out (e.g. :attr:`Transcript.words`).
+    """
+    with open(path, "w", newline="", encoding="utf-8") as f:
+        w = csv.writer(f, lineterminator="\n")
+        w.writerow(WORDS_COLUMNS)
+        for s, e, word in ((x.start_s, x.end_s, x.word) if isinstance(x, WordSegment) else x
+                           for x in words):
+            w.writerow([f"{s:.5f}", f"{e:.5f}", word])
 
 
 def find_transcript(video_path, transcripts_dir=None, csv_map=None) -> Transcript | None:

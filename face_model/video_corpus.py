@@ -29,6 +29,9 @@ For every clip (any video FFmpeg reads, with its audio):
    transcript's times (a GRID ``.align``) do is refused as truncated, with the video's and the
    audio's lengths (:func:`check_length`): a ``.mpg`` cut to half its bytes decodes without
    complaint to half its length, and was blamed on its transcript.
+6. **Words**: when the transcript gives the words' times (a GRID ``.align``), they are kept as
+   ``words/<utt_id>.csv`` (``start_s,end_s,word``, seconds, silences ``sil``/``sp`` left out;
+   :func:`face_model.corpus.write_words`), as the source gives them.
 
 The corpus is built in a partial folder beside ``--out`` and renamed into place when every clip
 is done and the whole folder has passed the corpus reader (:func:`face_model.corpus.load_corpus`);
@@ -46,7 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
-from face_model.corpus import FPS, QUALITY_COLUMNS, SUPPORTED_SR, write_utterance
+from face_model.corpus import FPS, QUALITY_COLUMNS, SUPPORTED_SR, write_utterance, write_words
 from face_model.forced_align import align_audio
 from face_model.landmarks import Landmarks, markers_from_landmarks
 from face_model.transcripts import END_TOLERANCE_S
@@ -381,5 +384,7 @@ def make_utterance(video: Path, landmark_file: Path, transcript, root: Path,
     (root / "quality").mkdir(exist_ok=True)
     rel["quality"] = f"quality/{utt_id}.csv"
     write_quality(root / rel["quality"], clip.confidence, clip.interpolated)
+    if transcript.words:
+        write_words(root, utt_id, transcript.words)
     return {"utt_id": utt_id, "speaker": settings.speaker, "expression": settings.expression,
             "text": transcript.text, "n_frames": n_out, "fps": FPS, "sample_rate": sr, **rel}

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from face_model.corpus import load_corpus, write_manifest
+from face_model.corpus import WORDS_DIR, load_corpus, words_path, write_manifest
 from face_model.landmarks import MARKER_LANDMARKS, extract_landmarks
 from face_model.layout import LAYOUT_VERSION
 from face_model.transcripts import find_transcript, read_transcript_csv
@@ -280,6 +280,9 @@ def corpus_from_video(src, out, *, settings: FromVideoSettings | None = None,
             "refused": len(refused), "expressions": sorted({r["expression"] for r in rows}),
             "correspondence_landmarks": {str(k): list(v[0]) for k, v in
                                          MARKER_LANDMARKS.items()}}
+    timed = sum(words_path(partial, r["utt_id"]).is_file() for r in rows)
+    if timed:
+        info["words"] = words_info(timed, "the clips' .align word times")
     (partial / "corpus.json").write_text(json.dumps(info, indent=1) + "\n")
     corpus = load_corpus(partial)
     if keep_landmarks:  # refused: the partial folder stays, and a new run resumes from it
@@ -289,6 +292,13 @@ def corpus_from_video(src, out, *, settings: FromVideoSettings | None = None,
     swap_in(partial, out)
     return {"utterances": len(rows), "refused": refused, "frames": corpus.n_frames,
             "corpus": out}
+
+
+def words_info(n: int, source: str) -> dict:
+    """``corpus.json``'s ``words`` entry: ``n`` utterances keep their words' times, from
+    ``source``, in ``words/<utt_id>.csv``."""
+    return {"utterances": n, "files": f"{WORDS_DIR}/<utt_id>.csv (start_s,end_s,word; "
+            "seconds; silences sil/sp left out)", "source": source}
 
 
 def _detector(lm_dir: Path, rows: list) -> str:

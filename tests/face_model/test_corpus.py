@@ -11,16 +11,22 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 from scipy.signal import resample_poly
 
 from face_model.corpus import (
     MANIFEST_COLUMNS,
     PhoneSegment,
     Utterance,
+    WordSegment,
     corpus_hash,
     load_corpus,
+    read_words,
+    words_path,
     write_manifest,
     write_utterance,
+    write_words,
 )
 from face_model.layout import N_MARKERS
 from face_model.phones import PHONE_INDEX
@@ -345,3 +351,93 @@ def test_phones_beyond_the_audio_are_refused(corpus_copy):
     with pytest.raises(CorpusError, match=_where(path) + r": last phone ends at 100\.000 s, after "
                                           r"the audio \([\d.]+ s\)"):
         load_corpus(corpus_copy)
+
+
+# -- words/<utt_id>.csv: the words' times, optional ----------------------------------------------
+def _spread_words(u: Utterance) -> list[WordSegment]:
+    """The utterance's text as words, one after another between 10 % and 90 % of its audio."""
+    said = u.text.split()
+    d = len(u.audio) / u.sample_rate
+    edges = np.round(np.linspace(0.1 * d, 0.9 * d, len(said) + 1), 5)
+    return [WordSegment(float(a), float(b), w) for a, b, w in zip(edges[:-1], edges[1:], said)]
+
+
+def test_a_corpus_without_words_loads_with_none(small_corpus):
+    assert all(u.words is None for u in small_corpus.utterances)
+
+
+def test_words_written_are_read_back_by_the_corpus_reader(corpus_copy, small_corpus):
+    words = _spread_words(small_corpus[UTT])
+    assert write_words(corpus_copy, UTT, words) == f"words/{UTT}.csv"
+    assert words_path(corpus_copy, UTT).is_file()
+    corpus = load_corpus(corpus_copy)
+    assert corpus[UTT].words == tuple(words)
+    assert " ".join(w.word for w in corpus[UTT].words) == corpus[UTT].text
+    assert all(u.words is None for u in corpus.utterances if u.utt_id != UTT)
+    assert corpus_hash(corpus_copy) == corpus_hash(corpus_copy)  # the manifest is unchanged
+
+
+_WORD = st.text(alphabet="abcdefghijklmnopqrstuvwxyz'", min_size=1, max_size=8).filter(
+    lambda w: w not in ("sil", "sp"))
+
+
+@given(words=st.lists(_WORD, min_size=1, max_size=8),
+       cuts=st.lists(st.integers(1, 40000), min_size=20, max_size=20, unique=True),
+       gaps=st.lists(st.booleans(), min_size=8, max_size=8))
+def test_any_words_file_round_trips_through_the_writer_and_reader(tmp_path_factory, words, cuts,
+                                                                  gaps):
+    root = tmp_path_factory.mktemp("words")
+    edges = sorted(c / 10000 for c in cuts)  # seconds, 0.1 ms apart at least
+    timed, k = [], 0
+    for i, w in enumerate(words):
+        k += gaps[i]  # a pause between words where it is true
+        timed.append(WordSegment(edges[k], edges[k + 1], w))
+        k += 1
+    write_words(root, "u", timed)
+    assert read_words(words_path(root, "u"), duration_s=4.0,
+                      text=" ".join(words).upper()) == tuple(timed)
+
+
+_BAD_WORDS = [  # (file after the header line, the line named, the problem, what is allowed)
+    (None, "start,end,word", r", line 1: header 'start,end,word'; allowed: start_s,end_s,word"),
+    ("abc,0.40000,{0}", None, r", line 2: times 'abc', '0\.40000'; allowed: numbers of seconds with "
+                              r"0 <= start_s < end_s"),
+    ("0.50000,0.40000,{0}", None, r", line 2: times '0\.50000', '0\.40000'; allowed: numbers of "
+                                  r"seconds with 0 <= start_s < end_s"),
+    ("0.10000,0.20000,{0}\n0.15000,0.30000,{1}", None,
+     r", line 3: starts at 0\.15 s, before the previous word ends \(0\.2 s\); allowed: words in "
+     r"time order, not overlapping"),
+    ("0.00000,0.10000,sil\n0.10000,0.20000,{0}", None,
+     r", line 2: word 'sil'; allowed: one word per line, silences \(sil, sp\) left out"),
+    ("0.10000,0.20000", None, r", line 2: 2 fields '0\.10000,0\.20000'; allowed: 3, "
+                              r"start_s,end_s,word"),
+    ("0.10000,0.20000,{0}\n99.00000,99.50000,{1}", None,
+     r", line 3: word '.+' ends at 99\.5 s, after the audio \([\d.]+ s\); allowed: up to 0\.1 s "
+     r"after its end"),
+    ("0.10000,0.20000,{1}", None, r", line 2: word '.+', but the manifest's text '.+' has word 1 "
+                                  r"'.+' there; allowed: the text's words in order, one per line"),
+    ("0.10000,0.20000,{0}", None, r": 1 words, but the manifest's text '.+' has \d+; allowed: "
+                                  r"the text's words in order, one per line"),
+    ("", None, r": no words under the header; allowed: one line per word spoken"),
+]
+
+
+@pytest.mark.parametrize("body, header, problem", _BAD_WORDS,
+                         ids=["header", "text time", "end before start", "overlap", "silence",
+                              "two fields", "after the audio", "another word", "too few words",
+                              "no words"])
+def test_a_malformed_words_file_is_refused_in_one_line_naming_it(corpus_copy, small_corpus, body,
+                                                                 header, problem):
+    u = small_corpus[UTT]
+    said = u.text.split()
+    assert len(said) >= 2 and said[0].lower() != said[1].lower()
+    path = words_path(corpus_copy, UTT)
+    write_words(corpus_copy, UTT, _spread_words(u))
+    lines = path.read_text().splitlines()
+    if header is not None:
+        path.write_text("\n".join([header, *lines[1:]]) + "\n")
+    else:
+        path.write_text(lines[0] + "\n" + body.format(*said) + "\n")
+    with pytest.raises(CorpusError, match=_where(path) + problem) as err:
+        load_corpus(corpus_copy)
+    assert "\n" not in str(err.value)

@@ -13,6 +13,7 @@ import pytest
 
 import face_model.video_import as video_import
 from face_model.corpus import load_corpus
+from face_model.transcripts import read_align
 from face_model.video_corpus import FromVideoSettings
 from face_model.video_import import corpus_from_video
 from talkingface.cli.main import main
@@ -42,11 +43,40 @@ def test_the_import_makes_a_corpus_the_reader_takes(imported):
             len(u.audio) / u.sample_rate, abs=0.011)
     info = json.loads((imported / "corpus.json").read_text())
     assert info["detector"].startswith("mediapipe 0.10.21") and info["refused"] == 1
+    assert info["words"]["utterances"] == len(CLIPS)
     with open(imported / "refused.csv", newline="") as f:
         (row,) = list(csv.DictReader(f))
     assert row["clip"] == "bbizzn"
     assert "12 of 75 frames without a face (16 %); allowed: at most 10 %" in row["reason"]
     assert not list(imported.parent.glob(".*partial*"))
+
+
+def test_the_import_keeps_the_align_files_word_times(imported):
+    """Each clip with a GRID .align gets words/<clip>.csv: the .align's words, silences left
+    out, in seconds, which the reader returns and which join to the manifest's text."""
+    corpus = load_corpus(imported)
+    for u in corpus.utterances:
+        t = read_align(GRID / "align" / f"{u.utt_id}.align")
+        assert (imported / "words" / f"{u.utt_id}.csv").is_file()
+        assert [(w.start_s, w.end_s, w.word) for w in u.words] == [
+            (pytest.approx(s, abs=5e-6), pytest.approx(e, abs=5e-6), w) for s, e, w in t.words]
+        assert " ".join(w.word for w in u.words) == u.text
+        assert not {w.word for w in u.words} & {"sil", "sp"}
+        assert u.words[-1].end_s <= len(u.audio) / u.sample_rate
+    # the refused clip (bbizzn) leaves none behind
+    assert sorted(p.stem for p in (imported / "words").iterdir()) == list(CLIPS)
+
+
+def test_a_clip_with_a_text_transcript_only_has_no_words(tmp_path):
+    src = tmp_path / "clips"
+    src.mkdir()
+    shutil.copy(GRID / "video" / "bbbf8p.mpg", src)
+    (src / "bbbf8p.txt").write_text(read_align(GRID / "align" / "bbbf8p.align").text + "\n")
+    res = corpus_from_video(src, tmp_path / "corpus", settings=FromVideoSettings(
+        speaker="grid-s1"), progress=False)
+    assert res["utterances"] == 1 and not (tmp_path / "corpus" / "words").exists()
+    assert load_corpus(tmp_path / "corpus")["bbbf8p"].words is None
+    assert "words" not in json.loads((tmp_path / "corpus" / "corpus.json").read_text())
 
 
 def test_the_import_reproduces_the_shipped_tracks(imported):
@@ -56,7 +86,7 @@ def test_the_import_reproduces_the_shipped_tracks(imported):
         assert a.n_frames == b.n_frames and a.text == b.text
         np.testing.assert_allclose(a.markers, b.markers, atol=0.05)  # pixels
         np.testing.assert_allclose(a.audio, b.audio, atol=1 / 32767)
-        assert a.phones == b.phones
+        assert a.phones == b.phones and a.words == b.words
         np.testing.assert_allclose(a.quality, b.quality, atol=1e-3)
 
 
