@@ -9,8 +9,10 @@ project's frame grid (frame ``k`` at ``k / fps`` seconds, ``n_frames`` given by 
                       windows centred on each frame) minus its minimum; no visemes.
 ``openfacefx-text``   ``openfacefx`` 0.24 transcript mode: with word times, its word-anchor API
                       (``anchors.anchored_segments``: each word's phones stay inside its interval)
-                      then ``pipeline.generate_from_alignment``; with a transcript only,
-                      ``pipeline.naive_segments`` over the whole clip.
+                      then ``pipeline.generate_from_alignment``, or, with ``each_word``, each word
+                      segmented on its own interval (``pipeline.naive_segments`` of the word over
+                      its duration, the track shifted to its start; closed outside every word);
+                      with a transcript only, ``pipeline.naive_segments`` over the whole clip.
 ``openfacefx-energy`` ``openfacefx`` loudness mode, ``energy.generate_from_energy`` on a temporary
                       16-bit PCM WAV at the input rate (it reads nothing else).
 ``pylipsync``         ``pylipsync`` 0.2.1 (a uLipSync port): ``PhonemeAnalyzer().
@@ -171,7 +173,7 @@ def peer_versions() -> dict:
 
 def peer_track(peer: str, y: np.ndarray, sr: int, *, n_frames: int, fps: float,
                words: list[tuple[float, float, str]] | None = None,
-               transcript: str | None = None) -> PeerTrack:
+               transcript: str | None = None, each_word: bool = False) -> PeerTrack:
     """One peer's mouth opening (and visemes) for one clip, on the project's frame grid.
 
     Parameters
@@ -193,6 +195,12 @@ def peer_track(peer: str, y: np.ndarray, sr: int, *, n_frames: int, fps: float,
     transcript : str, optional
         The clip's text for ``openfacefx-text``; with ``words`` too, the words no time covers
         share the gaps between the timed ones (the package's anchored alignment).
+    each_word : bool
+        ``openfacefx-text`` with ``words``: segment each word on its own interval and shift it
+        there (FIELD_NOTES, "Lip-sync tools users already use") instead of the anchored
+        alignment over the clip. The package's coarticulation then never reaches outside a
+        word: the mouth is closed (``sil``) at every frame outside every word's
+        ``[start_s, end_s)``, and ``transcript`` is not read.
 
     Returns
     -------
@@ -203,7 +211,8 @@ def peer_track(peer: str, y: np.ndarray, sr: int, *, n_frames: int, fps: float,
     ParameterError
         An unknown peer; ``n_frames`` < 1; ``fps`` or ``sr`` not positive; ``y`` not 1-D, empty
         or not finite; ``openfacefx-text`` with neither words nor a transcript, or with words
-        the package rejects.
+        the package rejects (with ``each_word``: words out of time order, overlapping or
+        ending before they start).
     """
     if peer not in PEERS:
         raise ParameterError(f"peer {peer!r}: unknown; allowed: {', '.join(PEERS)}")
@@ -225,7 +234,10 @@ def peer_track(peer: str, y: np.ndarray, sr: int, *, n_frames: int, fps: float,
         db = loudness_opening(y, int(sr), int(n_frames), fps=float(fps))
         return PeerTrack(db - db.min(), None, peer)
     if peer == "openfacefx-text":
-        weights = _openfacefx_text(y, int(sr), times, float(fps), words, transcript)
+        if each_word and words is not None:
+            weights = _openfacefx_each_word(_timed(words), times, float(fps))
+        else:
+            weights = _openfacefx_text(y, int(sr), times, float(fps), words, transcript)
         return _from_weights(weights, OCULUS_TABLE, peer)
     if peer == "openfacefx-energy":
         return _from_weights(_openfacefx_energy(y, int(sr), times, float(fps)), OCULUS_TABLE,
@@ -258,17 +270,54 @@ def _sample_track(track, times: np.ndarray) -> dict:
     return out or {"sil": np.ones(len(times))}
 
 
+def _timed(words) -> list[tuple[float, float, str]]:
+    """``words`` as ``(start_s, end_s, word)`` without pause tokens (ParameterError: none left)."""
+    timed = [(float(s), float(e), str(w)) for s, e, w in words
+             if str(w).strip().lower() not in PAUSE_TOKENS]
+    if not timed:
+        raise ParameterError("words: no word left after dropping pause tokens "
+                             f"{sorted(PAUSE_TOKENS)}; at least one timed word is needed")
+    return timed
+
+
+def _openfacefx_each_word(timed, times, fps) -> dict:
+    """Channel weights at ``times`` with each word of ``timed`` segmented alone over its own
+    duration (``naive_segments``: silence, its phones, silence), the track sampled at the frame
+    times minus the word's start; ``sil`` = 1 at the frames outside every word."""
+    from openfacefx.pipeline import generate_from_alignment, naive_segments
+
+    prev_end = 0.0
+    for i, (s, e, w) in enumerate(timed):
+        if not (math.isfinite(s) and math.isfinite(e) and 0 <= s < e):
+            raise ParameterError(f"words: word {i} {w!r} from {s} s to {e} s; allowed: "
+                                 "0 <= start_s < end_s")
+        if s < prev_end - 1e-9:
+            raise ParameterError(f"words: word {i} {w!r} starts at {s} s, before the previous "
+                                 f"word ends ({prev_end} s); allowed: words in time order, "
+                                 "not overlapping")
+        prev_end = e
+    weights = {"sil": np.ones(len(times))}
+    for s, e, w in timed:
+        inside = (times >= s) & (times < e)
+        if not inside.any():
+            continue
+        try:
+            segments = naive_segments(w, e - s)
+        except ValueError as err:
+            raise ParameterError(f"words: openfacefx rejects {w!r}: {err}") from None
+        part = _sample_track(generate_from_alignment(segments, fps=fps), times[inside] - s)
+        for name in set(weights) | set(part):
+            weights.setdefault(name, np.zeros(len(times)))[inside] = part.get(name, 0.0)
+    return weights
+
+
 def _openfacefx_text(y, sr, times, fps, words, transcript) -> dict:
     from openfacefx.anchors import Anchor, anchored_segments
     from openfacefx.pipeline import generate_from_alignment, naive_segments
 
     duration = len(y) / sr
     if words is not None:
-        timed = [(float(s), float(e), str(w)) for s, e, w in words
-                 if str(w).strip().lower() not in PAUSE_TOKENS]
-        if not timed:
-            raise ParameterError("words: no word left after dropping pause tokens "
-                                 f"{sorted(PAUSE_TOKENS)}; at least one timed word is needed")
+        timed = _timed(words)
         duration = max(duration, max(e for _, e, _ in timed))
         text = transcript if transcript else " ".join(w for _, _, w in timed)
         try:

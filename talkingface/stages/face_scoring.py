@@ -19,6 +19,11 @@ exactly the clip's frames (the model's frames cut, or the last one repeated, to 
 
 Input rate: with ``input_rate`` the clip's audio is resampled (:func:`groundwork.audio.resample`)
 to that rate and the model (or peer) hears it at that rate.
+
+The transcript peer (``openfacefx-text``) is given the clip's word times when it has them (a
+corpus's ``words/`` files, or a video's GRID ``.align``): each word segmented on its own interval
+and shifted there (:func:`peer_opening`); without them, the transcript over the speech span. Its
+pooled scores say which timing each clip got (``word_times``).
 """
 from __future__ import annotations
 
@@ -49,7 +54,9 @@ from mapping.recogniser import fit_length
 @dataclass(frozen=True)
 class RealClip:
     """One real clip: mono audio, the 79 markers (image pixels) at ``fps``, its phone labels
-    (None: unknown), per frame whether a face was detected (``valid``), and its transcript."""
+    (None: unknown), per frame whether a face was detected (``valid``), its transcript, and its
+    words' times, ``((start_s, end_s, word), ...)`` in seconds from the start of its audio
+    (None: unknown)."""
 
     clip: str
     speaker: str
@@ -60,6 +67,7 @@ class RealClip:
     phones: tuple | None = None
     valid: np.ndarray | None = None
     text: str = ""
+    words: tuple | None = None
 
     @property
     def n_frames(self) -> int:
@@ -76,20 +84,32 @@ def clips_from_corpus(corpus_dir, utt_ids=None) -> list[RealClip]:
     corpus = load_corpus(corpus_dir)
     keep = None if utt_ids is None else set(utt_ids)
     return [RealClip(u.utt_id, u.speaker, u.audio, u.sample_rate, u.markers, float(u.fps),
-                     phone_segments(u.phones), _valid(u.quality, u.n_frames), u.text)
+                     phone_segments(u.phones), _valid(u.quality, u.n_frames), u.text,
+                     _word_tuples(u.words))
             for u in corpus.utterances if keep is None or u.utt_id in keep]
 
 
-def _phones_of(video: Path, y: np.ndarray, sr: int) -> tuple[tuple | None, str, str]:
-    """``(phones, text, why)``: the clip's transcript (:func:`face_model.transcripts.
-    find_transcript`) forced-aligned; None and the reason when there is none or it fails."""
+def _word_tuples(words) -> tuple | None:
+    """``((start_s, end_s, word), ...)`` of a corpus's or a transcript's words (None: none)."""
+    if not words:
+        return None
+    return tuple((float(w[0]), float(w[1]), str(w[2])) if isinstance(w, tuple) else
+                 (float(w.start_s), float(w.end_s), str(w.word)) for w in words)
+
+
+def _phones_of(video: Path, y: np.ndarray, sr: int
+               ) -> tuple[tuple | None, str, tuple | None, str]:
+    """``(phones, text, words, why)``: the clip's transcript (:func:`face_model.transcripts.
+    find_transcript`) forced-aligned, and its word times when it gives them (a GRID ``.align``);
+    None and the reason when there is none or it fails."""
     try:
         t = find_transcript(video)
         if t is None:
-            return None, "", "no transcript beside it"
-        return phone_segments(align_audio(y, sr, t.text, source=str(video))), t.text, ""
+            return None, "", None, "no transcript beside it"
+        phones = phone_segments(align_audio(y, sr, t.text, source=str(video)))
+        return phones, t.text, _word_tuples(t.words), ""
     except TalkingFaceError as exc:
-        return None, "", str(exc)
+        return None, "", None, str(exc)
 
 
 def clips_from_videos(src, *, speaker: str, workers: int = 2, progress: bool = True,
@@ -117,12 +137,12 @@ def clips_from_videos(src, *, speaker: str, workers: int = 2, progress: bool = T
             except ClipRefused as exc:
                 refused.append((v.stem, str(exc)))
                 continue
-            phones, text, why = _phones_of(v, c.audio, c.sample_rate)
+            phones, text, words, why = _phones_of(v, c.audio, c.sample_rate)
             if phones is None:
                 unaligned.append((v.stem, why))
             clips.append(RealClip(v.stem, speaker, c.audio, c.sample_rate, c.markers,
                                   float(VIDEO_FPS),
-                                  phones, ~np.asarray(c.interpolated, bool), text))
+                                  phones, ~np.asarray(c.interpolated, bool), text, words))
     if not clips:
         first = refused[0][1] if refused else f"{src}: no clip could be read"
         raise CorpusError(first + (f" (and {len(refused) - 1} more clips refused)"
@@ -218,18 +238,39 @@ def speech_span(c: RealClip) -> tuple[int, int] | None:
     return (a, b) if b > a else None
 
 
+# What timing the transcript peer got for a clip (:func:`peer_timing`).
+WORD_TIMING = "words"  # each word on its own interval (the clip's word times)
+SPAN_TIMING = "speech span"  # the transcript over the speech span (no word times)
+NO_TIMING = "none"  # neither words nor a transcript with phones: closed throughout
+
+
+def peer_timing(c: RealClip) -> str:
+    """Which timing ``openfacefx-text`` gets for clip ``c``: :data:`WORD_TIMING` when it has word
+    times, :data:`SPAN_TIMING` when it has a transcript and a speech span, else
+    :data:`NO_TIMING`."""
+    if c.words:
+        return WORD_TIMING
+    return SPAN_TIMING if c.text and speech_span(c) is not None else NO_TIMING
+
+
 def peer_opening(peer: str, c: RealClip, input_rate=None) -> np.ndarray:
-    """One peer's opening for clip ``c`` (n_frames,). ``openfacefx-text`` is given the
-    transcript only, spread by its own segmentation over the speech span (:func:`speech_span`:
-    the audio of those frames; closed, 0, outside it): the corpus keeps no word times."""
+    """One peer's opening for clip ``c`` (n_frames,). ``openfacefx-text`` is given the clip's
+    word times when it has them (``c.words``): each word segmented on its own interval and
+    shifted there (:func:`mapping.peers.peer_track` with ``each_word``), closed (0) at every
+    frame outside every word. Without word times it gets the transcript only, spread by its own
+    segmentation over the speech span (:func:`speech_span`: the audio of those frames; closed,
+    0, outside it)."""
     y, sr = at_rate(c, input_rate)
     if peer != "openfacefx-text":
         return peer_track(peer, y, sr, n_frames=c.n_frames, fps=c.fps).opening
+    timing = peer_timing(c)
+    if timing == WORD_TIMING:
+        return peer_track(peer, y, sr, n_frames=c.n_frames, fps=c.fps, words=list(c.words),
+                          each_word=True).opening
     out = np.zeros(c.n_frames)
-    span = speech_span(c)
-    if span is None or not c.text:
+    if timing == NO_TIMING:
         return out
-    a, b = span
+    a, b = speech_span(c)
     part = y[int(round(a * sr / c.fps)):int(round(b * sr / c.fps))]
     out[a:b] = peer_track(peer, part, sr, n_frames=b - a, fps=c.fps,
                           transcript=c.text).opening
@@ -239,10 +280,17 @@ def peer_opening(peer: str, c: RealClip, input_rate=None) -> np.ndarray:
 def score_peer(peer: str, clips: list, *, input_rate=None, progress: bool = False
                ) -> FaceScores:
     """Score a peer (:data:`mapping.peers.PEERS`) on real ``clips``: its opening against the
-    real aligned inner-lip opening, by the same rules."""
+    real aligned inner-lip opening, by the same rules. For ``openfacefx-text`` the pooled
+    figures also say which timing each clip got: ``word_times`` (``{clip: "words" | "speech
+    span" | "none"}``, :func:`peer_timing`) and ``word_time_clips`` (how many had words)."""
     tracks = []
     for c in tqdm(clips, desc=peer, unit="clip", disable=not progress, leave=False):
         real = mouth_opening(align_markers(c.markers))
         tracks.append(ClipTrack(c.clip, c.speaker, real, peer_opening(peer, c, input_rate),
                                 c.fps, c.phones, c.valid))
-    return score_clips(tracks)
+    scores = score_clips(tracks)
+    if peer == "openfacefx-text":
+        timing = {c.clip: peer_timing(c) for c in clips}
+        scores.pooled["word_times"] = timing
+        scores.pooled["word_time_clips"] = sum(t == WORD_TIMING for t in timing.values())
+    return scores

@@ -73,8 +73,10 @@ MODELS = ("speaker_model", "synthetic_model")
 # 2: speech frames, closures on /p b m/, chance, peers, input rates, units on training sentences
 SCORING_VERSION = 2
 EXTRA_RATES = (16000, 8000)  # Hz: the same audio resampled, beside the corpus's own rate
-WORD_TIMES = ("transcript over the speech span (first to last non-silence phone): the corpus "
-              "keeps no word times")
+WORD_TIMES = ("word times of the clips whose corpus keeps them (words/<utt_id>.csv, GRID's .align "
+              "times), each word segmented on its own interval and shifted there, closed outside "
+              "every word; the other clips' transcript over the speech span (first to last "
+              "non-silence phone); which timing each clip got is the peer's word_times")
 
 
 def real_corpus(cfg) -> Path | None:

@@ -217,9 +217,63 @@ def test_pylipsync_reads_audio_below_16_khz_at_its_true_rate():
      r"^words: no word left after dropping pause tokens"),
     (dict(peer="openfacefx-text", words=[(0.3, 0.7, "pa"), (0.5, 0.9, "pa")]),
      r"^words: openfacefx rejects them: anchors overlap"),
+    (dict(peer="openfacefx-text", words=[(0.3, 0.7, "pa"), (0.5, 0.9, "pa")], each_word=True),
+     r"^words: word 1 'pa' starts at 0.5 s, before the previous word ends \(0.7 s\); allowed: "
+     r"words in time order, not overlapping$"),
+    (dict(peer="openfacefx-text", words=[(0.7, 0.3, "pa")], each_word=True),
+     r"^words: word 0 'pa' from 0.7 s to 0.3 s; allowed: 0 <= start_s < end_s$"),
+    (dict(peer="openfacefx-text", words=[(0.0, 0.3, "sp")], each_word=True),
+     r"^words: no word left after dropping pause tokens"),
 ])
 def test_bad_input_is_refused_with_its_message(call, match):
     args = dict(peer="loudness", y=np.zeros(1600), sr=SR, n_frames=3, fps=30.0)
     args.update(call)
     with pytest.raises(ParameterError, match=match):
         peer_track(args.pop("peer"), args.pop("y"), args.pop("sr"), **args)
+
+
+# -- openfacefx-text with each word segmented on its own interval (each_word) ------------------
+SENTENCE = [(0.20, 0.45, "bin"), (0.45, 0.70, "blue"), (0.95, 1.30, "papa")]  # a pause at 0.7–0.95
+
+
+@pytest.mark.parametrize("fps", [25.0, 30.0])
+def test_each_word_keeps_its_mouth_inside_its_own_interval(fps):
+    """Closed (exactly 0, silence) at every frame outside every word, open inside each word,
+    and the bilabials' closures (m) inside the words."""
+    n = int(DURATION * fps)
+    tr = peer_track("openfacefx-text", vowel_burst(), SR, n_frames=n, fps=fps, words=SENTENCE,
+                    each_word=True)
+    t = np.arange(n) / fps
+    inside = [(t >= s) & (t < e) for s, e, _ in SENTENCE]
+    outside = ~np.logical_or.reduce(inside)
+    assert outside.sum() > 10
+    assert np.all(tr.opening[outside] == 0)
+    assert np.all(tr.visemes[outside] == VISEMES.index("neutral"))
+    for frames in inside:
+        assert tr.opening[frames].max() > 0.3
+    closed = t[tr.visemes == VISEMES.index("m")]
+    for s, e, _ in SENTENCE:  # every word has a /b/ or /p/: each closes, inside itself
+        assert np.any((closed >= s) & (closed < e))
+    assert all(any(s <= x < e for s, e, _ in SENTENCE) for x in closed)
+
+
+def test_a_word_segmented_alone_is_the_word_shifted_to_its_start():
+    """Moving a word in time moves its track by as much (at frame-aligned starts)."""
+    fps, n, shift = 30.0, 45, 12
+    at = [peer_track("openfacefx-text", vowel_burst(), SR, n_frames=n, fps=fps, each_word=True,
+                     words=[(k / fps, (k + shift) / fps, "papa")]).opening for k in (6, 18)]
+    np.testing.assert_allclose(at[1][shift:], at[0][:-shift], atol=1e-9)
+    assert at[0].max() > 0.3
+
+
+def test_each_word_differs_from_the_anchored_alignment_only_in_where_the_mouth_may_move():
+    """The anchored alignment lets the package's coarticulation open the mouth before the first
+    word; each word alone never does. Pause tokens are dropped in both."""
+    fps, n = 30.0, 45
+    anchored = peer_track("openfacefx-text", vowel_burst(), SR, n_frames=n, fps=fps,
+                          words=SENTENCE)
+    alone = peer_track("openfacefx-text", vowel_burst(), SR, n_frames=n, fps=fps,
+                       words=[(0.0, 0.2, "sil"), *SENTENCE, (1.3, 1.5, "sp")], each_word=True)
+    t = np.arange(n) / fps
+    before = t < SENTENCE[0][0]
+    assert anchored.opening[before].max() > 0 and alone.opening[before].max() == 0

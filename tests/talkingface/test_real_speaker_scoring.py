@@ -19,6 +19,7 @@ from talkingface.stages.real_speaker import BUILTIN
 from tests.mapping.small_mapping import train_small
 
 IDS = ("bbaf3s", "bbaf5a")
+REAL = BUILTIN.parent
 
 
 def test_a_model_is_scored_on_real_clips_at_every_rate(small_corpus):
@@ -37,14 +38,53 @@ def test_a_model_is_scored_on_real_clips_at_every_rate(small_corpus):
     assert own.pooled["lve_clips"] == len(clips)
 
 
-def test_the_transcript_peer_is_closed_outside_the_speech_span():
-    clip = clips_from_corpus(BUILTIN, IDS[:1])[0]
+def test_the_transcript_peer_without_word_times_is_closed_outside_the_speech_span():
+    clip = dataclasses.replace(clips_from_corpus(BUILTIN, IDS[:1])[0], words=None)
     a, b = speech_span(clip)
     o = peer_opening("openfacefx-text", clip)
     assert len(o) == clip.n_frames and np.all(o[:a] == 0) and np.all(o[b:] == 0)
     assert o[a:b].max() > 0
     s = score_peer("loudness", [clip], input_rate=8000)
     assert s.tracks[0].n_frames == clip.n_frames
+    s = score_peer("openfacefx-text", [clip])
+    assert s.pooled["word_times"] == {clip.clip: "speech span"}
+    assert s.pooled["word_time_clips"] == 0
+
+
+@pytest.mark.parametrize("corpus", [BUILTIN, REAL / "grid-s26", REAL / "grid-s31"],
+                         ids=["grid-s1", "grid-s26", "grid-s31"])
+def test_the_transcript_peer_with_word_times_moves_the_mouth_inside_the_words(corpus):
+    """A corpus with words/ gives each clip its words; the peer is closed (0) at every frame
+    outside every word, open inside some, and each word's motion stays in its own interval:
+    without one of the words, the mouth is closed in that word's interval and unchanged
+    elsewhere."""
+    clips = clips_from_corpus(corpus)[:3]
+    for c in clips:
+        assert c.words and " ".join(w for _, _, w in c.words) == c.text
+        o = peer_opening("openfacefx-text", c)
+        t = np.arange(c.n_frames) / c.fps
+        inside = np.logical_or.reduce([(t >= s) & (t < e) for s, e, _ in c.words])
+        assert np.all(o[~inside] == 0) and o[inside].max() > 0.2
+        for rate in (16000, 8000):  # the input rate changes nothing: the peer reads the words
+            np.testing.assert_array_equal(peer_opening("openfacefx-text", c, rate), o)
+        for i, (s0, e0, _) in enumerate(c.words):
+            fewer = dataclasses.replace(c, words=c.words[:i] + c.words[i + 1:])
+            o_fewer = peer_opening("openfacefx-text", fewer)
+            word = (t >= s0) & (t < e0)
+            assert np.all(o_fewer[word] == 0)
+            np.testing.assert_array_equal(o_fewer[~word], o[~word])
+    s = score_peer("openfacefx-text", clips)
+    assert s.pooled["word_times"] == {c.clip: "words" for c in clips}
+    assert s.pooled["word_time_clips"] == len(clips)
+    assert "word_times" not in score_peer("loudness", clips[:1]).pooled
+
+
+def test_the_summary_says_which_timing_the_transcript_peer_got():
+    from talkingface.stages.real_speaker import WORD_TIMES
+
+    assert "keeps no word times" not in WORD_TIMES
+    assert "each word segmented on its own interval" in WORD_TIMES
+    assert "speech span" in WORD_TIMES and "word_times" in WORD_TIMES
 
 
 def test_clips_of_another_face_scored_as_a_training_speaker_are_refused(small_corpus,
