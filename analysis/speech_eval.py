@@ -62,7 +62,7 @@ from analysis.speech_scores import (LABIODENTALS, VOWELS, ChanceTerms, Contact, 
                                     chance_scores, correlation, fit_frames, frame_accuracy,
                                     group_viseme, label_frames, phone_frames, segment_contact,
                                     silence_opening, speech_r_terms, viseme_index, vowel_median)
-from data_synth.articulation import coarticulate
+from data_synth.articulation import articulation_model, coarticulate
 from data_synth.backends import voice_speaker
 from data_synth.config import SynthConfig
 from data_synth.face import articulate, make_speaker
@@ -90,8 +90,7 @@ def reference_opening(segments, n_frames: int, fps: float, synth: SynthConfig, s
     """Opening (n_frames,) px of the generator's face, speaker 0 of ``synth`` and ``seed``,
     articulating the phone ``segments`` with its own coarticulation model."""
     times = np.arange(n_frames) / fps
-    artic = coarticulate(segments, times, theta_anticipation=synth.theta_anticipation,
-                         theta_carryover=synth.theta_carryover, power=synth.dominance_power)
+    artic = coarticulate(segments, times, articulation_model(synth))
     face = articulate(make_speaker(0, synth, seed), artic, np.zeros(n_frames),
                       expression="neutral", envelope=np.zeros(n_frames), cfg=synth)
     return mouth_opening(face)

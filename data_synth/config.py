@@ -9,8 +9,10 @@ import math
 from dataclasses import dataclass, field
 from numbers import Real
 
+from data_synth.articulation import TABLE, articulation_path, read_articulation, shipped_names
 from data_synth.backends import voice_problem
 from face_model.corpus import EXPRESSIONS
+from groundwork.errors import ParameterError
 from groundwork.settings import (SettingError, check_fields, choice, integer, number, require,
                                  span, subset)
 
@@ -35,6 +37,23 @@ def check_voices(voices, key: str = "voices") -> None:
         problem = voice_problem(spec)
         if problem is not None:
             raise SettingError(key, spec, problem)
+
+
+def check_articulation(value) -> None:
+    """Refuse a ``synth.articulation`` that is not ``table``, a shipped name or a readable
+    articulation model file (a :class:`SettingError` naming the key, the value and the
+    problem)."""
+    if not isinstance(value, str) or not value:
+        raise SettingError("articulation", value, f"{TABLE}, a shipped name "
+                           f"({', '.join(shipped_names())}) or the path of a model file")
+    if value == TABLE:
+        return
+    try:
+        read_articulation(articulation_path(value))
+    except ParameterError as exc:
+        raise SettingError("articulation", value, f"{TABLE}, a shipped name "
+                           f"({', '.join(shipped_names())}) or the path of a model file "
+                           f"({exc})") from None
 
 
 @dataclass(frozen=True)
@@ -85,6 +104,11 @@ class SynthConfig:
     theta_anticipation: float = number(16.0, gt=0, le=1000)  # 1/s
     theta_carryover: float = number(25.0, gt=0, le=1000)  # 1/s
     dominance_power: float = number(1.0, gt=0, le=20)
+    # the coarticulation model (data_synth.articulation): `table` (face_model.phones' hand table
+    # with the three rates above) or a fitted model file: a shipped name (grid-s1: fitted on the
+    # real speaker's training sentences, tools/fit_articulation.py) or a path; a file's own
+    # rates replace the three above
+    articulation: str = "table"
     # articulation → marker displacement gains, pixels at parameter value 1
     jaw_px: float = number(10.0, ge=0, le=100)
     aperture_px: float = number(6.0, ge=0, le=100)
@@ -115,6 +139,7 @@ class SynthConfig:
     def __post_init__(self):
         check_fields(self)
         check_voices(self.voices)
+        check_articulation(self.articulation)
         w = self.voice_weights
         require(self, "voice_weights", not w or (len(w) == len(self.voices) and sum(w) > 0),
                 f"empty (equal weights), or one number >= 0 per voice of voices "

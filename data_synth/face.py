@@ -79,8 +79,9 @@ def make_speaker(index: int, cfg, seed: int) -> Speaker:
     return Speaker(index, shaped + centre, gains, eg, voice, rate, pitch)
 
 
-def _fields(neutral: np.ndarray, cfg) -> dict[str, np.ndarray]:
-    """Displacement fields (79, 2) in pixels for unit parameter values, from neutral positions."""
+def displacement_fields(neutral: np.ndarray, cfg) -> dict[str, np.ndarray]:
+    """Displacement fields (79, 2) in pixels for unit parameter values, from neutral positions
+    (``jaw_lips jaw_face aperture spread protrusion upper_raise lower_tuck press brow``)."""
     lay = default_layout()
     rel = neutral - np.asarray(FACE_CENTRE)
     x, y = rel[:, 0], rel[:, 1]
@@ -204,7 +205,7 @@ def articulate(speaker: Speaker, artic: np.ndarray, brow: np.ndarray, *, express
     closure = np.clip(a[:, _P["closure"]], 0.0, 1.0)
     tuck = np.clip(col("lower_tuck"), 0.0, 1.5)
     opening = (1.0 - closure) * (1.0 - 0.7 * np.clip(tuck, 0, 1))
-    f = _fields(speaker.neutral, cfg)
+    f = displacement_fields(speaker.neutral, cfg)
     d = (jaw[:, None, None] * (opening[:, None, None] * f["jaw_lips"] + f["jaw_face"])
          + (ap * opening)[:, None, None] * f["aperture"]
          + spread[:, None, None] * f["spread"]

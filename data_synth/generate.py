@@ -25,7 +25,8 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from data_synth.articulation import coarticulate
+from data_synth.articulation import (articulation_file, articulation_model, coarticulate,
+                                     file_sha256)
 from data_synth.backends import (check_voices_installed, get_backend, parse_voice,
                                  voice_backend, voice_sample_rate, voice_speaker)
 from data_synth.face import Speaker, articulate, expression_envelope, make_speaker
@@ -186,8 +187,7 @@ def build_utterance(plan: UtterancePlan, speaker: Speaker, result, backend, cfg,
     segs = phone_segments(result, backend, text=plan.text, lead_samples=lead,
                           total_samples=len(audio))
     times = np.arange(n_frames) / FPS
-    artic = coarticulate(segs, times, theta_anticipation=cfg.theta_anticipation,
-                         theta_carryover=cfg.theta_carryover, power=cfg.dominance_power)
+    artic = coarticulate(segs, times, articulation_model(cfg))
     if plan.expression == "neutral":
         env = np.zeros(n_frames)
     else:
@@ -287,7 +287,8 @@ def _build_corpus(out: Path, cfg, seed: int, speakers, plans, backends, progress
     write_manifest(out, rows)
     # Generator settings; `workers` is left out: it changes how fast, never what is made; and
     # `voices` / `voice_weights` when empty, so the single-voice corpus is described as before.
-    skip = {"workers"} | (set() if cfg.voices else {"voices", "voice_weights"})
+    skip = {"workers"} | (set() if cfg.voices else {"voices", "voice_weights"}) \
+        | ({"articulation"} if articulation_file(cfg) is None else set())
     info = {
         "generator": "talkingface.data_synth",
         "seed": seed,
@@ -304,6 +305,10 @@ def _build_corpus(out: Path, cfg, seed: int, speakers, plans, backends, progress
         "n_frames": int(sum(r["n_frames"] for r in rows)),
         "versions": package_versions(),
     }
+    model_file = articulation_file(cfg)
+    if model_file is not None:  # the fitted model the faces were drawn with, by content
+        info["articulation"] = {"file": str(model_file), "sha256": file_sha256(model_file),
+                                "source": articulation_model(cfg).record.get("source", "")}
     if cfg.voices:
         info["voices"] = [{"voice": spec, "source_speaker": voice_speaker(spec),
                            "native_sample_rate": voice_sample_rate(spec),

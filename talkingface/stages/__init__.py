@@ -14,6 +14,8 @@ from talkingface.paths import RunPaths
 from talkingface.stages.base import (Stage, prepare_run, read_done, run_order, run_stages,
                                      stale_stages)
 from talkingface.stages.applies import study_applies, switched_off, synthesised
+from talkingface.stages.articulation import (articulation_applies, articulation_files,
+                                             evaluate_articulation, every_articulation_file)
 from talkingface.stages.front_end import (front_end_applies, front_inputs, front_model_inputs,
                                           train_front_end)
 from talkingface.stages.foundation import (fit_keyframes, fit_units, make_corpus, sentence_file,
@@ -38,8 +40,14 @@ from talkingface.stages.voices import train_voices, voices_inputs
 _TRAINING_INPUTS = ("corpus", "units", "tracked")
 
 
+def _with_files(*sources):
+    """A stage's ``files``: the files of every source (``(paths, cfg) -> list``) in turn."""
+    return lambda paths, cfg: [f for source in sources for f in source(paths, cfg)]
+
+
 def _grid_stage(grid: GridStage, run, *, config: tuple, speed_only: tuple,
-                applies=None, upstream: tuple = _TRAINING_INPUTS, inputs=None) -> Stage:
+                applies=None, upstream: tuple = _TRAINING_INPUTS, inputs=None,
+                files=None) -> Stage:
     """The stage of ``grid``: trained on ``upstream``'s results (the run's training inputs);
     its own settings (:attr:`GridStage.settings`), its grid file's contents and ``inputs``
     (``(paths, cfg) -> dict``: the data outside the run it reads) join its key; on when its
@@ -48,13 +56,14 @@ def _grid_stage(grid: GridStage, run, *, config: tuple, speed_only: tuple,
     enabled = grid.has_grid if applies is None else (
         lambda cfg: grid.has_grid(cfg) and applies(cfg))
     return Stage(grid.name, run, config=(*config, *grid.settings), speed_only=speed_only,
-                 upstream=upstream, enabled=enabled, files=grid.grid_file,
+                 upstream=upstream, enabled=enabled,
+                 files=grid.grid_file if files is None else _with_files(grid.grid_file, files),
                  resumable=grid.resumable, **({} if inputs is None else {"inputs": inputs}))
 
 
 STAGES = {s.name: s for s in (
     Stage("corpus", make_corpus, config=corpus_config, speed_only=("synth.workers",),
-          files=sentence_file, inputs=corpus_inputs),
+          files=_with_files(sentence_file, articulation_files), inputs=corpus_inputs),
     Stage("units", fit_units, config=("units",), upstream=("corpus",), inputs=units_inputs),
     Stage("keyframes", fit_keyframes, upstream=("corpus", "units")),
     Stage("tracking", evaluate_tracker, config=("seed", "tracker.n_utterances",
@@ -68,16 +77,18 @@ STAGES = {s.name: s for s in (
                                                 "mapping.train_fraction", "front_end",
                                                 "real_speaker.corpus"),
           speed_only=("synth.workers", "front_end.workers"), upstream=("corpus", "tracked"),
-          enabled=front_end_applies, inputs=front_inputs),
+          enabled=front_end_applies, inputs=front_inputs, files=articulation_files),
     _grid_stage(VOICES, train_voices, config=("seed", "synth", "units", "mapping",
                                               "real_speaker.corpus"),
                 speed_only=("synth.workers", "mapping.workers"), applies=synthesised,
-                inputs=voices_inputs, upstream=(*_TRAINING_INPUTS, "front_end")),
+                inputs=voices_inputs, upstream=(*_TRAINING_INPUTS, "front_end"),
+                files=every_articulation_file),
     Stage("speech_eval", evaluate_speech, config=("targets.lookahead_ms", "speech_set"),
           upstream=("corpus", "units", "mapping", "front_end", "voices"), files=set_files),
     Stage("render", render_held_out, upstream=("corpus", "keyframes", "mapping")),
     Stage("stimuli", make_stimuli, config=("seed", "synth"), speed_only=("synth.workers",),
-          upstream=("units", "mapping", "voices"), enabled=study_applies),
+          upstream=("units", "mapping", "voices"), enabled=study_applies,
+          files=articulation_files),
     Stage("study_data", simulate_participants, config=("seed", "study"),
           upstream=("corpus", "stimuli"), guard=keep_real_participants, enabled=study_applies),
     Stage("analysis", analyze, config=("seed",), upstream=("study_data",),
@@ -85,7 +96,12 @@ STAGES = {s.name: s for s in (
     _grid_stage(ABLATIONS, ablate, config=("seed", "mapping"), speed_only=("mapping.workers",)),
     _grid_stage(CEILING, decompose, config=("seed", "synth", "units", "mapping", "tracker.init",
                                             "tracker.corpus_noise_sd"),
-                speed_only=("synth.workers", "mapping.workers"), applies=synthesised),
+                speed_only=("synth.workers", "mapping.workers"), applies=synthesised,
+                files=every_articulation_file),
+    Stage("articulation", evaluate_articulation, config=("seed", "synth", "mapping.train_fraction",
+                                                         "real_speaker.corpus"),
+          speed_only=("synth.workers",), enabled=articulation_applies, inputs=real_inputs,
+          files=every_articulation_file),
     Stage("real_speaker", lambda paths, cfg: evaluate_real_speaker(paths, cfg, run),
           config=("seed", "units", "mapping", "real_speaker"), speed_only=("mapping.workers",),
           upstream=("units", "mapping", "voices"), enabled=real_speaker_applies,
@@ -99,7 +115,7 @@ STAGES = {s.name: s for s in (
 
 REPLICATION = ("corpus", "units", "keyframes", "tracking", "tracked", "mapping", "front_end",
                "voices", "speech_eval", "render", "stimuli", "study_data", "analysis", "ablations",
-               "ceiling", "real_speaker", "real_steps", "report")
+               "ceiling", "articulation", "real_speaker", "real_steps", "report")
 
 
 def run(names, paths: RunPaths, cfg) -> dict:

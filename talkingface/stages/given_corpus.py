@@ -58,7 +58,8 @@ def _refuse(src: Path, problem: str, setting: str = "corpus.source") -> CorpusEr
 
 def corpus_files(root: Path) -> list[Path]:
     """The files of the corpus at ``root`` that the run takes, relative to it: ``manifest.csv``,
-    ``corpus.json`` (when there is one) and every file the manifest names.
+    ``corpus.json`` (when there is one), every file the manifest names and each utterance's
+    word times (``words/<utt_id>.csv``) when there are some.
 
     Raises
     ------
@@ -80,6 +81,9 @@ def corpus_files(root: Path) -> list[Path]:
                                   "outside the corpus folder; allowed: paths relative to it, "
                                   "inside it")
             out.append(rel)
+        words = Path("words") / f"{row['utt_id']}.csv"
+        if (root / words).is_file():
+            out.append(words)
     return list(dict.fromkeys(out))
 
 

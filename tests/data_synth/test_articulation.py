@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from data_synth.articulation import coarticulate
+from data_synth.articulation import Articulation, coarticulate
 from face_model.corpus import PhoneSegment
 from face_model.phones import ARTIC_PARAMS, BILABIALS, PHONE_INDEX, PHONES, target_matrix
 from groundwork.errors import ParameterError
@@ -93,7 +93,8 @@ def test_anticipation_reaches_further_than_carry_over():
         before, after = coarticulate(segs, np.array([centre - delta, centre + delta]))
         assert before[PROTRUSION] > after[PROTRUSION] > 0
     before, after = coarticulate(segs, np.array([centre - 0.2, centre + 0.2]),
-                                 theta_anticipation=25.0, theta_carryover=25.0)
+                                 Articulation.table(theta_anticipation=25.0,
+                                                    theta_carryover=25.0))
     np.testing.assert_allclose(before, after, rtol=1e-12)
 
 
@@ -103,7 +104,7 @@ def test_anticipation_reaches_further_than_carry_over():
 def test_trajectory_is_a_mix_of_the_segments_targets(spec, theta):
     segs = _segments(spec)
     t = np.linspace(0.0, segs[-1].end_s, 97, endpoint=False)
-    traj = coarticulate(segs, t, theta_anticipation=theta[0], theta_carryover=theta[1])
+    traj = coarticulate(segs, t, Articulation.table(theta[0], theta[1]))
     targets = target_matrix()[[PHONE_INDEX[p] for p, _ in spec]]
     assert np.all(np.isfinite(traj))
     assert np.all(traj >= targets.min(0) - 1e-12)
@@ -119,9 +120,9 @@ def test_trajectory_is_a_mix_of_the_segments_targets(spec, theta):
     ({"power": -2.0}, "16.0, 25.0, -2.0"),
 ])
 def test_non_positive_rates_are_refused(kwargs, shown):
-    with pytest.raises(ParameterError, match=f"dominance rates and power must be positive, got "
-                                             f"{shown}"):
-        coarticulate(SENTENCE, np.array([0.1]), **kwargs)
+    with pytest.raises(ParameterError, match=f"articulation table: dominance rates and power "
+                                             f"must be positive, got {shown}"):
+        coarticulate(SENTENCE, np.array([0.1]), Articulation.table(**kwargs))
 
 
 def test_no_segments_is_refused():

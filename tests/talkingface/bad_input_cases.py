@@ -818,7 +818,7 @@ ACCEPTED = [
 # The table's parts kept in modules of their own (each: ``CASES`` and ``add_inputs(root)``); they
 # import the shared settings above, so they are imported after them.
 from tests.talkingface import (bad_input_faces, bad_input_outputs,  # noqa: E402
-                               bad_input_settings, bad_input_web)
+                               bad_input_settings, bad_input_web, bad_input_words)
 
-PARTS = (bad_input_faces, bad_input_outputs, bad_input_settings, bad_input_web)
+PARTS = (bad_input_faces, bad_input_outputs, bad_input_settings, bad_input_web, bad_input_words)
 CASES += [case for part in PARTS for case in part.CASES]
