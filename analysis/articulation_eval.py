@@ -14,11 +14,14 @@ most any coarticulation model on this face map can reach.
 """
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from analysis.face_eval import ClipTrack, score_clips
+from analysis.report import escape
 from data_synth.articulation import coarticulate
 from face_model.layout import LEFT_OUTER_CORNER, RIGHT_OUTER_CORNER, mouth_opening
 
@@ -85,3 +88,54 @@ def articulation_table(clips: list, face, models: dict, *, projection=None) -> l
                  for c in clips]
         rows.append({"model": name, **_row(clips, drawn)})
     return rows
+
+
+def _f(x, digits: int = 2) -> str:
+    return "–" if x is None or (isinstance(x, float) and not np.isfinite(x)) else \
+        f"{x:.{digits}f}"
+
+
+def articulation_section(rep, stage_dir) -> None:
+    """Add the subsection "The articulation fitted on the real mouth" from the
+    ``articulation`` stage's ``summary.json`` (key ``articulation``, table
+    ``articulation_table``); a missing or unreadable summary is said in a sentence."""
+    rep.heading("The articulation fitted on the real mouth", level=2, stage="articulation",
+                key="articulation")
+    path = Path(stage_dir) / "summary.json"
+    try:
+        summary = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as e:
+        rep.paragraph(f"No results: the stage's summary.json could not be read "
+                      f"({escape(type(e).__name__)}).")
+        return
+    shipped = summary.get("shipped") or {}
+    rows = summary.get("rows") or []
+    rep.paragraph(
+        "The generator moves the drawn faces' lips by a coarticulation model (Cohen &amp; "
+        "Massaro, 1993): per phone a target and a dominance of each articulatory parameter, "
+        "and the rates at which a phone's dominance rises before and decays after its centre. "
+        "The hand-typed table was never compared with a real mouth. The fitted model was "
+        f"estimated on the real speaker's {summary.get('training_clips', '?')} training "
+        "sentences only (their tracked markers brought into the articulatory space through the "
+        "generator's own face map, then targets, lip and jaw dominance, the two rates and the "
+        f"power by least squares, the hand table as prior; <i>{escape(shipped.get('command'))}"
+        f"</i>, file {escape(shipped.get('file'))}, sha256 "
+        f"{escape((shipped.get('sha256') or '')[:12])}): θ before the centre "
+        f"{_f(shipped.get('theta_anticipation'), 1)}/s, after {_f(shipped.get('theta_carryover'), 1)}/s, "
+        f"power {_f(shipped.get('power'))} (the table: 16/s, 25/s, 1). {{label:articulation_table}} "
+        f"scores each model on the {summary.get('held_out_clips', '?')} held-out sentences of "
+        f"{escape(', '.join(summary.get('speaker', [])))}: the lips each draws from the true "
+        "phones, before any mapping is trained, against the tracked lips (speech frames, "
+        "z-scored per clip; /p b m/ closed by the face-evaluation rule; chance from circular "
+        "shifts). The row <i>articulatory space</i> is the real lips' own projection: the most "
+        "any coarticulation model on this face map can reach. Both models force the lips shut "
+        "inside every /p b m/, so closure does not tell them apart.")
+    body = [[escape(r["model"]), _f(r["r_opening"]), _f(r["chance_r_opening"]),
+             _f(r["r_width"]), _f(r["chance_r_width"]), _f(r["closed"]),
+             _f(r["chance_closed"]), _f(r.get("false_closed"))] for r in rows]
+    rep.table("The hand table against the articulation fitted on the real speaker: held-out "
+              "lips drawn from the true phones",
+              ["model", "r opening", "chance", "r width", "chance", "/p b m/ closed", "chance",
+               "false closures"], body, key="articulation_table",
+              note=f"{rows[0]['speech_frames'] if rows else 0} speech frames of "
+                   f"{summary.get('held_out_clips', '?')} clips, one speaker: no interval.")

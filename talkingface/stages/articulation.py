@@ -57,9 +57,11 @@ def speaker_face(train_utts: list, synth_cfg) -> tuple[FaceMap, list]:
     return FaceMap.around(rest, synth_cfg), aligned
 
 
-def fit_real_articulation(cfg, corpus_dir: Path | None = None) -> tuple[Articulation, dict]:
+def fit_real_articulation(cfg, corpus_dir: Path | None = None, *, steps: int = 300
+                          ) -> tuple[Articulation, dict]:
     """The coarticulation model fitted on the real speaker's training sentences, and its
-    provenance record (the data, the settings, the fit's figures).
+    provenance record (the data, the settings, the fit's figures); ``steps``: the L-BFGS
+    iterations of :func:`data_synth.articulation_fit.fit_coarticulation`.
 
     Raises
     ------
@@ -82,7 +84,7 @@ def fit_real_articulation(cfg, corpus_dir: Path | None = None) -> tuple[Articula
         k += n
     prior = Articulation.table(cfg.synth.theta_anticipation, cfg.synth.theta_carryover,
                                cfg.synth.dominance_power)
-    model, fit = fit_coarticulation(sentences, prior)
+    model, fit = fit_coarticulation(sentences, prior, steps=steps)
     valid = np.concatenate([_valid(u) for u in train])
     record = {
         "source": f"{corpus.info.get('source', str(root))} (speaker "

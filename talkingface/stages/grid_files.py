@@ -102,7 +102,8 @@ def load_real_steps_grid(path, cfg) -> dict:
 
 def load_voices_grid(path, cfg) -> tuple[dict, str]:
     """``({child: Config}, default model child)`` of a voices grid; the children may not change
-    what the run's Motion Units or faces are made from (seed, units, tracker, visual source).
+    what the run's Motion Units or faces are made from (seed, units, tracker, visual source),
+    only the voices that speak and how the mouth moves (``synth.articulation``).
     A child that trains on the real speaker (``voices.real_face``) is left out when the run has
     none (:func:`talkingface.stages.real_speaker.real_speaker_applies`); the default model may not be one of those then."""
     what = "voices grid"
@@ -122,11 +123,12 @@ def load_voices_grid(path, cfg) -> tuple[dict, str]:
             raise ParameterError(f"{path}: child {name!r} changes the seed or the Motion Units; "
                                  "the children share the run's, so set these for the whole run")
         same_faces = replace(child.synth, voices=cfg.synth.voices,
-                             voice_weights=cfg.synth.voice_weights, workers=cfg.synth.workers)
+                             voice_weights=cfg.synth.voice_weights, workers=cfg.synth.workers,
+                             articulation=cfg.synth.articulation)
         if same_faces != cfg.synth:
             raise ParameterError(f"{path}: child {name!r} changes synth settings other than "
-                                 "synth.voices and synth.voice_weights; its corpus must show "
-                                 "the run's faces saying the run's sentences")
+                                 "synth.voices, synth.voice_weights and synth.articulation; its "
+                                 "corpus must show the run's faces saying the run's sentences")
     return children, model
 
 

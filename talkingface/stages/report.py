@@ -7,6 +7,7 @@ import json
 
 from analysis.findings import findings
 from analysis.grid_summary import forest_figure, grid_summary, read_replicates
+from analysis.articulation_eval import articulation_section
 from analysis.corpus_report import corpus_section, make_figures, summarize_corpus, units_section
 from analysis.mapping_report import ceiling_section, mapping_section
 from analysis.motion_report import motion_section
@@ -73,6 +74,8 @@ def build_report(paths: RunPaths, cfg) -> dict:
     if (paths.stage("real_speaker") / "summary.json").is_file():
         real_speaker_section(rep, paths.stage("real_speaker"), paths.report_dir,
                              targets=cfg.targets)
+        if (paths.stage("articulation") / "summary.json").is_file():
+            articulation_section(rep, paths.stage("articulation"))
         if (paths.stage("real_steps") / "steps.json").is_file():
             real_steps_section(rep, paths.stage("real_steps"))
     methods_section(rep, cfg, corpus.info, study=study, made_with=made_with)

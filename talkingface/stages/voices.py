@@ -6,8 +6,9 @@ Its grid (``voices.grid``, by default ``configs/voices.yaml``) has the form of t
 (its ``mapping.method``) on the run's Motion Units:
 
 * a child that leaves ``synth`` as the run has it trains on the run's corpus (one voice);
-* a child that changes ``synth`` (``synth.voices``: many voices) trains on a corpus of its own,
-  made with the run's seed — the same faces and sentences, the speech drawn from its voices —
+* a child that changes ``synth`` (``synth.voices``: many voices; ``synth.articulation``: the
+  mouth moved by another coarticulation model) trains on a corpus of its own, made with the
+  run's seed — the same faces and sentences, the speech drawn from its voices —
   under ``voices/corpora/<k>/``, built once for every child that asks for the same settings
   (hard links to the ``front_end`` stage's many-voice corpus when its settings are the same);
 * a child whose recogniser is the causal front end (``mapping.recogniser: causal``) without a
@@ -72,9 +73,10 @@ from talkingface.stages.real_speaker import copy_training_part, real_corpus, rea
 
 
 def _synthetic_corpus(child, cfg, paths: RunPaths, out: Path, built: list) -> Path:
-    """The drawn faces' corpus of a child: the run's own, or a many-voice one built under
-    ``out`` once for every child that asks for the same synth settings (``built``)."""
-    if child.synth.voices == cfg.synth.voices:
+    """The drawn faces' corpus of a child: the run's own, or one of other voices or another
+    articulation built under ``out`` once for every child that asks for the same synth settings
+    (``built``)."""
+    if dataclasses.replace(child.synth, workers=cfg.synth.workers) == cfg.synth:
         return training_corpus(paths, cfg)
     folder = next((f for s, f in built if s == child.synth), None)
     if folder is None:
@@ -221,6 +223,8 @@ def train_voices(paths: RunPaths, cfg) -> dict:
         rows.append({"model": name, "default": name == model,
                      "corpus": models[name]["corpus"] or "the run's",
                      "real_face": child.voices.real_face,
+                     "articulation": ("" if child.voices.real_face == "alone"
+                                      else child.synth.articulation),
                      "voices": ("" if child.voices.real_face == "alone" else
                                 " ".join(child.synth.voices) or "(the run's voice)"),
                      "cmvn": m.cmvn, "vtlp_range": "-".join(map(str, m.vtlp_range)),

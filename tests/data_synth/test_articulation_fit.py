@@ -4,13 +4,15 @@ with its checksum, and ``synth.articulation`` selects it and draws reproducibly.
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
 from scipy.optimize import lsq_linear
 
-from data_synth.articulation import (Articulation, articulation_model, coarticulate,
-                                     read_articulation, write_articulation)
+from data_synth.articulation import (Articulation, articulation_model, articulation_path,
+                                     coarticulate, file_sha256, read_articulation,
+                                     write_articulation)
 from data_synth.articulation_fit import (LOWER, UPPER, FaceMap, Sentence, box_least_squares,
                                          fit_coarticulation, to_articulation)
 from data_synth.face import Speaker, articulate
@@ -154,3 +156,24 @@ def test_the_setting_selects_a_file_and_refuses_others(known_fit, tmp_path):
     (tmp_path / "text.npz").write_text("not a model")
     with pytest.raises(SettingError, match="text.npz"):
         dataclasses.replace(SYNTH, articulation=str(tmp_path / "text.npz"))
+
+
+def test_a_corpus_drawn_with_the_fitted_articulation_is_reproducible_by_seed(tmp_path):
+    from data_synth.generate import synthesize_corpus
+    from face_model.corpus import load_corpus
+    from tests.conftest import small_synth_config
+
+    fitted = small_synth_config(n_sentences=2, expressions=("neutral",), articulation="grid-s1")
+    one = synthesize_corpus(tmp_path / "a", fitted, 2002, progress=False)
+    two = synthesize_corpus(tmp_path / "b", fitted, 2002, progress=False)
+    table = synthesize_corpus(tmp_path / "t", dataclasses.replace(fitted, articulation="table"),
+                              2002, progress=False)
+    for name in sorted(p.name for p in (one / "markers").iterdir()):
+        a, b, t = (np.load(root / "markers" / name) for root in (one, two, table))
+        np.testing.assert_array_equal(a, b)
+        assert np.abs(a - t).max() > 0.5  # the mouth moves otherwise
+        np.testing.assert_array_equal(a[:, 76:], t[:, 76:])  # the same head and glasses
+    info = json.loads((one / "corpus.json").read_text())
+    assert info["articulation"]["sha256"] == file_sha256(articulation_path("grid-s1"))
+    assert "articulation" not in json.loads((table / "corpus.json").read_text())["settings"]
+    assert len(load_corpus(one).utterances) == 2

@@ -1,4 +1,5 @@
 """The voices grid (configs/voices.yaml): what its children may change, and its default model."""
+import dataclasses
 from pathlib import Path
 
 import pytest
@@ -27,11 +28,21 @@ def test_the_project_grid_holds_the_issue_configurations():
                               "many-augment-phones", "one-voice-phones-labels",
                               "many-phones-labels", "one-voice-hama-labels",
                               "one-voice-causal-labels", "many-causal-labels",
+                              "fitted-one-voice", "fitted-causal-labels",
                               "real-face-hama-labels", "real-face-mfcc",
-                              "real-and-drawn-hama-labels"]
+                              "real-face-causal-labels", "real-and-drawn-hama-labels"]
     assert model == "one-voice-causal-labels"
-    assert [children[n].voices.real_face for n in list(children)[-4:]] == \
-        ["none", "alone", "alone", "added"]
+    assert [children[n].voices.real_face for n in list(children)[-5:]] == \
+        ["none", "alone", "alone", "alone", "added"]
+    # the fitted articulation's children: the paper's single voice, the fitted faces
+    for name, like in (("fitted-one-voice", "one-voice"),
+                       ("fitted-causal-labels", "one-voice-causal-labels")):
+        assert children[name].synth.articulation == "grid-s1"
+        assert children[name].mapping == children[like].mapping
+        assert dataclasses.replace(children[name].synth, articulation="table") == \
+            children[like].synth
+    assert children["real-face-causal-labels"].mapping == \
+        children["one-voice-causal-labels"].mapping
     assert children["real-face-hama-labels"].mapping == children["one-voice-hama-labels"].mapping
     full = children["many-cmvn-warp-augment"].mapping
     assert full.cmvn == "meanvar" and full.vtlp_range == (0.9, 1.1) and full.augment.copies >= 1
@@ -60,7 +71,7 @@ def test_the_project_grid_holds_the_issue_configurations():
 def test_the_real_face_children_are_left_out_of_a_run_without_a_real_speaker(tmp_path):
     off = load_config(None, ["real_speaker.corpus="])
     children, model = load_voices_grid(VOICES.default, off)
-    assert all(c.voices.real_face == "none" for c in children.values()) and len(children) == 15
+    assert all(c.voices.real_face == "none" for c in children.values()) and len(children) == 17
     grid = tmp_path / "g.yaml"
     grid.write_text(GRID.format(model="real", extra="").replace(
         "children:", "children:\n  real: {voices.real_face: alone}"))
