@@ -1,9 +1,22 @@
 """The rule that picks the default voice-robust model (``configs/voices.yaml`` ``model:``) on
-the development speakers of the real-speech set, never on the test speakers: the highest mean
-of :data:`DEV_RULE`'s figures over the unseen development recordings, among the models whose
-measured live latency (speech_eval's ``latency.json``, :mod:`talkingface.stages.latency`) is
-within ``targets.stream_latency_p99_ms`` (issue 40: a model over it cannot be the default,
-whatever its accuracy)."""
+development data only, never on the test speakers, among the models whose measured live
+latency (speech_eval's ``latency.json``, :mod:`talkingface.stages.latency`) is within
+``targets.stream_latency_p99_ms`` (issue 40: a model over it cannot be the default, whatever
+its accuracy).
+
+The score weighs what is heard and what is seen equally (issue 50; fixed before any candidate
+was scored on real lips):
+
+* **audio**: the mean of :data:`DEV_RULE`'s figures over the unseen development recordings of
+  the real-speech set (speech_eval's ``results.csv``, ``split`` = ``unseen-dev``, native rate);
+* **lips**: the mean of :data:`LIP_RULE`'s figures on the development part of the real faces
+  (the ``real_faces`` stage's ``results.csv``: ``part`` = ``dev``, every speaker pooled, native
+  rate; a speaker no candidate was trained on): speech-frame lip r and the share of /p b m/
+  segments the lips close;
+* score = ``AUDIO_WEIGHT`` · audio + ``LIP_WEIGHT`` · lips. A run without real faces scored
+  (no ``real_faces`` rows) scores the audio alone, as before; a figure the development data
+  measure for no candidate is left out for all of them alike.
+"""
 from __future__ import annotations
 
 import json
@@ -11,6 +24,9 @@ import math
 from pathlib import Path
 
 DEV_RULE = ("viseme_acc", "bilabial_closed_frac", "labiodental_contact_frac", "r_reference")
+LIP_RULE = ("r_speech", "closure_rate")  # real_faces rows: lip r on speech frames, /p b m/ closed
+AUDIO_WEIGHT = 0.5
+LIP_WEIGHT = 0.5
 LATENCY_FILE = "latency.json"  # speech_eval: each model's live latency (talkingface.stages.latency)
 
 
@@ -40,29 +56,99 @@ def dev_rule_figures(results: list[dict], prefix: str = "voices-") -> tuple[str,
     return tuple(k for k in DEV_RULE if any(math.isfinite(v[k]) for v in rows.values()))
 
 
+def lip_rows(real_faces: list[dict] | None, prefix: str = "voices-") -> dict:
+    """``{model: {figure: value}}`` of :data:`LIP_RULE` on the ``real_faces`` rows of the
+    development part (``part`` dev, ``speaker`` all, ``rate`` native) of the models named
+    ``prefix``* (NaN where a figure is missing)."""
+    out = {}
+    for r in real_faces or []:
+        if (r.get("part") != "dev" or r.get("speaker") != "all" or r.get("rate") != "native"
+                or not str(r.get("model", "")).startswith(prefix)):
+            continue
+        vals = {}
+        for k in LIP_RULE:
+            try:
+                vals[k] = float(r[k])
+            except (KeyError, TypeError, ValueError):
+                vals[k] = float("nan")
+        out[r["model"]] = vals
+    return out
+
+
+def lip_rule_figures(real_faces: list[dict] | None, prefix: str = "voices-") -> tuple:
+    """The figures of :data:`LIP_RULE` the development faces measure for some candidate."""
+    rows = lip_rows(real_faces, prefix)
+    return tuple(k for k in LIP_RULE if any(math.isfinite(v[k]) for v in rows.values()))
+
+
+def dev_parts(results: list[dict], prefix: str = "voices-",
+              real_faces: list[dict] | None = None) -> dict:
+    """``{model: {"audio": mean, "lips": mean or None}}``: the two halves of the score of each
+    model with every used figure finite (module docstring); ``lips`` None for every model
+    when no development faces were scored."""
+    audio_rows, used = _dev_rows(results, prefix), dev_rule_figures(results, prefix)
+    lips, lip_used = lip_rows(real_faces, prefix), lip_rule_figures(real_faces, prefix)
+    out = {}
+    for m, v in audio_rows.items():
+        if not used or not all(math.isfinite(v[k]) for k in used):
+            continue
+        part = {"audio": sum(v[k] for k in used) / len(used), "lips": None}
+        if lip_used:
+            lv = lips.get(m)
+            if lv is None or not all(math.isfinite(lv[k]) for k in lip_used):
+                continue
+            part["lips"] = sum(lv[k] for k in lip_used) / len(lip_used)
+        out[m] = part
+    return out
+
+
+def dev_score(part: dict) -> float:
+    """The rule's score of one model's :func:`dev_parts` entry."""
+    if part["lips"] is None:
+        return part["audio"]
+    return AUDIO_WEIGHT * part["audio"] + LIP_WEIGHT * part["lips"]
+
+
 def dev_choice(results: list[dict], prefix: str = "voices-", latency: dict | None = None,
-               bound_ms: float | None = None) -> tuple[str | None, dict]:
+               bound_ms: float | None = None, real_faces: list[dict] | None = None
+               ) -> tuple[str | None, dict]:
     """``(model, {model: score})``: among the models named ``prefix``*, the one with the highest
-    mean of :func:`dev_rule_figures` (the figures of :data:`DEV_RULE` the development part
-    measures) on the ``unseen-dev`` rows of ``results`` (speech_eval's results.csv rows); a
-    model missing one of those figures gets no score; an exact tie goes to the later name; None
-    when no such model has development figures.
+    score (module docstring: the audio figures of :func:`dev_rule_figures` on the
+    ``unseen-dev`` rows of ``results``, speech_eval's results.csv rows, and with
+    ``real_faces``, the ``real_faces`` stage's rows, the lip figures of :func:`lip_rule_figures`
+    on the development faces); a model missing one of the used figures gets no score; an exact
+    tie goes to the later name; None when no such model has development figures.
 
     With ``latency`` (``{model: measured stream latency p99, ms, or None}``, e.g.
     :func:`latency_p99`) and ``bound_ms`` (``targets.stream_latency_p99_ms``), a model the bound
     excludes (:func:`excluded_by_latency`: over the bound, or not measured) cannot be the pick,
     whatever its score; the scores still list it. None when the bound excludes every scored
     model."""
-    rows = _dev_rows(results, prefix)
-    used = dev_rule_figures(results, prefix)
-    if not used:
+    scores = {m: dev_score(p) for m, p in dev_parts(results, prefix, real_faces).items()}
+    if not scores:
         return None, {}
-    scores = {m: sum(v[k] for k in used) / len(used) for m, v in rows.items()
-              if all(math.isfinite(v[k]) for k in used)}
     out = excluded_by_latency(results, latency, bound_ms, prefix)
     eligible = [m for m in scores if m not in out]
     best = max(eligible, key=lambda m: (scores[m], m)) if eligible else None
     return best, scores
+
+
+def deciding_half(parts: dict, best: str | None, scores: dict, excluded=()) -> str:
+    """What decided the pick over the runner-up among the eligible models, in words: which half
+    of the score (audio or lips) gave the pick its lead."""
+    others = [m for m in scores if m != best and m not in excluded]
+    if best is None or not others:
+        return "no other eligible candidate"
+    second = max(others, key=lambda m: (scores[m], m))
+    a, b = parts[best], parts[second]
+    if a["lips"] is None:
+        return f"audio alone (no development faces): {a['audio']:.3f} against {second}'s " \
+               f"{b['audio']:.3f}"
+    d_audio = AUDIO_WEIGHT * (a["audio"] - b["audio"])
+    d_lips = LIP_WEIGHT * (a["lips"] - b["lips"])
+    half = "the lips" if d_lips >= d_audio else "the audio"
+    return (f"{half}: against the runner-up {second}, lips {a['lips']:.3f} vs "
+            f"{b['lips']:.3f}, audio {a['audio']:.3f} vs {b['audio']:.3f}")
 
 
 def excluded_by_latency(results: list[dict], latency: dict | None, bound_ms: float | None,

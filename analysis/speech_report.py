@@ -14,7 +14,8 @@ from pathlib import Path
 
 from analysis.config import TargetsConfig
 from analysis.speaker_bootstrap import N_BOOT, SEED, speaker_interval
-from analysis.dev_rule import (LATENCY_FILE, dev_choice, excluded_by_latency, latency_p99,
+from analysis.dev_rule import (LATENCY_FILE, deciding_half, dev_choice, dev_parts,
+                               excluded_by_latency, latency_p99, lip_rule_figures,
                                read_latency)
 from analysis.speech_pooling import SPLITS as KEEP
 
@@ -133,7 +134,8 @@ def set_part_text(info: dict) -> str:
 
 def speech_section(rep, speech_dir: Path, voices_rows: list, *, table_ii_R: float | None,
                    default_model: str | None, given_corpus: bool = False,
-                   targets: TargetsConfig = TargetsConfig()) -> None:
+                   targets: TargetsConfig = TargetsConfig(),
+                   real_faces: list | None = None) -> None:
     """Add the section from ``speech_eval/`` (results.csv, per_speaker.csv, comparisons.csv,
     rates.csv, lookahead.csv and the figures) and the rows of ``voices/results.csv``;
     ``given_corpus``: the run's corpus was given (recordings of its own speaker), not
@@ -181,7 +183,7 @@ def speech_section(rep, speech_dir: Path, voices_rows: list, *, table_ii_R: floa
            f"animate`, `stream` and the study use by default." if robust else
            "This run trained no voice-robust models, so `animate` and `stream` use the "
            "single-voice mapping."))
-    _dev_rule(rep, results, speech_dir, robust, targets)
+    _dev_rule(rep, results, speech_dir, robust, targets, real_faces)
     for split, title in SPLITS:
         rows = [r for r in results if r["split"] == split and r.get("files") not in ("", "0")]
         if not rows:
@@ -224,13 +226,15 @@ def speech_section(rep, speech_dir: Path, voices_rows: list, *, table_ii_R: floa
 
 
 def _dev_rule(rep, results: list, speech_dir: Path, robust: str | None,
-              targets: TargetsConfig) -> None:
+              targets: TargetsConfig, real_faces: list | None = None) -> None:
     """The development rule's pick beside the run's default, and the bound on live latency it
     applies (``targets.stream_latency_p99_ms``) with each candidate's measured latency
-    (``latency.json``; absent: said not measured, and the bound not applied)."""
+    (``latency.json``; absent: said not measured, and the bound not applied); with
+    ``real_faces`` (the ``real_faces`` stage's rows) the lips on the development faces weigh
+    half the score, and the paragraph says which half decided."""
     latency, bound = read_latency(speech_dir), targets.stream_latency_p99_ms
     p99 = latency_p99(latency)
-    best, scores = dev_choice(results, latency=p99, bound_ms=bound)
+    best, scores = dev_choice(results, latency=p99, bound_ms=bound, real_faces=real_faces)
     if not scores:
         return
     out = excluded_by_latency(results, p99, bound)
@@ -248,11 +252,18 @@ def _dev_rule(rep, results: list, speech_dir: Path, robust: str | None,
     pick = (f"<b>{best}</b> ({scores[best]:.3f})" if best is not None else
             "none (the bound excluded every model with a score)")
     same = best is not None and best == robust
+    lips = bool(lip_rule_figures(real_faces))
+    decided = (deciding_half(dev_parts(results, real_faces=real_faces), best, scores, out)
+               if best is not None else "")
+    rule = ("half the mean of viseme accuracy, /p b m/ closure, /f v/ contact and r on the "
+            "development recordings, half the mean of lip r on speech frames and /p b m/ "
+            "closed on the development faces (real_faces, GRID s26)" if lips else
+            "the highest mean of viseme accuracy, /p b m/ closure, /f v/ contact and r")
     rep.paragraph(
         "The development rule, computed on the development part only (unseen speakers, "
         "independent labels; a configuration may be chosen there, never on the test part): "
-        "the highest mean of viseme accuracy, /p b m/ closure, /f v/ contact and r picks "
-        f"{pick}. " + lat + f"The run's default is <b>{robust}</b>"
+        f"{rule} picks {pick}" + (f", decided by {decided}" if decided else "") + ". "
+        + lat + f"The run's default is <b>{robust}</b>"
         + (" (the same)." if same else
            f" ({scores.get(robust, float('nan')):.3f}"
            + (", over the latency bound" if robust in out else "")

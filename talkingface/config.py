@@ -78,6 +78,25 @@ class RealSpeakerConfig:
 
 
 @dataclass(frozen=True)
+class RealFacesConfig:
+    """Real faces of people no model was trained on (stage ``real_faces``): the development
+    part the default model's lips are chosen on (``builtin``: GRID s26,
+    ``face_model/real_faces/grid-s26``) and the test part reported once (``builtin``: GRID
+    s31, beside the real speaker's held-out sentences); each a corpus folder made by
+    ``talkingface corpus from-video``, ``builtin`` or empty (off)."""
+
+    dev: str = "builtin"
+    test: str = "builtin"
+
+    def __post_init__(self):
+        for key in ("dev", "test"):
+            value = getattr(self, key)
+            require(self, key, value.strip() == value and value.isprintable(),
+                    "builtin, empty (off) or the path of a corpus folder, without leading or "
+                    "trailing spaces or control characters")
+
+
+@dataclass(frozen=True)
 class MlflowConfig:
     """Experiment tracking (MLflow). Empty uri: $MLFLOW_TRACKING_URI, else ./mlflow.db."""
 
@@ -203,6 +222,7 @@ MAX_SEED = 2**31 - 1  # derived seeds add offsets; scikit-learn takes seeds < 2*
 # names the setting; a new one belongs here and there (tests/talkingface/
 # test_config.py finds the settings whose names say they name data).
 DATA_SETTINGS = ("corpus.source", "real_speaker.corpus", "real_speaker.videos",
+                 "real_faces.dev", "real_faces.test",
                  "synth.text_file", "ablations.grid", "ceiling.grid", "real_steps.grid",
                  "voices.grid")
 
@@ -226,6 +246,7 @@ class Config:
     real_steps: RealStepsConfig = field(default_factory=RealStepsConfig)
     targets: TargetsConfig = field(default_factory=TargetsConfig)
     speech_set: SpeechSetConfig = field(default_factory=SpeechSetConfig)
+    real_faces: RealFacesConfig = field(default_factory=RealFacesConfig)
 
     def __post_init__(self):
         check_fields(self)

@@ -43,7 +43,8 @@ CACHE_ENV = "TALKINGFACE_CACHE"
 
 STAGE_FOLDERS = ("corpus", "units", "keyframes", "tracking", "tracked", "mapping", "front_end",
                  "voices", "speech_eval", "render", "stimuli", "study_data", "analysis", "ablations",
-                 "ceiling", "articulation", "real_speaker", "real_steps", "report")
+                 "ceiling", "articulation", "real_speaker", "real_faces", "real_steps",
+                 "report")
 
 
 def check_run_name(name: str) -> str:

@@ -18,6 +18,11 @@ whatever its score (:func:`analysis.dev_rule.excluded_by_latency`). The bound is
 ``targets.stream_latency_p99_ms`` (``RUN_DIR/speech_eval/config.yaml``; default the paper's
 window plus one frame, :data:`analysis.config.PAPER_STREAM_LATENCY_MS`), or ``--bound-ms``.
 Without the file the latency was not measured: the table says so and no bound is applied.
+
+Lips are weighed too (issue 50): when ``RUN_DIR/real_faces/results.csv`` is there (the
+``real_faces`` stage: every child's lips on the development faces, GRID s26), each child's lip
+r on speech frames and /p b m/ closure are printed beside its audio figures, the score is half
+audio, half lips (:mod:`analysis.dev_rule`), and the last line says which half decided.
 ``--check`` compares the pick (the same rule) with the voices file's ``model`` and exits 1 with
 one line when they differ.
 """
@@ -36,9 +41,10 @@ if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
 from analysis.config import TargetsConfig  # noqa: E402
-from analysis.dev_rule import (DEV_RULE, LATENCY_FILE, dev_choice,  # noqa: E402
+from analysis.dev_rule import (AUDIO_WEIGHT, DEV_RULE, LATENCY_FILE,  # noqa: E402
+                               LIP_RULE, LIP_WEIGHT, deciding_half, dev_choice, dev_parts,
                                dev_rule_figures, excluded_by_latency, latency_p99,
-                               read_latency)
+                               lip_rows, lip_rule_figures, read_latency)
 from groundwork.errors import CorpusError, ParameterError  # noqa: E402
 from groundwork.settings import SettingError  # noqa: E402
 
@@ -53,6 +59,16 @@ def read_results(run_dir) -> list[dict]:
     if not path.is_file():
         raise CorpusError(f"{path}: not found; RUN_DIR must be a run whose speech_eval stage "
                           f"has run")
+    with open(path, newline="", encoding="utf-8-sig") as f:
+        return list(csv.DictReader(f))
+
+
+def read_faces(run_dir) -> list[dict]:
+    """The rows of ``RUN_DIR/real_faces/results.csv`` (empty when the run scored no real
+    faces: the rule then weighs the audio alone)."""
+    path = Path(run_dir) / "real_faces" / "results.csv"
+    if not path.is_file():
+        return []
     with open(path, newline="", encoding="utf-8-sig") as f:
         return list(csv.DictReader(f))
 
@@ -81,14 +97,18 @@ def run_bound(run_dir) -> float:
 
 
 def choose(results: list[dict], latency: dict | None = None,
-           bound_ms: float | None = None) -> dict:
-    """``{"rows": per-child development figures, score and latency, "pick": child or None,
-    "figures", "bound_ms", "latency_measured", "excluded": children the bound excluded}``;
-    ``latency``: :func:`analysis.dev_rule.read_latency`'s contents (None: not measured,
-    no bound applied)."""
+           bound_ms: float | None = None, faces: list[dict] | None = None) -> dict:
+    """``{"rows": per-child development figures (audio and lips), score and latency, "pick":
+    child or None, "figures", "lip_figures", "decided", "bound_ms", "latency_measured",
+    "excluded": children the bound excluded}``; ``latency``:
+    :func:`analysis.dev_rule.read_latency`'s contents (None: not measured, no bound applied);
+    ``faces``: the ``real_faces`` stage's rows (:func:`read_faces`)."""
     p99 = latency_p99(latency)
-    best, scores = dev_choice(results, prefix=PREFIX, latency=p99, bound_ms=bound_ms)
+    best, scores = dev_choice(results, prefix=PREFIX, latency=p99, bound_ms=bound_ms,
+                              real_faces=faces)
     out = excluded_by_latency(results, p99, bound_ms, prefix=PREFIX)
+    lips = lip_rows(faces, prefix=PREFIX)
+    parts = dev_parts(results, PREFIX, faces)
     measured = (latency or {}).get("models") or {}
     rows = []
     for r in results:
@@ -103,6 +123,8 @@ def choose(results: list[dict], latency: dict | None = None,
         for k in ("files", "seconds"):
             if r.get(k) not in (None, ""):
                 row[k] = r[k]
+        for k in LIP_RULE:
+            row[f"lip_{k}"] = lips.get(r["model"], {}).get(k, float("nan"))
         row["score"] = scores.get(r["model"])
         for k in ("latency_p50_ms", "latency_p99_ms"):
             row[k] = measured.get(r["model"], {}).get(k)
@@ -111,6 +133,8 @@ def choose(results: list[dict], latency: dict | None = None,
     rows.sort(key=lambda row: (row["score"] is None, -(row["score"] or 0.0), row["child"]))
     return {"rows": rows, "pick": best[len(PREFIX):] if best else None,
             "figures": list(dev_rule_figures(results, prefix=PREFIX)),
+            "lip_figures": list(lip_rule_figures(faces, prefix=PREFIX)),
+            "decided": deciding_half(parts, best, scores, out) if best else None,
             "bound_ms": bound_ms if latency is not None else None,
             "latency_measured": latency is not None,
             "excluded": sorted(m[len(PREFIX):] for m in out)}
@@ -121,18 +145,26 @@ def _ms(v) -> str:
 
 
 def table(result: dict, current: str | None) -> str:
-    cols = ("child", *DEV_RULE, "score")
+    lip_cols = [f"lip_{k}" for k in LIP_RULE]
+    cols = ("child", *DEV_RULE, *lip_cols, "score")
     width = max([len(r["child"]) for r in result["rows"]] + [5])
     used = result.get("figures") or list(DEV_RULE)
     left = [k for k in DEV_RULE if k not in used]
-    lines = [f"voices children on the unseen development recordings ({SPLIT}); score = mean of "
-             + ", ".join(used) + (f" ({', '.join(left)}: not measured on the development part, "
-                                  "left out for every child)" if left else ""),
+    lip_used = result.get("lip_figures") or []
+    audio = ("mean of " + ", ".join(used) + (f" ({', '.join(left)}: not measured on the "
+                                            "development part, left out for every child)"
+                                            if left else ""))
+    lines = [f"voices children on the unseen development recordings ({SPLIT}) and the "
+             "development faces (real_faces, part dev, native rate); score = "
+             + (f"{AUDIO_WEIGHT:g} x audio ({audio}) + {LIP_WEIGHT:g} x lips (mean of "
+                + ", ".join(lip_used) + ")" if lip_used else
+                f"audio alone ({audio}): the run scored no development faces"),
              f"{cols[0]:<{width}}" + "".join(f"{c:>26}" for c in cols[1:])
              + f"{'latency p50 ms':>16}{'p99 ms':>16}"]
     for r in result["rows"]:
         score = "no score" if r["score"] is None else f"{r['score']:.3f}"
         lines.append(f"{r['child']:<{width}}" + "".join(f"{r[k]:>26.3f}" for k in DEV_RULE)
+                     + "".join(f"{r.get(k, float('nan')):>26.3f}" for k in lip_cols)
                      + f"{score:>26}" + f"{_ms(r.get('latency_p50_ms')):>16}"
                      + f"{_ms(r.get('latency_p99_ms')):>16}"
                      + ("   over the bound" if r.get("excluded") else ""))
@@ -146,6 +178,8 @@ def table(result: dict, current: str | None) -> str:
         lines.append(f"latency: not measured (no speech_eval/{LATENCY_FILE}); no bound applied")
     lines.append(f"pick: {result['pick']}"
                  + (f" (configs/voices.yaml model: {current})" if current else ""))
+    if result.get("decided"):
+        lines.append(f"decided by {result['decided']}")
     return "\n".join(lines)
 
 
@@ -173,7 +207,8 @@ def main(argv=None) -> int:
         bound = (run_bound(args.run_dir) if args.bound_ms is None else
                  TargetsConfig(stream_latency_p99_ms=args.bound_ms).stream_latency_p99_ms)
         result = choose(read_results(args.run_dir),
-                        read_latency(args.run_dir / "speech_eval" / LATENCY_FILE), bound)
+                        read_latency(args.run_dir / "speech_eval" / LATENCY_FILE), bound,
+                        read_faces(args.run_dir))
         current = voices_model(args.voices)
     except SettingError as e:
         print(f"--bound-ms: {e}", file=sys.stderr)

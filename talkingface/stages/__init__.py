@@ -33,6 +33,8 @@ from talkingface.stages.grid import (ABLATIONS, CEILING, GRID_STAGES, REAL_STEPS
                                      GridStage)
 from talkingface.stages.real_speaker import evaluate_real_speaker, real_inputs, \
     real_speaker_applies
+from talkingface.stages.real_faces import (evaluate_real_faces, real_faces_applies,
+                                           real_faces_inputs)
 from talkingface.stages.real_steps import measure_real_steps
 from talkingface.stages.training import train
 from talkingface.stages.voices import train_voices, voices_inputs
@@ -106,6 +108,10 @@ STAGES = {s.name: s for s in (
           config=("seed", "units", "mapping", "real_speaker"), speed_only=("mapping.workers",),
           upstream=("units", "mapping", "voices"), enabled=real_speaker_applies,
           inputs=real_inputs),
+    Stage("real_faces", evaluate_real_faces, config=("seed", "mapping.train_fraction",
+                                                     "real_speaker.corpus", "real_faces"),
+          upstream=("units", "mapping", "voices", "real_speaker"), enabled=real_faces_applies,
+          inputs=real_faces_inputs),
     _grid_stage(REAL_STEPS, measure_real_steps, config=("seed", "units", "mapping",
                                                          "real_speaker"),
                 speed_only=("mapping.workers",), applies=real_speaker_applies, upstream=(),
@@ -115,7 +121,8 @@ STAGES = {s.name: s for s in (
 
 REPLICATION = ("corpus", "units", "keyframes", "tracking", "tracked", "mapping", "front_end",
                "voices", "speech_eval", "render", "stimuli", "study_data", "analysis", "ablations",
-               "ceiling", "articulation", "real_speaker", "real_steps", "report")
+               "ceiling", "articulation", "real_speaker", "real_faces", "real_steps",
+               "report")
 
 
 def run(names, paths: RunPaths, cfg) -> dict:

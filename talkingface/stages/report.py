@@ -25,6 +25,7 @@ from talkingface.provenance import git_commit, versions
 from talkingface.paths import STAGE_FOLDERS, RunPaths
 from talkingface.stages.applies import expression_note, given, switched_off
 from talkingface.stages.base import read_done
+from talkingface.stages.real_faces import read_rows
 from talkingface.stages.voices import read_results
 
 
@@ -62,7 +63,7 @@ def build_report(paths: RunPaths, cfg) -> dict:
     speech_section(rep, paths.stage("speech_eval"), read_results(paths),
                    table_ii_R=_table_ii_R(mapping, cfg.mapping.method),
                    default_model=default_model, given_corpus=scope["given"] is not None,
-                   targets=cfg.targets)
+                   targets=cfg.targets, real_faces=read_rows(paths.stage("real_faces")))
     front_end_section(rep, read_done(paths.stage("front_end")), paths.stage("speech_eval"))
     if read_done(paths.keyframes):
         motion_section(rep, paths.keyframes, paths.render, paths.tracking)

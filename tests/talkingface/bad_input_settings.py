@@ -48,6 +48,13 @@ CASES: list = [
     # -- the other settings that name data
     (_replicate("--set", "synth.text_file=missing_sentences.txt"),
      ["synth.text_file", "missing_sentences.txt"]),
+    # -- synth.articulation: table, a shipped name or an articulation model file
+    (_replicate("--set", "synth.articulation=missing_articulation.npz"),
+     ["synth.articulation", "missing_articulation.npz", "file not found", "allowed: table"]),
+    (_replicate("--set", "synth.articulation=not_a_model.npz"),
+     ["synth.articulation", "not_a_model.npz", "allowed: table"]),
+    (_replicate("--set", "synth.articulation=grid-s99"),
+     ["synth.articulation", "grid-s99", "grid-s1"]),
     (["replicate", "--name", "N", *RUN, "--ablations", "grid_list.yaml"],
      ["ablations.grid", "grid_list.yaml"]),
     (_replicate("--set", "ceiling.grid=grid_unknown.yaml"), ["ceiling.grid", "grid_unknown.yaml"]),
@@ -103,6 +110,7 @@ def _cut_many(root: Path) -> None:
 def add_inputs(root: Path) -> None:
     """Make the inputs of :data:`CASES` in ``root``: two damaged one-utterance copies of the
     corpus ``c`` (a NaN marker; an unknown phone) and a cut simulation of many participants."""
+    (root / "not_a_model.npz").write_text("these are not arrays\n")
     nan = _copy_corpus(root, "rs_nan_corpus")
     with open(nan / "manifest.csv", newline="", encoding="utf-8") as f:
         first = next(csv.DictReader(f))

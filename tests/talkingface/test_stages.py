@@ -143,7 +143,7 @@ def test_real_stages_declare_what_a_study_and_a_mapping_setting_rerun(tmp_path):
     assert stale(REPLICATION, paths, mapping) == ["mapping", "voices", "speech_eval", "render",
                                                   "stimuli", "study_data", "analysis",
                                                   "ablations", "ceiling", "real_speaker",
-                                                  "real_steps", "report"]
+                                                  "real_faces", "real_steps", "report"]
     tracked = load_config(None, ["mapping.visual_source=tracked"])
     assert stale(REPLICATION, paths, tracked)[:2] == ["tracked", "mapping"]
 
