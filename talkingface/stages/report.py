@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+from pathlib import Path
 
 from analysis.findings import findings
 from analysis.grid_summary import forest_figure, grid_summary, read_replicates
@@ -12,6 +13,7 @@ from analysis.corpus_report import corpus_section, make_figures, summarize_corpu
 from analysis.mapping_report import ceiling_section, mapping_section
 from analysis.motion_report import motion_section
 from analysis.perception_report import perception_section
+from analysis.real_faces_report import real_faces_finding, real_faces_section
 from analysis.real_face_report import real_speaker_section
 from analysis.real_steps_report import real_steps_section
 from analysis.report import Report, escape
@@ -72,10 +74,16 @@ def build_report(paths: RunPaths, cfg) -> dict:
     study = read_done(paths.analysis)
     if study is not None:
         perception_section(rep, study, paths.analysis)
+    faces = read_rows(paths.stage("real_faces"))
+    faces_summary = _json(paths.stage("real_faces") / "summary.json")
+    if faces:
+        real_faces_section(rep, faces, faces_summary)
+        if (paths.stage("articulation") / "summary.json").is_file():
+            articulation_section(rep, paths.stage("articulation"))
     if (paths.stage("real_speaker") / "summary.json").is_file():
         real_speaker_section(rep, paths.stage("real_speaker"), paths.report_dir,
                              targets=cfg.targets)
-        if (paths.stage("articulation") / "summary.json").is_file():
+        if not faces and (paths.stage("articulation") / "summary.json").is_file():
             articulation_section(rep, paths.stage("articulation"))
         if (paths.stage("real_steps") / "steps.json").is_file():
             real_steps_section(rep, paths.stage("real_steps"))
@@ -85,6 +93,11 @@ def build_report(paths: RunPaths, cfg) -> dict:
                      default_model=default_model, study=study, has=set(rep.refs.labels),
                      targets=cfg.targets, real_dir=paths.stage("real_speaker"),
                      steps_dir=paths.stage("real_steps"))
+    line = real_faces_finding(faces, faces_summary) if faces else None
+    if line:  # the real faces open the real-face findings, as their section opens the part
+        at = next((i for i, t in enumerate(items) if t.startswith("<b>A real face.")),
+                  len(items))
+        items.insert(at, line)
     if scope["finding"]:
         items.append(scope["finding"])
     rep.findings(items)
@@ -97,6 +110,14 @@ def build_report(paths: RunPaths, cfg) -> dict:
     if scope["switched_off"]:
         record["switched_off"] = scope["switched_off"]
     return record
+
+
+def _json(path) -> dict:
+    """A stage's JSON file, or {} when it is missing or unreadable."""
+    try:
+        return json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
 
 
 def corpus_scope(paths: RunPaths, cfg, corpus) -> dict:

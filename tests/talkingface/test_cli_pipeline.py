@@ -56,7 +56,8 @@ def test_replicate_writes_runs_report_and_mlflow(full_run_dir, monkeypatch):
     from tests.analysis.findings_check import findings_of, mismatches, page_texts
 
     leads = [f.split(".")[0] for f in findings_of(page_texts(workdir / "reports" / "tiny.pdf")[0])]
-    assert leads == ["Table II", "The gap to the paper", "Real speech", "A real face",
+    assert leads == ["Table II", "The gap to the paper", "Real speech",
+                     "Real faces never trained on", "A real face",
                      "Where the real speaker's R goes", "Perception study"]
     assert mismatches(workdir / "reports" / "tiny.pdf") == []
     assert "MU variance explained: ours vs the paper's" in text
@@ -75,6 +76,29 @@ def test_replicate_writes_runs_report_and_mlflow(full_run_dir, monkeypatch):
 
     check_mp4(run / "real_speaker" / "side_by_side_bgbh7a.mp4")
     assert "A held-out clip's video: left of each pair the tracked markers" in text
+    # the articulation fitted on the real mouth against the hand table, on held-out lips
+    art = json.loads((run / "articulation" / "summary.json").read_text())
+    assert [r["model"] for r in art["rows"]] == ["articulatory space", "hand table",
+                                                 "fitted (grid-s1)"]
+    assert art["held_out_clips"] == len(real["test_utterances"])
+    assert "The articulation fitted on the real mouth" in text
+    assert f"{art['rows'][2]['r_opening']:.2f}" in text
+    # every candidate's lips on the development face (s26) and the test faces (s31, s1)
+    with open(run / "real_faces" / "results.csv", newline="") as f:
+        faces = list(csv.DictReader(f))
+    models = {r["model"] for r in faces}
+    assert {"voices-one", "voices-many", "voices-real", "voices-causal", "paper",
+            "speaker-trained", "loudness", "openfacefx-text", "openfacefx-energy",
+            "pylipsync"} == models
+    assert {(r["part"], r["speaker"]) for r in faces} == {
+        ("dev", "all"), ("dev", "grid-s26"), ("test", "all"), ("test", "grid-s31"),
+        ("test", "grid-s1")}
+    assert {r["rate"] for r in faces} == {"native", "16000", "8000"}
+    seen = {(r["model"], r["speaker"]): r["seen"] for r in faces}
+    assert seen[("voices-real", "grid-s1")] == "True" and \
+        seen[("voices-real", "grid-s31")] == "False"
+    assert seen[("speaker-trained", "grid-s1")] == "True"
+    assert seen[("voices-one", "grid-s1")] == "False"
     # where its R goes, measured on the same training sentences the nested run trained on
     steps = json.loads((run / "real_steps" / "steps.json").read_text())
     assert steps["training_sentences"] == 49 - len(real["test_utterances"])
