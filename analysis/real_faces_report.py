@@ -34,7 +34,7 @@ def _index(rows: list[dict]) -> dict:
     return {(r["model"], r["part"], r["speaker"], r["rate"]): r for r in rows}
 
 
-def tested_speakers(rows: list[dict]) -> list[str]:
+def speakers_tested(rows: list[dict]) -> list[str]:
     """The test part's speakers, those no candidate has seen first."""
     spk = sorted({r["speaker"] for r in rows if r["part"] == "test" and r["speaker"] != "all"})
     seen = {r["speaker"] for r in rows if r["part"] == "test" and r.get("seen") == "True"}
@@ -51,7 +51,7 @@ def _label(model: str, default: str | None) -> str:
 def ordered_models(rows: list[dict], default: str | None) -> list[str]:
     """The default, then the other candidates by r on the first test speaker, then the peers."""
     idx = _index(rows)
-    first = (tested_speakers(rows) or [""])[0]
+    first = (speakers_tested(rows) or [""])[0]
     models = sorted({r["model"] for r in rows} - set(PEERS) - {default})
     models.sort(key=lambda m: -num((idx.get((m, "test", first, "native")) or {}).get(
         "r_speech")) if not math.isnan(num((idx.get((m, "test", first, "native")) or {}).get(
@@ -79,7 +79,7 @@ def real_faces_section(rep, rows: list[dict], summary: dict) -> None:
         return
     default = summary.get("default")
     idx = _index(rows)
-    speakers = tested_speakers(rows)
+    speakers = speakers_tested(rows)
     parts = summary.get("parts") or {}
     counts = "; ".join(f"{escape(s)} {n} clips" for p in ("dev", "test")
                        for s, n in ((parts.get(p) or {}).get("clips") or {}).items())
@@ -142,7 +142,7 @@ def real_faces_finding(rows: list[dict], summary: dict) -> str | None:
     there, its /p b m/ closures, and whether the speaker was seen."""
     default = summary.get("default")
     idx = _index(rows)
-    speakers = tested_speakers(rows)
+    speakers = speakers_tested(rows)
     parts = []
     for s in speakers:
         mine = idx.get((default, "test", s, "native"))

@@ -4,7 +4,7 @@ page it cites."""
 from __future__ import annotations
 
 from analysis.real_faces_report import (best_peer, ordered_models, real_faces_finding,
-                                        real_faces_section, tested_speakers)
+                                        real_faces_section, speakers_tested)
 from analysis.report import Report
 from tests.analysis.findings_check import findings_of, mismatches, page_texts
 
@@ -38,7 +38,7 @@ SUMMARY = {"default": DEFAULT, "parts": {"dev": {"clips": {"grid-s26": 10}},
 
 def test_order_of_speakers_and_models_and_the_best_peer():
     rows = _rows()
-    assert tested_speakers(rows) == ["grid-s31", "grid-s1"]  # the unseen speaker first
+    assert speakers_tested(rows) == ["grid-s31", "grid-s1"]  # the unseen speaker first
     assert ordered_models(rows, DEFAULT) == [DEFAULT, "voices-real", "loudness",
                                              "openfacefx-text", "openfacefx-energy",
                                              "pylipsync"]
