@@ -85,11 +85,11 @@ class RealFacesConfig:
     s31, beside the real speaker's held-out sentences); each a corpus folder made by
     ``talkingface corpus from-video``, ``builtin`` or empty (off)."""
 
-    dev: str = "builtin"
-    test: str = "builtin"
+    dev_corpus: str = "builtin"
+    test_corpus: str = "builtin"
 
     def __post_init__(self):
-        for key in ("dev", "test"):
+        for key in ("dev_corpus", "test_corpus"):
             value = getattr(self, key)
             require(self, key, value.strip() == value and value.isprintable(),
                     "builtin, empty (off) or the path of a corpus folder, without leading or "
@@ -222,7 +222,7 @@ MAX_SEED = 2**31 - 1  # derived seeds add offsets; scikit-learn takes seeds < 2*
 # names the setting; a new one belongs here and there (tests/talkingface/
 # test_config.py finds the settings whose names say they name data).
 DATA_SETTINGS = ("corpus.source", "real_speaker.corpus", "real_speaker.videos",
-                 "real_faces.dev", "real_faces.test",
+                 "real_faces.dev_corpus", "real_faces.test_corpus",
                  "synth.text_file", "ablations.grid", "ceiling.grid", "real_steps.grid",
                  "voices.grid")
 

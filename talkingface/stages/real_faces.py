@@ -8,10 +8,10 @@ clip's own word times when its corpus keeps them — and in loudness mode, pylip
 scored by the rules of :mod:`analysis.face_eval` (speech frames, closures on /p b m/, chance,
 frames without a detected face left out) on two parts of real faces, by speaker:
 
-* ``dev``: ``real_faces.dev`` (``builtin``: GRID s26, ``face_model/real_faces/grid-s26``), a
+* ``dev``: ``real_faces.dev_corpus`` (``builtin``: GRID s26, ``face_model/real_faces/grid-s26``), a
   speaker no candidate was trained on — the development rule weighs these lips
   (:mod:`analysis.dev_rule`);
-* ``test``: ``real_faces.test`` (``builtin``: GRID s31, ``face_model/real_faces/grid-s31``) and
+* ``test``: ``real_faces.test_corpus`` (``builtin``: GRID s31, ``face_model/real_faces/grid-s31``) and
   the real speaker's held-out sentences (``real_speaker.corpus``, the utterance split of the
   run seed). A candidate trained on the real speaker's training sentences has *seen* that
   speaker: its rows say so (``seen``), and the unseen speaker decides.
@@ -57,8 +57,8 @@ COLUMNS = ("model", "part", "speaker", "rate", "seen", "clips", "speech_frames",
 
 
 def part_folder(cfg, part: str) -> Path | None:
-    """The corpus folder of ``real_faces.<part>`` (None: off)."""
-    value = getattr(cfg.real_faces, part)
+    """The corpus folder of ``real_faces.<part>_corpus`` (None: off)."""
+    value = getattr(cfg.real_faces, f"{part}_corpus")
     if not value:
         return None
     return BUILTIN[part] if value == "builtin" else Path(value)
@@ -75,7 +75,7 @@ def real_faces_inputs(paths, cfg) -> dict:
     for part in PARTS:
         folder = part_folder(cfg, part)
         if folder is not None:
-            out[part] = check_folder(folder, f"real_faces.{part}",
+            out[part] = check_folder(folder, f"real_faces.{part}_corpus",
                                      also="builtin or a corpus made by `talkingface corpus "
                                           "from-video`")
     return out
