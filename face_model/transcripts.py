@@ -67,6 +67,46 @@ class Transcript:
     words: tuple = ()
     end_s: float | None = None
 
+    def check_word_times(self, duration_s: float, *, source: str = "") -> None:
+        """Refuse word times that cannot be this sentence's on this audio: what is checked of a
+        transcript that comes with the source's own word times, instead of its acoustic match.
+
+        Parameters
+        ----------
+        duration_s : float
+            The audio's length, seconds.
+        source : str
+            The recording, for the message (default: the transcript's file).
+
+        Raises
+        ------
+        CorpusError
+            No word times; the words, in time order, are not the text's words in order (case
+            aside); a word ending before it starts or starting before the previous one ends;
+            a word not inside the audio (from 0 to ``duration_s``).
+        """
+        which = f"{source}: the transcript {self.source}" if source else \
+            f"{self.source}: the transcript"
+        if not self.words:
+            raise CorpusError(f"{which} gives no word times")
+        said, timed = self.text.lower().split(), [w.lower() for _, _, w in self.words]
+        if timed != said:
+            raise CorpusError(f"{which} times the words {' '.join(timed)!r} but its sentence "
+                              f"is {self.text!r}; allowed: the sentence's words in order")
+        prev_end = 0.0
+        for i, (s, e, w) in enumerate(self.words, 1):
+            if not 0 <= s < e:
+                raise CorpusError(f"{which}: word {i} {w!r} from {s:.3f} s to {e:.3f} s; "
+                                  "allowed: 0 <= start < end")
+            if s < prev_end - 1e-9:
+                raise CorpusError(f"{which}: word {i} {w!r} starts at {s:.3f} s, before the "
+                                  f"previous word ends ({prev_end:.3f} s); allowed: words in "
+                                  "time order, not overlapping")
+            if e > duration_s + 1e-9:
+                raise CorpusError(f"{which}: word {i} {w!r} ends at {e:.3f} s, after the audio "
+                                  f"({duration_s:.3f} s); allowed: every word inside the audio")
+            prev_end = e
+
     def check_duration(self, duration_s: float, *, source: str = "") -> None:
         """Refuse a transcript whose times run past the end of its audio.
 

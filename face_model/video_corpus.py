@@ -24,11 +24,26 @@ For every clip (any video FFmpeg reads, with its audio):
    by FFmpeg, then resampled to the corpus rate by :func:`groundwork.audio.resample`
    (polyphase).
 5. **Phones**: the transcript (a GRID ``.align``, a ``.txt`` beside the clip, or a CSV) aligned
-   to the audio by the project's recogniser (:mod:`face_model.forced_align`, pocketsphinx); a
-   transcript that does not match the audio is refused. A clip that ends before its
-   transcript's times (a GRID ``.align``) do is refused as truncated, with the video's and the
-   audio's lengths (:func:`check_length`): a ``.mpg`` cut to half its bytes decodes without
-   complaint to half its length, and was blamed on its transcript.
+   to the audio by the project's recogniser (:mod:`face_model.forced_align`, pocketsphinx), by
+   one of two rules (:data:`ADMISSION_RULES`; ``corpus.json``'s ``admitted_by`` says which
+   admitted each clip):
+
+   - ``acoustic match``, a transcript without word times (``.txt`` or CSV: typed, so possibly
+     wrong): aligned over the whole recording, and refused when it does not match the audio
+     (its alignment scores more than ``MAX_SCORE_GAP`` per speech frame below free phone
+     recognition, :func:`face_model.forced_align.align_audio`);
+   - ``source word times``, a transcript that comes with the source's own word times (a GRID
+     ``.align``): each word's phones aligned within its interval
+     (:func:`face_model.forced_align.align_words`); refused unless the words, in time order,
+     are the sentence's and every interval lies inside the audio
+     (:meth:`face_model.transcripts.Transcript.check_word_times`). The acoustic comparison is
+     not applied: it judges whether typed words were said, and on a speaker far from the US
+     English model it refuses right ones (5 of GRID s26's 10 clips).
+
+   A clip that ends before its transcript's times (a GRID ``.align``) do is refused as
+   truncated, with the video's and the audio's lengths (:func:`check_length`): a ``.mpg`` cut
+   to half its bytes decodes without complaint to half its length, and was blamed on its
+   transcript.
 6. **Words**: when the transcript gives the words' times (a GRID ``.align``), they are kept as
    ``words/<utt_id>.csv`` (``start_s,end_s,word``, seconds, silences ``sil``/``sp`` left out;
    :func:`face_model.corpus.write_words`), as the source gives them.
@@ -50,7 +65,7 @@ from pathlib import Path
 import numpy as np
 
 from face_model.corpus import FPS, QUALITY_COLUMNS, SUPPORTED_SR, write_utterance, write_words
-from face_model.forced_align import align_audio
+from face_model.forced_align import MAX_SCORE_GAP, align_audio, align_words
 from face_model.landmarks import Landmarks, markers_from_landmarks
 from face_model.transcripts import END_TOLERANCE_S
 from groundwork.audio import read_wav, resample
@@ -58,6 +73,18 @@ from groundwork.errors import CorpusError, ParameterError
 
 VIDEO_EXTENSIONS = (".mpg", ".mpeg", ".mp4", ".m4v", ".avi", ".mov", ".mkv", ".webm")
 AUDIO_FORMATS = ("wav", "flac")
+ACOUSTIC_MATCH = "acoustic match"
+SOURCE_WORD_TIMES = "source word times"
+ADMISSION_RULES = {
+    ACOUSTIC_MATCH: "a transcript without word times (.txt or CSV): phones aligned over the "
+                    "whole recording; refused when the alignment scores more than "
+                    f"{MAX_SCORE_GAP:g} per speech frame below free phone recognition "
+                    "(face_model.forced_align.align_audio)",
+    SOURCE_WORD_TIMES: "the source's own word times (.align): each word's phones aligned within "
+                       "its interval (face_model.forced_align.align_words); refused unless the "
+                       "words, in time order, are the sentence's and every interval lies inside "
+                       "the audio; no comparison with free phone recognition",
+}
 
 
 @dataclass(frozen=True)
@@ -357,6 +384,46 @@ def check_length(clip: ClipData, transcript) -> None:
         "was copied or downloaded whole and that the transcript is this recording's)")
 
 
+def transcript_phones(y: np.ndarray, sr: int, transcript, duration_s: float, *,
+                      source: str) -> tuple[list, str, tuple]:
+    """A clip's phones from its transcript, by the rule its transcript falls under (module text,
+    step 5).
+
+    Parameters
+    ----------
+    y : ndarray, shape (n,)
+        Mono audio in [-1, 1].
+    sr : int
+        Its sample rate, Hz.
+    transcript : face_model.transcripts.Transcript
+    duration_s : float
+        The clip's length (its whole 30 fps frames), seconds.
+    source : str
+        The clip's file, for messages.
+
+    Returns
+    -------
+    phones : list of PhoneSegment
+    rule : str
+        :data:`SOURCE_WORD_TIMES` when the transcript gives its words' times, else
+        :data:`ACOUSTIC_MATCH`.
+    even : tuple of str
+        The words whose phones divide their interval evenly (the aligner found no path within
+        it; :class:`face_model.forced_align.WordTimedAlignment`), in order; empty under
+        :data:`ACOUSTIC_MATCH`.
+
+    Raises
+    ------
+    CorpusError
+        The transcript refused by its rule (the message says why).
+    """
+    if transcript.words:
+        transcript.check_word_times(duration_s, source=source)
+        timed = align_words(y, sr, transcript.words, source=source)
+        return timed.phones, SOURCE_WORD_TIMES, tuple(w for _, w in timed.even)
+    return align_audio(y, sr, transcript.text, source=source), ACOUSTIC_MATCH, ()
+
+
 def make_utterance(video: Path, landmark_file: Path, transcript, root: Path,
                    settings: FromVideoSettings) -> dict:
     """One clip → one utterance's files under ``root``; its manifest row.
@@ -370,7 +437,7 @@ def make_utterance(video: Path, landmark_file: Path, transcript, root: Path,
     y, sr, n_out = clip.audio, clip.sample_rate, clip.n_frames
     check_length(clip, transcript)
     transcript.check_duration(n_out / FPS, source=str(video))
-    phones = align_audio(y, sr, transcript.text, source=str(video))
+    phones, rule, even = transcript_phones(y, sr, transcript, n_out / FPS, source=str(video))
     utt_id = video.stem
     rel = write_utterance(root, utt_id=utt_id, audio=y, sr=sr, markers=clip.markers,
                           phones=phones)
@@ -387,4 +454,5 @@ def make_utterance(video: Path, landmark_file: Path, transcript, root: Path,
     if transcript.words:
         write_words(root, utt_id, transcript.words)
     return {"utt_id": utt_id, "speaker": settings.speaker, "expression": settings.expression,
-            "text": transcript.text, "n_frames": n_out, "fps": FPS, "sample_rate": sr, **rel}
+            "text": transcript.text, "n_frames": n_out, "fps": FPS, "sample_rate": sr, **rel,
+            "admitted_by": rule, "even_words": list(even)}  # corpus.json keeps these two

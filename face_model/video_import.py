@@ -25,7 +25,8 @@ from face_model.corpus import WORDS_DIR, load_corpus, words_path, write_manifest
 from face_model.landmarks import MARKER_LANDMARKS, extract_landmarks
 from face_model.layout import LAYOUT_VERSION
 from face_model.transcripts import find_transcript, read_transcript_csv
-from face_model.video_corpus import VIDEO_EXTENSIONS, FromVideoSettings, find_videos, make_utterance
+from face_model.video_corpus import (ADMISSION_RULES, VIDEO_EXTENSIONS, FromVideoSettings,
+                                     find_videos, make_utterance)
 from groundwork.atomic import fresh_partial_folder, swap_in
 from groundwork.errors import CorpusError, ParameterError, TalkingFaceError
 
@@ -36,6 +37,8 @@ AUDIO_EXTENSIONS = (".wav", ".flac", ".mp3", ".ogg", ".oga", ".opus", ".m4a", ".
 SPEECH_COMMANDS = ("for speech alone use `talkingface animate` (a face from a WAV file) or "
                    "`talkingface evaluate-speech`")
 _SHOWN = 3  # clashing files named in a message
+EVEN_WORDS = ("the aligner found no path within the word's interval (too short: fewer than "
+              "three 10 ms frames per phone), so the word's dictionary phones divide it evenly")
 
 
 def check_sources(src) -> list[Path]:
@@ -211,7 +214,11 @@ def corpus_from_video(src, out, *, settings: FromVideoSettings | None = None,
     Returns
     -------
     dict
-        ``{"utterances", "refused": [(clip, reason)], "frames", "corpus": out}``.
+        ``{"utterances", "refused": [(clip, reason)], "frames", "corpus": out}``. The corpus's
+        ``corpus.json`` names the rule that admitted each clip (``admitted_by``: clip → rule;
+        ``admission_rules``: each rule used, described; see
+        :data:`face_model.video_corpus.ADMISSION_RULES`), and, when any, the words whose
+        phones divide their interval evenly (``words_divided_evenly``).
 
     Raises
     ------
@@ -280,6 +287,12 @@ def corpus_from_video(src, out, *, settings: FromVideoSettings | None = None,
             "refused": len(refused), "expressions": sorted({r["expression"] for r in rows}),
             "correspondence_landmarks": {str(k): list(v[0]) for k, v in
                                          MARKER_LANDMARKS.items()}}
+    rules = sorted({r["admitted_by"] for r in rows})
+    info["admission_rules"] = {rule: ADMISSION_RULES[rule] for rule in rules}
+    info["admitted_by"] = {r["utt_id"]: r["admitted_by"] for r in rows}
+    even = {r["utt_id"]: r["even_words"] for r in rows if r["even_words"]}
+    if even:
+        info["words_divided_evenly"] = {"why": EVEN_WORDS, "clips": even}
     timed = sum(words_path(partial, r["utt_id"]).is_file() for r in rows)
     if timed:
         info["words"] = words_info(timed, "the clips' .align word times")
