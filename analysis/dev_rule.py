@@ -30,22 +30,23 @@ LIP_WEIGHT = 0.5
 LATENCY_FILE = "latency.json"  # speech_eval: each model's live latency (talkingface.stages.latency)
 
 
+def _figures(row: dict, keys: tuple) -> dict:
+    """``{figure: value}`` of ``keys`` in a CSV row (NaN where one is missing or not a number)."""
+    vals = {}
+    for k in keys:
+        try:
+            vals[k] = float(row[k])
+        except (KeyError, TypeError, ValueError):
+            vals[k] = float("nan")
+    return vals
+
+
 def _dev_rows(results: list[dict], prefix: str) -> dict:
     """``{model: {figure: value}}`` of :data:`DEV_RULE` on the native-rate ``unseen-dev`` rows of
     the models named ``prefix``* (NaN where a figure is missing)."""
-    out = {}
-    for r in results:
-        if r["split"] != "unseen-dev" or not r["model"].startswith(prefix) or \
-                str(r.get("input_rate") or "native") != "native":
-            continue
-        vals = {}
-        for k in DEV_RULE:
-            try:
-                vals[k] = float(r[k])
-            except (KeyError, TypeError, ValueError):
-                vals[k] = float("nan")
-        out[r["model"]] = vals
-    return out
+    return {r["model"]: _figures(r, DEV_RULE) for r in results
+            if r["split"] == "unseen-dev" and r["model"].startswith(prefix)
+            and str(r.get("input_rate") or "native") == "native"}
 
 
 def dev_rule_figures(results: list[dict], prefix: str = "voices-") -> tuple[str, ...]:
@@ -60,19 +61,9 @@ def lip_rows(real_faces: list[dict] | None, prefix: str = "voices-") -> dict:
     """``{model: {figure: value}}`` of :data:`LIP_RULE` on the ``real_faces`` rows of the
     development part (``part`` dev, ``speaker`` all, ``rate`` native) of the models named
     ``prefix``* (NaN where a figure is missing)."""
-    out = {}
-    for r in real_faces or []:
-        if (r.get("part") != "dev" or r.get("speaker") != "all" or r.get("rate") != "native"
-                or not str(r.get("model", "")).startswith(prefix)):
-            continue
-        vals = {}
-        for k in LIP_RULE:
-            try:
-                vals[k] = float(r[k])
-            except (KeyError, TypeError, ValueError):
-                vals[k] = float("nan")
-        out[r["model"]] = vals
-    return out
+    return {r["model"]: _figures(r, LIP_RULE) for r in real_faces or []
+            if r.get("part") == "dev" and r.get("speaker") == "all" and r.get("rate") == "native"
+            and str(r.get("model", "")).startswith(prefix)}
 
 
 def lip_rule_figures(real_faces: list[dict] | None, prefix: str = "voices-") -> tuple:
