@@ -16,8 +16,9 @@ frames without a detected face left out) on two parts of real faces, by speaker:
   run seed). A candidate trained on the real speaker's training sentences has *seen* that
   speaker: its rows say so (``seen``), and the unseen speaker decides.
 
-Every figure is made from each clip's audio at its own rate and resampled to each rate of
-:data:`RATES` (the candidates hear it at that rate). Rows: one per candidate, part, speaker (and
+Every figure is made from each clip's audio at its own rate; the default, the speaker-trained
+model and the peers are also scored with it resampled to each rate of :data:`RATES` (they hear
+it at that rate). Rows: one per candidate, part, speaker (and
 ``all`` for the part pooled: a part with fewer than three speakers gives no interval and says
 so), rate. Files: ``results.csv`` and ``summary.json`` (the parts' speakers and clips, the
 default model).
@@ -30,6 +31,8 @@ import time
 from pathlib import Path
 
 import face_model
+from tqdm import tqdm
+
 from analysis.face_eval import score_clips
 from analysis.speech_eval import training_speakers
 from face_model.corpus import load_corpus
@@ -134,32 +137,37 @@ def evaluate_real_faces(paths: RunPaths, cfg) -> dict:
     if not any(parts.values()):
         raise ParameterError("real_faces: no clips in the development or test part")
     candidates = _candidates(paths)
+    voices = read_done(paths.stage("voices")) or {}
+    default = f"voices-{voices['model']}" if voices.get("model") else None
     rows = []
-    for name, (tfmap, units, corpus) in candidates.items():
-        animator = FaceAnimator(AudioMapping.load(tfmap), MotionUnits.load(units))
-        seen = set(training_speakers(corpus))
-        for part, clips in parts.items():
-            for rate in RATES:
-                if clips:
-                    s = score_model(animator, clips, training_corpus=corpus, input_rate=rate)
-                    rows += _rows(name, part, s, "native" if rate is None else str(rate), seen)
-    for peer in PEERS:
-        for part, clips in parts.items():
-            for rate in RATES:
-                if clips:
-                    s = score_peer(peer, clips, input_rate=rate)
-                    rows += _rows(peer, part, s, "native" if rate is None else str(rate), set())
+    jobs = [(n, p, r) for n in [*candidates, *PEERS] for p in PARTS if parts[p]
+            for r in (RATES if n in (default, "speaker-trained", *PEERS) else RATES[:1])]
+    animators: dict = {}
+    for name, part, rate in tqdm(jobs, desc="real faces", unit="score"):
+        label = "native" if rate is None else str(rate)
+        if name in PEERS:
+            rows += _rows(name, part, score_peer(name, parts[part], input_rate=rate), label,
+                          set())
+            continue
+        tfmap, units, corpus = candidates[name]
+        if name not in animators:  # one model in memory at a time
+            animators = {name: (FaceAnimator(AudioMapping.load(tfmap), MotionUnits.load(units)),
+                                set(training_speakers(corpus)))}
+        animator, seen = animators[name]
+        s = score_model(animator, parts[part], training_corpus=corpus, input_rate=rate)
+        rows += _rows(name, part, s, label, seen)
     out = paths.stage("real_faces")
     write_csv(out / "results.csv", rows)
-    voices = read_done(paths.stage("voices")) or {}
     summary = {
         "parts": {p: {"speakers": sorted({c.speaker for c in clips}),
                       "clips": {s: sum(c.speaker == s for c in clips)
                                 for s in sorted({c.speaker for c in clips})}}
                   for p, clips in parts.items()},
-        "default": f"voices-{voices['model']}" if voices.get("model") else None,
+        "default": default,
         "candidates": sorted(candidates), "peers": list(PEERS), "peer_versions": peer_versions(),
         "rates": ["native" if r is None else r for r in RATES],
+        "rates_for": "every rate: the default, the speaker-trained model and the peers; the "
+                     "native rate: every other candidate",
         "seconds": round(time.perf_counter() - t0, 1)}
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
     return {"rows": len(rows), "candidates": len(candidates)}

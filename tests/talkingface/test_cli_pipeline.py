@@ -93,7 +93,10 @@ def test_replicate_writes_runs_report_and_mlflow(full_run_dir, monkeypatch):
     assert {(r["part"], r["speaker"]) for r in faces} == {
         ("dev", "all"), ("dev", "grid-s26"), ("test", "all"), ("test", "grid-s31"),
         ("test", "grid-s1")}
-    assert {r["rate"] for r in faces} == {"native", "16000", "8000"}
+    rates = {m: {r["rate"] for r in faces if r["model"] == m} for m in models}
+    assert rates["voices-many"] == {"native", "16000", "8000"}  # the default: every rate
+    assert rates["speaker-trained"] == rates["pylipsync"] == {"native", "16000", "8000"}
+    assert rates["voices-one"] == {"native"}
     seen = {(r["model"], r["speaker"]): r["seen"] for r in faces}
     assert seen[("voices-real", "grid-s1")] == "True" and \
         seen[("voices-real", "grid-s31")] == "False"
