@@ -2,7 +2,9 @@
 
 The trained mapping comes from ``--model``, found by :func:`talkingface.stages.models.find_model`
 (a run name, a run folder or a ``.tfmap`` file; by default the most recent run with a trained
-mapping, and a run's voice-robust model when it has one).
+mapping, and a run's voice-robust model when it has one; with no trained run, the default model
+shipped with the package). Both commands say which model they used
+(:func:`talkingface.stages.models.model_label`).
 """
 from __future__ import annotations
 
@@ -21,7 +23,7 @@ from groundwork.audio import read_wav
 from groundwork.errors import ParameterError
 from groundwork.movie import write_mp4
 from talkingface.live import MicrophoneStats, microphone_chunks, run_stream, warm_stream, wav_chunks
-from talkingface.stages.models import load_animator
+from talkingface.stages.models import load_animator, model_label
 
 
 PASSES_BAR = "{desc}: {percentage:3.0f}%|{bar}| {n}/{total} passes [{elapsed}{postfix}]"
@@ -52,7 +54,7 @@ def animate_file(wav, out_mp4, *, expression: str = "neutral", model: str | None
     prints its cost measured on the first seconds of audio and its bar
     (:func:`mapping.recogniser.feed`), then the render shows its bar
     (:func:`groundwork.movie.write_mp4`). The outputs are the same either way."""
-    animator, tfmap = load_animator(model, runs_dir)
+    animator, tfmap = load_animator(model, runs_dir, shipped=True)
     animator.check_expression(expression)
     # every output and input is checked before the render, so a mistake costs no work
     check_output_file(out_mp4, "--out", overwrite=overwrite)
@@ -93,7 +95,7 @@ def animate_file(wav, out_mp4, *, expression: str = "neutral", model: str | None
     duration = len(y) / sr
     return {"frames": len(markers), "audio_s": duration, "seconds": seconds,
             "x_realtime": duration / seconds if seconds > 0 else float("inf"),
-            "model": str(tfmap), "warning": warn}
+            "model": model_label(tfmap), "warning": warn}
 
 
 def passes(animator, n_samples: int, sr: int) -> tuple[str, list[str]]:
@@ -110,12 +112,16 @@ def passes(animator, n_samples: int, sr: int) -> tuple[str, list[str]]:
 
 def _streaming(model, expression, runs_dir):
     """A warmed-up StreamingAnimator (the first calls load code paths: not latency)."""
-    animator, tfmap = load_animator(model, runs_dir)
+    animator, tfmap = load_animator(model, runs_dir, shipped=True)
     return warm_stream(animator, expression), animator, tfmap
 
 
-def _summary(stats, tfmap, warn) -> dict:
-    return {**asdict(stats), "model": str(tfmap), "warning": warn}
+def _summary(stats, tfmap, warn, announce: bool = True) -> dict:
+    """A stream's figures and its model (said on stderr once the stream has ended, with
+    ``announce``: the summary line of ``talkingface stream`` does not name it)."""
+    if announce:
+        print(f"model: {model_label(tfmap)}", file=sys.stderr)
+    return {**asdict(stats), "model": model_label(tfmap), "warning": warn}
 
 
 def stream_file(wav, *, expression: str = "neutral", model: str | None = None, runs_dir="runs",
@@ -131,7 +137,7 @@ def stream_file(wav, *, expression: str = "neutral", model: str | None = None, r
     stats = run_stream(stream, wav_chunks(y, stream.sr, chunk_s=chunk_s, paced=paced),
                        show=show, on_frame=on_frame, progress=progress,
                        total_samples=len(y), paced_input=paced)
-    return _summary(stats, tfmap, warn)
+    return _summary(stats, tfmap, warn, announce=progress)
 
 
 def stream_microphone(*, expression: str = "neutral", model: str | None = None,

@@ -52,14 +52,17 @@ def _grid_stage(grid: GridStage, run, *, config: tuple, speed_only: tuple,
                 files=None) -> Stage:
     """The stage of ``grid``: trained on ``upstream``'s results (the run's training inputs);
     its own settings (:attr:`GridStage.settings`), its grid file's contents and ``inputs``
-    (``(paths, cfg) -> dict``: the data outside the run it reads) join its key; on when its
+    (``(paths, cfg) -> dict``: the data outside the run it reads) join its key, and so do the
+    grid file and, while a grid is named, ``files`` (``(paths, cfg) -> list``); on when its
     config names a grid and, with ``applies`` (``cfg -> bool``), the run's corpus allows it;
     resumable as the grid stage says."""
     enabled = grid.has_grid if applies is None else (
         lambda cfg: grid.has_grid(cfg) and applies(cfg))
+    own = grid.grid_file if files is None else (
+        lambda paths, cfg: grid.grid_file(paths, cfg) + (
+            files(paths, cfg) if grid.has_grid(cfg) else []))
     return Stage(grid.name, run, config=(*config, *grid.settings), speed_only=speed_only,
-                 upstream=upstream, enabled=enabled,
-                 files=grid.grid_file if files is None else _with_files(grid.grid_file, files),
+                 upstream=upstream, enabled=enabled, files=own,
                  resumable=grid.resumable, **({} if inputs is None else {"inputs": inputs}))
 
 

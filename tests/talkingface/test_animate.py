@@ -113,20 +113,32 @@ def test_bad_wavs_give_one_clear_error_line(trained, tmp_path, monkeypatch, caps
     assert not (tmp_path / "b.mp4").exists()
 
 
-def test_without_a_trained_run_the_message_says_how_to_get_one(tmp_path, monkeypatch, capsys):
+def test_without_a_trained_run_or_a_shipped_model_the_message_says_how_to_get_one(
+        tmp_path, monkeypatch, capsys):
+    """With a trained run, or the model shipped with the package (tests/talkingface/
+    test_ship_default.py), animate has a model; with neither, one line says how to get one."""
+    from talkingface.stages import models
+
+    monkeypatch.setattr(models, "SHIPPED_DIR", tmp_path / "no_shipped_model")
     monkeypatch.chdir(tmp_path)
     wav = _write(tmp_path / "x.wav", np.zeros(2205), 22050)
     assert main(["animate", str(wav), "-o", str(tmp_path / "x.mp4")]) == 2
-    assert "make replicate" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "make replicate" in err and "no trained mapping under runs/" in err
+    assert "no shipped default model" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "x.mp4").exists()
 
 
 def test_stream_reports_the_latency(trained, tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(trained)
     wav = _write(tmp_path / "s.wav", _speech(trained, 22050, False)[:22050], 22050)
     assert main(["stream", str(wav), "--fast"]) == 0
-    out = capsys.readouterr().out
+    captured = capsys.readouterr()
+    out = captured.out
     assert "30 frames streamed" in out and "algorithmic latency 112 ms" in out
     assert "compute per frame" in out
+    # the run's own model, not the shipped default, and the stream says which
+    assert "model: runs/t/mapping/gated_mlp_utterance.tfmap" in captured.err
 
 
 def test_a_paced_stream_never_beats_its_look_ahead(trained, tmp_path, monkeypatch):

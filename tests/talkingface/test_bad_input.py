@@ -31,6 +31,10 @@ from study.data import Allocation
 from talkingface.cli.main import main
 from tests.talkingface.bad_input_cases import ACCEPTED, CASES, QUICK, RUN, TINY, \
     add_bad_inputs
+# tools/ship_default_model.py is not a talkingface command: its table and its test (the same
+# contract) live in their own part and run here
+from tests.talkingface.bad_input_ship import (  # noqa: F401
+    ship_world, test_ship_default_model_refuses_bad_input_in_one_line)
 
 REPO = Path(__file__).resolve().parents[2]
 

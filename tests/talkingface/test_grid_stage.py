@@ -9,6 +9,7 @@ from talkingface.cli.args import grid_overrides
 from talkingface.cli.main import build_parser
 from talkingface.config import Config, load_config
 from talkingface.stages import GRID_STAGES, STAGES
+from talkingface.stages.articulation import every_articulation_file
 from talkingface.stages.grid import ABLATIONS, CEILING, VOICES
 
 REPO = Path(__file__).resolve().parents[2]
@@ -22,7 +23,12 @@ def test_a_grid_stage_is_registered_from_its_description(grid):
     assert set(grid.settings) <= set(stage.config)
     cfg = Config()
     assert grid.grid_path(cfg) == REPO / "configs" / f"{grid.name}.yaml" == grid.default
-    assert stage.enabled(cfg) and stage.files(None, cfg) == [grid.default]
+    files = stage.files(None, cfg)
+    assert stage.enabled(cfg) and files[0] == grid.default
+    # the grid's children may draw faces with any shipped articulation model: each one's content
+    # joins the stage's key, and nothing else does
+    assert set(files[1:]) == set(
+        every_articulation_file(None, cfg) if grid.name in ("voices", "ceiling") else [])
     assert list(grid.children(cfg))
     off = load_config(None, [f"{grid.name}.grid=none"])
     assert grid.grid_path(off) is None and not stage.enabled(off)
