@@ -24,6 +24,7 @@ two threads), so the same data give the same parameters.
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -98,8 +99,20 @@ class FaceMap:
 
 def _torch():
     import torch
-    torch.set_num_threads(THREADS)
     return torch
+
+
+@contextmanager
+def _fit_threads(torch):
+    """:data:`THREADS` torch threads for one fit (its reductions, hence its parameters, depend
+    on the count), then the process's own count again: a test worker or a grid's worker keeps
+    its share of the cores (:mod:`groundwork.threads`)."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(THREADS)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
 
 
 def _displacement(torch, a, fields):
@@ -318,6 +331,11 @@ def fit_coarticulation(sentences: list, prior: Articulation, *, steps: int = 300
     if not sentences:
         raise ParameterError("fit_coarticulation: no sentences")
     torch = _torch()
+    with _fit_threads(torch):
+        return _fit(torch, sentences, prior, steps, prior_frames)
+
+
+def _fit(torch, sentences, prior, steps, prior_frames):
     packed = [torch.as_tensor(x) for x in _pack(sentences)]
     obs, weight = packed[7], packed[8]
     total = float(weight.sum())

@@ -116,6 +116,26 @@ def test_fit_recovers_a_known_models_rates_and_targets(known_fit):
     assert fit["loss_end"] < 0.01 * fit["loss_start"]
 
 
+def test_a_fit_leaves_the_processs_thread_count_as_it_was():
+    """The fit runs on its own fixed threads and gives the process's share back (a test worker
+    or a grid's worker keeps processes x threads within the cores)."""
+    import torch
+
+    rng = np.random.default_rng(3)
+    segs = _sentence(rng, ["aa", "m", "iy"], 6)
+    t = np.arange(int(segs[-1].end_s * 30)) / 30
+    table = Articulation.table()
+    sentence = Sentence(tuple(segs), t, coarticulate(segs, t, table), np.ones(len(t)))
+    before = torch.get_num_threads()
+    other = 3 if before != 3 else 1
+    torch.set_num_threads(other)
+    try:
+        fit_coarticulation([sentence], table, steps=2)
+        assert torch.get_num_threads() == other
+    finally:
+        torch.set_num_threads(before)
+
+
 def test_phones_never_heard_keep_the_prior_exactly(known_fit):
     _, fitted, _, used = known_fit
     table = Articulation.table()
