@@ -125,18 +125,18 @@ def add_inputs(root: Path) -> None:
     assert tool().main([str(good), "--target", str(root / "shipped_ok")]) == 0
 
 
-TAMPERED = "ship_tampered/voices/one-voice-causal-labels/gated_mlp_utterance.tfmap"
+DEFAULT = tool().expected()[0]  # configs/voices.yaml's model
+TAMPERED = f"ship_tampered/voices/{DEFAULT}/gated_mlp_utterance.tfmap"
 CASES: list = [
     (["no_such_run", *TARGET], ["RUN_DIR no_such_run", "not a folder"]),
     (["not_a_run", *TARGET], ["not_a_run/voices/done.json not found", "voices stage"]),
     (["ship_notjson", *TARGET], ["ship_notjson/voices/done.json", "not valid JSON"]),
     (["ship_nochild", *TARGET], ["ship_nochild/voices/done.json", "not a finished voices"]),
-    (["ship_notfmap", *TARGET], ["gated_mlp_utterance.tfmap not found", "one-voice-causal"]),
+    (["ship_notfmap", *TARGET], ["gated_mlp_utterance.tfmap not found", DEFAULT]),
     (["ship_tampered", *TARGET], [TAMPERED, "checksum mismatch"]),
     (["ship_truncated", *TARGET], ["ship_truncated/units/motion_units.npz", "truncated"]),
     (["ship_nofront", *TARGET], ["gated_mlp_utterance.front.npz", "missing"]),
-    (["ship_otherchild", *TARGET], ["'one-voice'", "voices.yaml's model is "
-                                    "'one-voice-causal-labels'"]),
+    (["ship_otherchild", *TARGET], ["'one-voice'", f"voices.yaml's model is '{DEFAULT}'"]),
     (["ship_othersettings", *TARGET], ["mapping.hidden_max=40", "(now 25)"]),
     ([*TARGET], ["give RUN_DIR"]),
     (["--check", "--target", "shipped_empty"], ["shipped_empty/provenance.json not found"]),

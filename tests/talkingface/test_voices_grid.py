@@ -31,7 +31,7 @@ def test_the_project_grid_holds_the_issue_configurations():
                               "fitted-one-voice", "fitted-causal-labels",
                               "real-face-hama-labels", "real-face-mfcc",
                               "real-face-causal-labels", "real-and-drawn-hama-labels"]
-    assert model == "one-voice-causal-labels"
+    assert model == "fitted-causal-labels"  # tools/choose_voice_model.py runs/<name> --check
     assert [children[n].voices.real_face for n in list(children)[-5:]] == \
         ["none", "alone", "alone", "alone", "added"]
     # the fitted articulation's children: the paper's single voice, the fitted faces

@@ -13,6 +13,7 @@ from talkingface.stages.models import find_model, shipped_default
 from tests.talkingface.bad_input_ship import change_array, child_tfmap, fake_run, tool
 
 REPO = Path(__file__).resolve().parents[2]
+DEFAULT = tool().expected()[0]  # configs/voices.yaml's model: the child the tool ships
 
 
 def _hashes(root: Path) -> dict:
@@ -41,7 +42,7 @@ def _one_line(capsys) -> str:
 def test_a_shipped_run_checks_and_reproduces(shipped, capsys):
     t, run, target = shipped
     record = json.loads((target / "provenance.json").read_text())
-    assert record["child"] == "one-voice-causal-labels" and record["seed"] == 2002
+    assert record["child"] == DEFAULT and record["seed"] == 2002
     names = set(record["files"].values())
     assert names == {"gated_mlp_utterance.tfmap", "gated_mlp_utterance.front.npz",
                      "motion_units.npz"}
@@ -56,7 +57,7 @@ def test_a_shipped_run_checks_and_reproduces(shipped, capsys):
     assert record["arrays_sha256"] == real["arrays_sha256"]
     capsys.readouterr()
     assert t.main(["--check", "--target", str(target)]) == 0
-    assert "the shipped default model one-voice-causal-labels" in capsys.readouterr().out
+    assert f"the shipped default model {DEFAULT}" in capsys.readouterr().out
     assert t.main(["--check", str(run), "--target", str(target)]) == 0
     assert "reproduces the shipped model" in capsys.readouterr().out
     # the shipped folder animates: the tfmap, its front end and its own Motion Units
@@ -94,13 +95,13 @@ def test_check_fails_in_one_line_when_voices_yaml_names_another_child(shipped, t
     t, _, target = shipped
     grid = tmp_path / "voices.yaml"
     text = (REPO / "configs" / "voices.yaml").read_text()
-    assert "\nmodel: one-voice-causal-labels\n" in text
-    grid.write_text(text.replace("\nmodel: one-voice-causal-labels\n", "\nmodel: one-voice\n"))
+    assert f"\nmodel: {DEFAULT}\n" in text and DEFAULT != "one-voice"
+    grid.write_text(text.replace(f"\nmodel: {DEFAULT}\n", "\nmodel: one-voice\n"))
     monkeypatch.setattr(t, "VOICES_GRID", grid)
     capsys.readouterr()
     assert t.main(["--check", "--target", str(target)]) == 1
     line = _one_line(capsys)
-    assert "'one-voice-causal-labels'" in line and "voices.yaml's model is 'one-voice'" in line
+    assert f"'{DEFAULT}'" in line and "voices.yaml's model is 'one-voice'" in line
 
 
 def test_check_fails_in_one_line_when_the_papers_settings_changed(shipped, tmp_path,
