@@ -164,6 +164,13 @@ def shipped_names() -> list[str]:
     return sorted(p.stem for p in SHIPPED_DIR.glob("*.npz"))
 
 
+def articulation_record(path) -> dict:
+    """The provenance a model file of :func:`write_articulation` keeps (its ``corpus``,
+    ``corpus_hash`` and ``training_utterances`` among them), checked against its checksum."""
+    return dict(read_model(Path(path), kind=KIND, versions=(VERSION,),
+                           what="articulation model file").metadata)
+
+
 def write_articulation(path, model: Articulation, record: dict) -> Path:
     """Write ``model`` as a model file (kind ``articulation``) with ``record`` (provenance: the
     data, the command, the fit's figures). Returns ``path``."""

@@ -14,7 +14,8 @@ frames without a detected face left out) on two parts of real faces, by speaker:
 * ``test``: ``real_faces.test_corpus`` (``builtin``: GRID s31, ``face_model/real_faces/grid-s31``) and
   the real speaker's held-out sentences (``real_speaker.corpus``, the utterance split of the
   run seed). A candidate trained on the real speaker's training sentences has *seen* that
-  speaker: its rows say so (``seen``), and the unseen speaker decides.
+  speaker, and so has one trained on faces drawn with an articulation fitted on them
+  (:func:`face_speakers`): its rows say so (``seen``), and the unseen speaker decides.
 
 Every figure is made from each clip's audio at its own rate; the default, the speaker-trained
 model and the peers are also scored with it resampled to each rate of :data:`RATES` (they hear
@@ -26,6 +27,7 @@ default model).
 from __future__ import annotations
 
 import csv
+import functools
 import json
 import time
 from pathlib import Path
@@ -35,7 +37,8 @@ from tqdm import tqdm
 
 from analysis.face_eval import score_clips
 from analysis.speech_eval import training_speakers
-from face_model.corpus import load_corpus
+from data_synth.articulation import TABLE, articulation_path, articulation_record
+from face_model.corpus import corpus_hash, load_corpus, read_manifest
 from face_model.motion_units import MotionUnits
 from groundwork.errors import ParameterError
 from mapping.animator import FaceAnimator
@@ -99,6 +102,31 @@ def _clips(paths: RunPaths, cfg) -> dict:
     return parts
 
 
+def face_speakers(corpus_dir, real) -> frozenset:
+    """The real speakers whose mouths moved the drawn faces of the synthetic corpus at
+    ``corpus_dir``: with a fitted articulation (``corpus.json``'s ``settings.articulation``
+    other than ``table``), the speakers of the fit's training sentences. A model trained on
+    those faces has *seen* them on a real face, though never heard them. Read from the run's
+    real speaker's corpus ``real`` when the fit's ``corpus_hash`` is that corpus's; the fit's
+    ``corpus`` name otherwise. Empty for the hand table or a given corpus."""
+    info_file = Path(corpus_dir) / "corpus.json"
+    info = json.loads(info_file.read_text(encoding="utf-8")) if info_file.is_file() else {}
+    value = (info.get("settings") or {}).get("articulation", TABLE)
+    if info.get("source") or not value or value == TABLE:
+        return frozenset()
+    record = articulation_record(articulation_path(value))
+    if real is not None and record.get("corpus_hash") == _hash(str(real)):
+        ids = set(record.get("training_utterances") or ())
+        rows = read_manifest(Path(real) / "manifest.csv", ("utt_id", "speaker"))
+        return frozenset(r["speaker"] for r in rows if r["utt_id"] in ids)
+    return frozenset({str(record.get("corpus", value))})
+
+
+@functools.lru_cache(maxsize=4)
+def _hash(root: str) -> str:
+    return corpus_hash(root)
+
+
 def _candidates(paths: RunPaths) -> dict:
     """``{name: (tfmap, units, training corpus)}`` of the run's models."""
     out = {f"voices-{name}": (tfmap, units, corpus)
@@ -152,7 +180,8 @@ def evaluate_real_faces(paths: RunPaths, cfg) -> dict:
         tfmap, units, corpus = candidates[name]
         if name not in animators:  # one model in memory at a time
             animators = {name: (FaceAnimator(AudioMapping.load(tfmap), MotionUnits.load(units)),
-                                set(training_speakers(corpus)))}
+                                set(training_speakers(corpus))
+                                | face_speakers(corpus, real_corpus(cfg)))}
         animator, seen = animators[name]
         s = score_model(animator, parts[part], training_corpus=corpus, input_rate=rate)
         rows += _rows(name, part, s, label, seen)
