@@ -45,7 +45,8 @@ def _label(model: str, default: str | None) -> str:
     name = PEER_LABELS.get(model, model)
     if model in PEERS:
         return f"{escape(name)} (peer)"
-    return f"<b>{escape(name)}</b> (default)" if model == default else escape(name)
+    # a table cell is drawn as it is, not parsed: no markup in it (analysis.report.table)
+    return f"{escape(name)} (default)" if model == default else escape(name)
 
 
 def ordered_models(rows: list[dict], default: str | None) -> list[str]:

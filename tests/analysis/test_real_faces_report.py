@@ -61,6 +61,7 @@ def test_the_finding_reads_the_test_table_on_the_page_it_cites(tmp_path):
     assert len(findings_of(pages[0])) == 1 and mismatches(pdf) == []
     body = " ".join(pages[1:])
     assert "0.81 (0.01)*" in body  # the seen speaker is marked
+    assert f"{DEFAULT} (default)" in body and "<b>" not in body  # a cell prints no markup
     assert "Lips of the development speaker" in body
 
 
