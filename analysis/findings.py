@@ -23,6 +23,9 @@ from analysis.grid_summary import (best, delta_cell, fmt, fmt_level, fmt_p, grid
 from analysis.mapping_report import _f, ci_cell, lookahead_rows_for_report, r_cell
 from analysis.metrics import PAPER_TABLES
 from analysis.report import escape
+from groundwork.errors import TalkingFaceError
+from groundwork.modelfile import read_model
+from mapping import checkpoint
 
 KEEP = 0.95  # the share of R the look-ahead finding asks the mapping to keep
 
@@ -171,6 +174,18 @@ def speech_finding(speech_dir: Path, default_model: str | None,
                    + ".")
 
 
+def drawn_with(tfmap) -> str:
+    """The ``synth.articulation`` the model at ``tfmap`` was trained under (its recorded
+    config): ``table`` for the hand table, or when the file cannot be read."""
+    try:
+        meta = read_model(Path(tfmap), kind=checkpoint.KIND, versions=(checkpoint.VERSION,),
+                          what="mapping").metadata
+    except (TypeError, OSError, TalkingFaceError):
+        return "table"
+    config = (meta.get("metadata") or {}).get("config") or {}  # AudioMapping.metadata
+    return str((config.get("synth") or {}).get("articulation") or "table")
+
+
 def real_speaker_finding(real_dir: Path, targets: TargetsConfig | None = None) -> str | None:
     """The synthetic-trained default on the real speaker's held-out sentences: speech-frame lip
     r and /p b m/ closures, each with its chance in brackets, against the targets, the
@@ -192,10 +207,13 @@ def real_speaker_finding(real_dir: Path, targets: TargetsConfig | None = None) -
     spk = (summary.get("corpus") or {}).get("speaker", "the speaker")
     speakers = p.get("speakers", "?")
     no_interval = "no interval" in str(p.get("interval_r_speech") or "no interval")
+    drawn = drawn_with((summary.get("models") or {}).get("synthetic_model"))
+    faces = ("faces only" if drawn == "table" else
+             f"faces drawn with the articulation {escape(drawn)}, fitted on a real mouth")
     text = (f"<b>A real face.</b> On {escape(p.get('clips', '?'))} held-out sentences of "
             f"{escape(spk)} ({escape(speakers)} speaker{'s' * (speakers != 1)}"
             f"{': no interval' if no_interval else ''}) the default model, trained on synthetic "
-            f"speech and faces only, moves the lips with r {mine[1]} on speech frames (in "
+            f"speech and {faces}, moves the lips with r {mine[1]} on speech frames (in "
             f"brackets: chance; target {targets.face_synthetic_r:g}: "
             f"{checks.get('face_synthetic_r', 'not measured')}) and closes {mine[4]} of the "
             f"/p b m/ segments (target {100 * targets.face_closures:.0f} %: "

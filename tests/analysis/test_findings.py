@@ -127,3 +127,26 @@ def test_the_speech_finding_compares_streaming_with_streaming_at_the_targets_loo
     assert "0.71 [0.65, 0.74]" in item and "below the target of 0.8" in item
     assert "pocketsphinx 0.66 [0.59, 0.69] and hama 0.73 [0.67, 0.76]" in item
     assert mismatches(pdf) == []
+
+
+def test_the_real_face_finding_says_what_drew_the_defaults_faces(tmp_path):
+    """A default trained on faces drawn with a fitted articulation is not said to be trained
+    on "faces only" (the shipped default is one: grid-s1); the hand table's default is."""
+    from analysis.findings import drawn_with
+    from talkingface.stages.models import SHIPPED_DIR
+    from tests.analysis.test_real_face_report import _summary
+
+    shipped = SHIPPED_DIR / "gated_mlp_utterance.tfmap"
+    assert drawn_with(shipped) == "grid-s1"
+    assert drawn_with(tmp_path / "none.tfmap") == drawn_with(None) == "table"
+    (tmp_path / "t").mkdir()
+    (tmp_path / "f").mkdir()
+    table, _ = _real_face_report(tmp_path / "t", _summary(synthetic_r=0.654))
+    assert "trained on synthetic speech and faces only" in table
+    fitted_summary = {**_summary(synthetic_r=0.654)}
+    fitted_summary["models"] = {**(fitted_summary.get("models") or {}),
+                                "synthetic_model": str(shipped)}
+    fitted, pdf = _real_face_report(tmp_path / "f", fitted_summary)
+    assert "trained on synthetic speech and faces drawn with the articulation grid-s1, fitted " \
+           "on a real mouth" in fitted
+    assert mismatches(pdf) == []
