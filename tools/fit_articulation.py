@@ -39,7 +39,13 @@ from talkingface.stages.articulation import (fit_real_articulation, held_out_cli
 from talkingface.stages.real_speaker import real_corpus, training_part  # noqa: E402
 
 PAPER = REPO / "configs" / "paper.yaml"
-TOLERANCE = 1e-6  # largest difference of any target, log-dominance or log-rate allowed by --check
+# The largest difference of any target, log-dominance or log-rate allowed by --check. The data
+# determine the parameters to about 1e-4: the L-BFGS valley is flat (the loss of fits that differ
+# by 1e-4 agrees to 4e-9), so rounding moves where the fit stops. Measured 2026-12-02 on one
+# machine: 1 against 2 torch threads 1.0e-05, another processor's fit 9.2e-05, 150 against 300
+# iterations 2.9e-04; a real change moves them far more (the face map's aperture 1 % wider:
+# 4.1e-02). 1e-3 passes the rounding of another processor and fails a changed fit.
+TOLERANCE = 1e-3
 DATA_KEYS = ("corpus_hash", "training_utterances", "seed", "train_fraction", "face_map")
 
 
