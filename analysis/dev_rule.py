@@ -7,8 +7,14 @@ its accuracy).
 The score weighs what is heard and what is seen equally (issue 50; fixed before any candidate
 was scored on real lips):
 
-* **audio**: the mean of :data:`DEV_RULE`'s figures over the unseen development recordings of
-  the real-speech set (speech_eval's ``results.csv``, ``split`` = ``unseen-dev``, native rate);
+* **audio**: the development part of the real-speech set holds two kinds of recording
+  (:attr:`analysis.speech_set.SpeechItem.kind`), weighed equally (issue 51; fixed before any
+  candidate was scored on a development sentence): **sentences** (continuous speech, what users
+  say: GRID s26) and **digits** (isolated words: two FSDD speakers). Per kind, the mean of
+  :data:`DEV_RULE`'s figures that kind measures for some candidate, over its unseen recordings
+  (speech_eval's ``results.csv``, ``split`` :data:`AUDIO_KINDS`, native rate); audio is the mean
+  of the kinds. A run whose results have no per-kind rows (a development part of one kind, or
+  a run made before the kinds) scores the pooled ``unseen-dev`` rows as its one kind;
 * **lips**: the mean of :data:`LIP_RULE`'s figures on the development part of the real faces
   (the ``real_faces`` stage's ``results.csv``: ``part`` = ``dev``, every speaker pooled, native
   rate; a speaker no candidate was trained on): speech-frame lip r and the share of /p b m/
@@ -27,6 +33,9 @@ DEV_RULE = ("viseme_acc", "bilabial_closed_frac", "labiodental_contact_frac", "r
 LIP_RULE = ("r_speech", "closure_rate")  # real_faces rows: lip r on speech frames, /p b m/ closed
 AUDIO_WEIGHT = 0.5
 LIP_WEIGHT = 0.5
+# the development part's kinds of recording: results.csv split → the kind's name, equal weights
+AUDIO_KINDS = {"unseen-dev-sentences": "sentences", "unseen-dev-digits": "digits"}
+POOLED = "unseen-dev"  # the whole development part, when its rows have no kinds
 LATENCY_FILE = "latency.json"  # speech_eval: each model's live latency (talkingface.stages.latency)
 
 
@@ -41,20 +50,28 @@ def _figures(row: dict, keys: tuple) -> dict:
     return vals
 
 
-def _dev_rows(results: list[dict], prefix: str) -> dict:
-    """``{model: {figure: value}}`` of :data:`DEV_RULE` on the native-rate ``unseen-dev`` rows of
+def dev_rows(results: list[dict], prefix: str, split: str = POOLED) -> dict:
+    """``{model: {figure: value}}`` of :data:`DEV_RULE` on the native-rate ``split`` rows of
     the models named ``prefix``* (NaN where a figure is missing)."""
     return {r["model"]: _figures(r, DEV_RULE) for r in results
-            if r["split"] == "unseen-dev" and r["model"].startswith(prefix)
+            if r["split"] == split and r["model"].startswith(prefix)
             and str(r.get("input_rate") or "native") == "native"}
 
 
-def dev_rule_figures(results: list[dict], prefix: str = "voices-") -> tuple[str, ...]:
-    """The figures of :data:`DEV_RULE` the development part measures: a figure it measures for
-    no candidate (the digits of the development speakers hold no /p b m/, so no closure can be
-    scored) is left out of the rule for all of them alike."""
-    rows = _dev_rows(results, prefix)
+def dev_rule_figures(results: list[dict], prefix: str = "voices-",
+                     split: str = POOLED) -> tuple[str, ...]:
+    """The figures of :data:`DEV_RULE` the development rows of ``split`` measure: a figure they
+    measure for no candidate (digits hold no /p b m/, so no closure can be scored on them) is
+    left out of the rule for all of them alike."""
+    rows = dev_rows(results, prefix, split)
     return tuple(k for k in DEV_RULE if any(math.isfinite(v[k]) for v in rows.values()))
+
+
+def audio_splits(results: list[dict], prefix: str = "voices-") -> tuple[str, ...]:
+    """The results.csv splits the audio half is the mean of: the :data:`AUDIO_KINDS` with
+    development rows measuring some figure, else the pooled :data:`POOLED` (module docstring)."""
+    kinds = tuple(k for k in AUDIO_KINDS if dev_rule_figures(results, prefix, k))
+    return kinds or (POOLED,)
 
 
 def lip_rows(real_faces: list[dict] | None, prefix: str = "voices-") -> dict:
@@ -74,16 +91,23 @@ def lip_rule_figures(real_faces: list[dict] | None, prefix: str = "voices-") -> 
 
 def dev_parts(results: list[dict], prefix: str = "voices-",
               real_faces: list[dict] | None = None) -> dict:
-    """``{model: {"audio": mean, "lips": mean or None}}``: the two halves of the score of each
-    model with every used figure finite (module docstring); ``lips`` None for every model
-    when no development faces were scored."""
-    audio_rows, used = _dev_rows(results, prefix), dev_rule_figures(results, prefix)
+    """``{model: {"audio": mean, "kinds": {split: mean}, "lips": mean or None}}``: the two
+    halves of the score of each model with every used figure finite (module docstring), and the
+    audio half's kinds; ``lips`` None for every model when no development faces were scored."""
+    splits = audio_splits(results, prefix)
+    per = [(dev_rows(results, prefix, k), dev_rule_figures(results, prefix, k)) for k in splits]
     lips, lip_used = lip_rows(real_faces, prefix), lip_rule_figures(real_faces, prefix)
     out = {}
-    for m, v in audio_rows.items():
-        if not used or not all(math.isfinite(v[k]) for k in used):
+    for m in per[0][0]:
+        kinds = {}
+        for split, (rows, used) in zip(splits, per):
+            v = rows.get(m)
+            if v is None or not used or not all(math.isfinite(v[k]) for k in used):
+                break
+            kinds[split] = sum(v[k] for k in used) / len(used)
+        if len(kinds) != len(splits):
             continue
-        part = {"audio": sum(v[k] for k in used) / len(used), "lips": None}
+        part = {"audio": sum(kinds.values()) / len(kinds), "kinds": kinds, "lips": None}
         if lip_used:
             lv = lips.get(m)
             if lv is None or not all(math.isfinite(lv[k]) for k in lip_used):
@@ -152,7 +176,7 @@ def excluded_by_latency(results: list[dict], latency: dict | None, bound_ms: flo
     if latency is None or bound_ms is None:
         return {}
     out = {}
-    for m in _dev_rows(results, prefix):
+    for m in dev_rows(results, prefix):
         p99 = latency.get(m)
         if p99 is None or not math.isfinite(float(p99)) or float(p99) > bound_ms:
             out[m] = None if p99 is None or not math.isfinite(float(p99)) else float(p99)

@@ -169,6 +169,11 @@ def speech_finding(speech_dir: Path, default_model: str | None,
             f"{escape(b['model'].split()[0].split('-')[0])} "
             f"{speech._cell(b, key, chance=False)}"
             for b in bars)
+    tally = speech.speaker_tally(speech_dir, model, key)
+    if tally:
+        text += (f"; per speaker, streaming it is "
+                 + speech.tally_text(tally, "unseen sentence speakers") + " "
+                 + _cite("speech_per_speaker"))
     return text + (f"; it closes the lips on {speech._cell(mine, 'bilabial_closed_frac')} of "
                    "/p b m/ segments (in brackets: chance) " + _cite("speech_unseen-test")
                    + ".")

@@ -175,6 +175,7 @@ class FileScores:
     seen: bool
     seconds: float
     part: str  # "dev" or "test" (analysis.speech_set)
+    kind: str  # "sentences" or "digits" (analysis.speech_set.SpeechItem.kind)
     labels: str  # "independent" of both recognisers, or "aligned" by pocketsphinx
     input_rate: str  # "native", "16000" or "8000"
     rate_note: str
@@ -198,7 +199,7 @@ class FileScores:
         vis_hits = self.viseme_acc * n
         return {"id": self.id, "speaker": self.speaker,
                 "split": "seen" if self.seen else "unseen", "part": self.part,
-                "labels": self.labels, "input_rate": self.input_rate,
+                "kind": self.kind, "labels": self.labels, "input_rate": self.input_rate,
                 "rate_note": self.rate_note, "seconds": round(self.seconds, 3),
                 "frames": n, "speech_frames": self.speech_frames,
                 "phone_acc": self.phone_acc, "phone_hits": self.phone_acc * n,
@@ -287,7 +288,7 @@ def score_file(animator: FaceAnimator, item, synth: SynthConfig, seed: int, *, s
     sel = true != PHONES.index("sil")
     return FileScores(
         id=item.id, speaker=item.speaker, seen=seen, seconds=len(y) / sr, part=item.part,
-        labels="independent" if item.independent else "aligned", input_rate=str(rate),
+        kind=item.kind, labels="independent" if item.independent else "aligned", input_rate=str(rate),
         rate_note=note, phone_acc=phone_acc, viseme_acc=vis_acc, stream=stream,
         bilabial=segment_contact(opening, fps, item.phones, BILABIALS, threshold),
         labiodental=segment_contact(opening, fps, item.phones, LABIODENTALS, threshold),

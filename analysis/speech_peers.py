@@ -68,7 +68,7 @@ def peer_scores(items, set_dir, synth, seed: int, *, seen=frozenset(), fps: int 
             sel = true != PHONE_INDEX["sil"]
             row = {"model": peer, "id": it.id, "speaker": it.speaker,
                    "split": "seen" if it.speaker in seen else "unseen", "part": it.part,
-                   "labels": "independent" if it.independent else "aligned",
+                   "kind": it.kind, "labels": "independent" if it.independent else "aligned",
                    "input_rate": NATIVE, "rate_note": note, "seconds": round(len(y) / sr, 3),
                    "frames": n, "speech_frames": n_speech, stream_key: float("nan"),
                    "r_reference": correlation(opening[sel], ref[sel]), "r_terms": terms}

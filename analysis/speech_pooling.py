@@ -24,6 +24,12 @@ SPLITS = {
     "all": lambda r: True,
     "test": lambda r: r["part"] == "test",
     "unseen-dev": lambda r: r["split"] == "unseen" and r["part"] == "dev",
+    # the development part's two kinds of recording (analysis.speech_set.SpeechItem.kind), which
+    # the development rule weighs apart (analysis.dev_rule)
+    "unseen-dev-sentences": lambda r: (r["split"] == "unseen" and r["part"] == "dev"
+                                       and r.get("kind") == "sentences"),
+    "unseen-dev-digits": lambda r: (r["split"] == "unseen" and r["part"] == "dev"
+                                    and r.get("kind") == "digits"),
     "unseen-test": lambda r: r["split"] == "unseen" and r["part"] == "test",
     "unseen-test-independent": lambda r: (r["split"] == "unseen" and r["part"] == "test"
                                           and r["labels"] == "independent"),
@@ -191,8 +197,9 @@ def summarise(per_file: list, stream_key: str, *, splits=tuple(SPLITS),
 
 def per_speaker(per_file: list, stream_key: str, *, part: str = "test",
                 input_rate: str = "native") -> list:
-    """Model × speaker on the ``part`` recordings at ``input_rate``: recordings, seconds,
-    seen or not, viseme accuracy (offline and streaming), closure and r, with chance."""
+    """Model × speaker on the ``part`` recordings at ``input_rate``: the speaker's kind of
+    recording (sentences or digits, :attr:`analysis.speech_set.SpeechItem.kind`), recordings,
+    seconds, seen or not, viseme accuracy (offline and streaming), closure and r, with chance."""
     out = []
     rows = [r for r in per_file if r["part"] == part
             and str(r.get("input_rate", "native")) == input_rate]
@@ -202,6 +209,7 @@ def per_speaker(per_file: list, stream_key: str, *, part: str = "test",
             sel = [r for r in mine if r["speaker"] == spk]
             pooled_row = pool_rows(sel, "all", stream_key)
             out.append({"model": model, "speaker": spk, "seen": sel[0]["split"] == "seen",
+                        "kind": "/".join(sorted({str(r.get("kind") or "") for r in sel})),
                         "input_rate": input_rate, "files": len(sel),
                         "seconds": pooled_row["seconds"], "frames": int(sum(
                             _f(r, "frames") for r in sel)),

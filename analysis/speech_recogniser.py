@@ -248,7 +248,7 @@ def recogniser_scores(items, seen=frozenset(), *, delay_s: float = 0.1, fps: int
                     chance = chance_scores(true, fps, it.phones, visemes=vis)
                     row = {"model": name, "id": it.id, "speaker": it.speaker,
                            "split": "seen" if it.speaker in own else "unseen", "part": it.part,
-                           "labels": LABELS[0] if it.independent else LABELS[1],
+                           "kind": it.kind, "labels": LABELS[0] if it.independent else LABELS[1],
                            "input_rate": str(rate), "rate_note": note,
                            "seconds": round(len(y) / sr, 3), "frames": n,
                            "phone_acc": float(hits["phone"].mean()),

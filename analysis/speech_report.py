@@ -14,7 +14,7 @@ from pathlib import Path
 
 from analysis.config import TargetsConfig
 from analysis.speaker_bootstrap import N_BOOT, SEED, speaker_interval
-from analysis.dev_rule import (LATENCY_FILE, deciding_half, dev_choice, dev_parts,
+from analysis.dev_rule import (LATENCY_FILE, audio_splits, deciding_half, dev_choice, dev_parts,
                                excluded_by_latency, latency_p99, lip_rule_figures,
                                read_latency)
 from analysis.speech_pooling import SPLITS as KEEP
@@ -255,10 +255,14 @@ def _dev_rule(rep, results: list, speech_dir: Path, robust: str | None,
     lips = bool(lip_rule_figures(real_faces))
     decided = (deciding_half(dev_parts(results, real_faces=real_faces), best, scores, out)
                if best is not None else "")
-    rule = ("half the mean of viseme accuracy, /p b m/ closure, /f v/ contact and r on the "
-            "development recordings, half the mean of lip r on speech frames and /p b m/ "
+    kinds = audio_splits(results)
+    heard = ("the mean of viseme accuracy, /p b m/ closure, /f v/ contact and r on the "
+             "development recordings" + (" (each kind's figures it measures: sentences, GRID "
+                                         "s26, and digits, FSDD, weighed equally)"
+                                         if len(kinds) > 1 else ""))
+    rule = (f"half {heard}, half the mean of lip r on speech frames and /p b m/ "
             "closed on the development faces (real_faces, GRID s26)" if lips else
-            "the highest mean of viseme accuracy, /p b m/ closure, /f v/ contact and r")
+            f"the highest of {heard}")
     rep.paragraph(
         "The development rule, computed on the development part only (unseen speakers, "
         "independent labels; a configuration may be chosen there, never on the test part): "
@@ -316,31 +320,85 @@ def _json(path: Path) -> dict:
     return json.loads(path.read_text(encoding="utf-8")) if path.is_file() else {}
 
 
-def _per_speaker(rep, speech_dir: Path, default: str) -> None:
-    rows = _rows(speech_dir / "per_speaker.csv")
-    mine = [r for r in rows if r["model"] == default]
-    if not mine:
-        return
-    recs = list(dict.fromkeys(r["model"] for r in rows if r["model"].startswith(RECOGNISERS)))
+PHONES_FED = "voices-one-voice-phones-labels"  # the mapping gated by pocketsphinx's phones
+
+
+def speaker_tally(speech_dir: Path, default: str, key: str, *, input_rate: str = "native",
+                  kind: str = "sentences") -> dict | None:
+    """On the test part's unseen ``kind`` speakers at ``input_rate`` (``per_speaker.csv``),
+    ``{"better": speakers where ``default``'s ``key`` figure is at least pocketsphinx's,
+    "speakers": every such speaker with both figures, "pocketsphinx": its model name}``; None
+    when the run scored no pocketsphinx or the default on such a speaker."""
+    rows = [r for r in _rows(speech_dir / "per_speaker.csv")
+            if r.get("input_rate", "native") == input_rate and r.get("kind") == kind
+            and r.get("seen") != "True"]
+    ps = next((r["model"] for r in rows if r["model"].startswith("pocketsphinx")), None)
+    if ps is None:
+        return None
     by = {(r["model"], r["speaker"]): r for r in rows}
-    body = []
-    for r in mine:
-        cells = [r["speaker"], "yes" if r["seen"] == "True" else "", r["files"], r["seconds"],
-                 f"{_num(r.get('viseme_acc'))} ({_num(r.get('chance_viseme_acc'))})",
-                 f"{_num(r.get('bilabial_closed_frac'))} "
-                 f"({_num(r.get('chance_bilabial_closed_frac'))})",
-                 f"{_num(r.get('r_reference'))} ({_num(r.get('chance_r_reference'))})"]
-        cells += [_num(by.get((m, r["speaker"]), {}).get("viseme_acc")) for m in recs]
-        body.append(cells)
-    rep.paragraph("{label:speech_per_speaker} splits the test part by speaker: the pooled "
-                  "figures above are these rows weighted by their frames and segments, so a "
-                  "speaker with many recordings weighs as much as its recordings do.")
-    rep.table(f"Per speaker, test part, native input rate: {default} and the recognisers' "
-              "viseme accuracy (every system: per_speaker.csv)",
-              ["speaker", "seen", "recordings", "seconds", "viseme acc", "/p b m/ closed",
-               "r speech frames", *[f"{m.split()[0]} viseme acc" for m in recs]], body,
-              note="(c): chance baseline. No intervals: one speaker per row.",
-              key="speech_per_speaker")
+    speakers, better = [], []
+    for spk in sorted({r["speaker"] for r in rows}):
+        a, b = by.get((default, spk), {}).get(key), by.get((ps, spk), {}).get(key)
+        try:
+            a, b = float(a), float(b)
+        except (TypeError, ValueError):
+            continue
+        if math.isfinite(a) and math.isfinite(b):
+            speakers.append(spk)
+            if a >= b:
+                better.append(spk)
+    return {"better": better, "speakers": speakers, "pocketsphinx": ps} if speakers else None
+
+
+def tally_text(t: dict | None, what: str) -> str:
+    """``"at least pocketsphinx's on N of M sentence speakers (names)"``, or empty."""
+    if not t:
+        return ""
+    return (f"at least pocketsphinx's on {len(t['better'])} of {len(t['speakers'])} "
+            f"{what} (" + (", ".join(t["better"]) or "none") + ")")
+
+
+def _per_speaker(rep, speech_dir: Path, default: str) -> None:
+    every = _rows(speech_dir / "per_speaker.csv")
+    key = next((k for k in (every[0] if every else {}) if k.startswith("viseme_acc_stream_")),
+               "viseme_acc_stream_100ms")
+    ms = key.rsplit("_", 1)[-1]
+    systems = list(dict.fromkeys(
+        [r["model"] for r in every if r["model"].startswith(RECOGNISERS)]
+        + [m for m in (PHONES_FED,) if m != default and any(r["model"] == m for r in every)]))
+    for rate, label in (("native", "native input rate"), ("16000", "16 kHz")):
+        rows = [r for r in every if r.get("input_rate", "native") == rate]
+        mine = [r for r in rows if r["model"] == default]
+        if not mine:
+            continue
+        by = {(r["model"], r["speaker"]): r for r in rows}
+        body = []
+        for r in sorted(mine, key=lambda r: (r.get("kind") != "sentences", r["speaker"])):
+            cells = [r["speaker"], r.get("kind", ""), "yes" if r["seen"] == "True" else "",
+                     r["files"], f"{_num(r.get('viseme_acc'))} ({_num(r.get('chance_viseme_acc'))})",
+                     _num(r.get(key)),
+                     f"{_num(r.get('bilabial_closed_frac'))} "
+                     f"({_num(r.get('chance_bilabial_closed_frac'))})",
+                     f"{_num(r.get('r_reference'))} ({_num(r.get('chance_r_reference'))})"]
+            cells += [_num(by.get((m, r["speaker"]), {}).get(key)) for m in systems]
+            body.append(cells)
+        k = "speech_per_speaker" if rate == "native" else f"speech_per_speaker_{rate}"
+        tally = speaker_tally(speech_dir, default, key, input_rate=rate)
+        rep.paragraph(
+            f"{{label:{k}}} splits the test part by speaker ({label}): the pooled figures "
+            "above are these rows weighted by their frames and segments, so a speaker with "
+            "many recordings weighs as much as its recordings do. Streaming at "
+            f"{ms}, {default}'s viseme accuracy is "
+            + (tally_text(tally, "unseen sentence speakers") or "not compared with "
+               "pocketsphinx's (not scored)") + ".")
+        rep.table(f"Per speaker, test part, {label}: {default}, the recognisers and the "
+                  f"pocketsphinx-fed model (every system: per_speaker.csv)",
+                  ["speaker", "kind", "seen", "recordings", "viseme acc", f"stream {ms}",
+                   "/p b m/ closed", "r speech frames",
+                   *[f"{m.split()[0]} stream {ms}" for m in systems]], body,
+                  note="(c): chance baseline. No intervals: one speaker per row. Kind: "
+                       "sentences (continuous speech) or digits (isolated words).",
+                  key=k)
 
 
 def _comparisons(rep, speech_dir: Path, default: str, key: str) -> None:

@@ -94,6 +94,13 @@ class SpeechItem:
         return len(self.audio) / self.sr
 
     @property
+    def kind(self) -> str:
+        """``digits`` for an isolated spoken word (``label_source`` :data:`FSDD_WORDS`: the file is
+        the word), else ``sentences`` (continuous speech): the two kinds of recording the
+        development rule weighs apart (:mod:`analysis.dev_rule`)."""
+        return "digits" if self.label_source == FSDD_WORDS else "sentences"
+
+    @property
     def independent(self) -> bool:
         """Its labels were made independently of both phone recognisers compared on the set
         (``label_source`` in :data:`INDEPENDENT_SOURCES`)."""

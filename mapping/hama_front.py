@@ -61,17 +61,17 @@ OUTPUT_HOP = 320  # samples of 16 kHz audio per output frame (20 ms)
 OUTPUT_FPS = HAMA_RATE // OUTPUT_HOP  # 50
 # The four timing settings below are chosen on the development part of the real-speech set by
 # `python tools/choose_hama_timing.py` (it prints the sweep; `--check` fails when these differ).
-SPIKE_LAG = 0  # output frames from a phone to its spike
-REACH = 7  # output frames a spike labels on each side at most
+SPIKE_LAG = 1  # output frames from a phone to its spike
+REACH = 6  # output frames a spike labels on each side at most
 BOUNDARY = 0.65  # where between two spikes the labels change, as a fraction of the way
-EDGE = True  # a frame whose spike lies past the decode's end reads the decode's last frame
+EDGE = False  # a frame whose spike lies past the decode's end reads the decode's last frame
 WINDOW_S = 1.0  # seconds of audio each streaming decode reads
 HOP_FRAMES = 3  # video frames between streaming decodes
 MIN_DECODE_SAMPLES = OUTPUT_HOP  # a decode needs one output frame of audio
 # soxr's resampler quality for the streams (chosen by tools/choose_hama_timing.py on the streams
 # at 22,050 Hz and a 100-ms look-ahead): "QQ" is the quick (cubic) one, with no delay; the others
 # filter better but hold some audio back, which a bounded look-ahead pays for
-RESAMPLE_QUALITY = "MQ"
+RESAMPLE_QUALITY = "LQ"
 RESAMPLE_QUALITIES = ("QQ", "LQ", "MQ", "HQ", "VHQ")  # soxr's, quickest first
 SILENCE = PHONE_INDEX["sil"]
 RECOGNISER_NAME = "hama-1.7.0 phoneme CTC"

@@ -5,8 +5,10 @@ development rule's pick on the run's real-speech results.
 
 Reads ``RUN_DIR/speech_eval/results.csv`` (the ``speech_eval`` stage's table) and prints, for
 every voices child (models named ``voices-<child>``), its figures on the unseen development
-recordings (``split`` = ``unseen-dev``) named by :data:`analysis.dev_rule.DEV_RULE` and the
-rule's score, their mean; the pick is :func:`analysis.dev_rule.dev_choice`'s (the highest
+recordings named by :data:`analysis.dev_rule.DEV_RULE`, per kind (sentences, digits:
+``split`` ``unseen-dev-sentences``, ``unseen-dev-digits``; the pooled ``unseen-dev`` for a run
+without kinds), the audio half (the mean over the kinds of each kind's mean) and the rule's
+score; the pick is :func:`analysis.dev_rule.dev_choice`'s (the highest
 score; an exact tie goes to the name later in alphabetical order, as ``dev_choice`` breaks it). A
 child without finite development figures has no score.
 
@@ -41,10 +43,11 @@ if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
 from analysis.config import TargetsConfig  # noqa: E402
-from analysis.dev_rule import (AUDIO_WEIGHT, DEV_RULE, LATENCY_FILE,  # noqa: E402
-                               LIP_RULE, LIP_WEIGHT, deciding_half, dev_choice, dev_parts,
-                               dev_rule_figures, excluded_by_latency, latency_p99,
-                               lip_rows, lip_rule_figures, read_latency)
+from analysis.dev_rule import (AUDIO_KINDS, AUDIO_WEIGHT, DEV_RULE,  # noqa: E402
+                               LATENCY_FILE, LIP_RULE, LIP_WEIGHT, dev_rows, audio_splits,
+                               deciding_half, dev_choice, dev_parts, dev_rule_figures,
+                               excluded_by_latency, latency_p99, lip_rows, lip_rule_figures,
+                               read_latency)
 from groundwork.errors import CorpusError, ParameterError  # noqa: E402
 from groundwork.settings import SettingError  # noqa: E402
 
@@ -98,41 +101,45 @@ def run_bound(run_dir) -> float:
 
 def choose(results: list[dict], latency: dict | None = None,
            bound_ms: float | None = None, faces: list[dict] | None = None) -> dict:
-    """``{"rows": per-child development figures (audio and lips), score and latency, "pick":
-    child or None, "figures", "lip_figures", "decided", "bound_ms", "latency_measured",
-    "excluded": children the bound excluded}``; ``latency``:
-    :func:`analysis.dev_rule.read_latency`'s contents (None: not measured, no bound applied);
-    ``faces``: the ``real_faces`` stage's rows (:func:`read_faces`)."""
+    """``{"rows": per-child development figures (each kind's audio figures, lips), score and
+    latency, "pick": child or None, "kinds": the audio half's splits, "figures": {split: the
+    figures it measures}, "lip_figures", "decided", "bound_ms", "latency_measured", "excluded":
+    children the bound excluded}``; ``latency``: :func:`analysis.dev_rule.read_latency`'s
+    contents (None: not measured, no bound applied); ``faces``: the ``real_faces`` stage's rows
+    (:func:`read_faces`)."""
     p99 = latency_p99(latency)
     best, scores = dev_choice(results, prefix=PREFIX, latency=p99, bound_ms=bound_ms,
                               real_faces=faces)
     out = excluded_by_latency(results, p99, bound_ms, prefix=PREFIX)
     lips = lip_rows(faces, prefix=PREFIX)
     parts = dev_parts(results, PREFIX, faces)
+    kinds = audio_splits(results, PREFIX)
+    by_kind = {k: dev_rows(results, PREFIX, k) for k in kinds}
     measured = (latency or {}).get("models") or {}
     rows = []
-    for r in results:
-        if r.get("split") != SPLIT or not r.get("model", "").startswith(PREFIX):
-            continue
-        row = {"child": r["model"][len(PREFIX):]}
-        for k in DEV_RULE:
-            try:
-                row[k] = float(r.get(k, "nan"))
-            except (TypeError, ValueError):
-                row[k] = float("nan")
+    for model in sorted(dev_rows(results, PREFIX, SPLIT)):
+        row = {"child": model[len(PREFIX):]}
+        for k in kinds:
+            for fig in DEV_RULE:
+                row[f"{AUDIO_KINDS.get(k, 'all')}:{fig}"] = by_kind[k].get(model, {}).get(
+                    fig, float("nan"))
+        pooled = next(r for r in results if r.get("split") == SPLIT and r["model"] == model
+                      and str(r.get("input_rate") or "native") == "native")
         for k in ("files", "seconds"):
-            if r.get(k) not in (None, ""):
-                row[k] = r[k]
+            if pooled.get(k) not in (None, ""):
+                row[k] = pooled[k]
+        row["audio"] = parts[model]["audio"] if model in parts else None
         for k in LIP_RULE:
-            row[f"lip_{k}"] = lips.get(r["model"], {}).get(k, float("nan"))
-        row["score"] = scores.get(r["model"])
+            row[f"lip_{k}"] = lips.get(model, {}).get(k, float("nan"))
+        row["score"] = scores.get(model)
         for k in ("latency_p50_ms", "latency_p99_ms"):
-            row[k] = measured.get(r["model"], {}).get(k)
-        row["excluded"] = r["model"] in out
+            row[k] = measured.get(model, {}).get(k)
+        row["excluded"] = model in out
         rows.append(row)
     rows.sort(key=lambda row: (row["score"] is None, -(row["score"] or 0.0), row["child"]))
     return {"rows": rows, "pick": best[len(PREFIX):] if best else None,
-            "figures": list(dev_rule_figures(results, prefix=PREFIX)),
+            "kinds": list(kinds),
+            "figures": {k: list(dev_rule_figures(results, PREFIX, k)) for k in kinds},
             "lip_figures": list(lip_rule_figures(faces, prefix=PREFIX)),
             "decided": deciding_half(parts, best, scores, out) if best else None,
             "bound_ms": bound_ms if latency is not None else None,
@@ -144,28 +151,38 @@ def _ms(v) -> str:
     return "–" if v is None else f"{v:.0f}"
 
 
+def _f(v) -> str:
+    return "–" if v is None or v != v else f"{v:.3f}"
+
+
 def table(result: dict, current: str | None) -> str:
+    kinds = result.get("kinds") or [SPLIT]
+    figures = result.get("figures") or {k: list(DEV_RULE) for k in kinds}
+    audio_cols = [f"{AUDIO_KINDS.get(k, 'all')}:{fig}" for k in kinds for fig in figures[k]]
     lip_cols = [f"lip_{k}" for k in LIP_RULE]
-    cols = ("child", *DEV_RULE, *lip_cols, "score")
-    width = max([len(r["child"]) for r in result["rows"]] + [5])
-    used = result.get("figures") or list(DEV_RULE)
-    left = [k for k in DEV_RULE if k not in used]
     lip_used = result.get("lip_figures") or []
-    audio = ("mean of " + ", ".join(used) + (f" ({', '.join(left)}: not measured on the "
-                                            "development part, left out for every child)"
-                                            if left else ""))
-    lines = [f"voices children on the unseen development recordings ({SPLIT}) and the "
+    halves = []
+    for k in kinds:
+        left = [f for f in DEV_RULE if f not in figures[k]]
+        halves.append(f"{AUDIO_KINDS.get(k, 'all')} ({k}): mean of " + ", ".join(figures[k])
+                      + (f"; {', '.join(left)}: not measured on the development part, left "
+                         "out for every child" if left else ""))
+    audio = ("mean of the kinds, equally weighed: " if len(kinds) > 1 else "") + "; ".join(halves)
+    lines = [f"voices children on the unseen development recordings ({', '.join(kinds)}) and the "
              "development faces (real_faces, part dev, native rate); score = "
-             + (f"{AUDIO_WEIGHT:g} x audio ({audio}) + {LIP_WEIGHT:g} x lips (mean of "
+             + (f"{AUDIO_WEIGHT:g} x audio [{audio}] + {LIP_WEIGHT:g} x lips (mean of "
                 + ", ".join(lip_used) + ")" if lip_used else
-                f"audio alone ({audio}): the run scored no development faces"),
-             f"{cols[0]:<{width}}" + "".join(f"{c:>26}" for c in cols[1:])
-             + f"{'latency p50 ms':>16}{'p99 ms':>16}"]
+                f"audio alone [{audio}]: the run scored no development faces")]
+    cols = audio_cols + ["audio"] + lip_cols + ["score"]
+    width = max([len(r["child"]) for r in result["rows"]] + [5])
+    cw = max([len(c) for c in cols] + [8]) + 2
+    lines.append(f"{'child':<{width}}" + "".join(f"{c:>{cw}}" for c in cols)
+                 + f"{'latency p50 ms':>16}{'p99 ms':>16}")
     for r in result["rows"]:
         score = "no score" if r["score"] is None else f"{r['score']:.3f}"
-        lines.append(f"{r['child']:<{width}}" + "".join(f"{r[k]:>26.3f}" for k in DEV_RULE)
-                     + "".join(f"{r.get(k, float('nan')):>26.3f}" for k in lip_cols)
-                     + f"{score:>26}" + f"{_ms(r.get('latency_p50_ms')):>16}"
+        lines.append(f"{r['child']:<{width}}"
+                     + "".join(f"{_f(r.get(c)):>{cw}}" for c in audio_cols + ["audio"] + lip_cols)
+                     + f"{score:>{cw}}" + f"{_ms(r.get('latency_p50_ms')):>16}"
                      + f"{_ms(r.get('latency_p99_ms')):>16}"
                      + ("   over the bound" if r.get("excluded") else ""))
     lines.append("rule: the highest score (analysis/dev_rule.py dev_choice); an exact tie "

@@ -1,16 +1,21 @@
-"""Phone labels for GRID speaker s1 sentences of the real-speech evaluation set, made without
-either phone recogniser the set compares (``analysis/real_speech/grid/``).
+"""Phone labels for the GRID sentences of the real-speech evaluation set, made without either
+phone recogniser the set compares: speaker s1 (``analysis/real_speech/grid/``, test part),
+s26 (``grid-s26/``, development part) and s31 (``grid-s31/``, test part).
 
-    python tools/grid_speech_labels.py [--set-dir DIR] [--align-dir DIR] [--check] [--measure]
+    python tools/grid_speech_labels.py [--set-dir DIR] [--align-dir DIR] [--more-dir DIR]
+                                       [--check] [--measure]
 
-Sentences: every :data:`STEP`-th id, in sorted order and starting with the first, of the 196
-sentences of the built-in real corpus (``face_model/real_faces/grid-s1/manifest.csv``): 40.
-Their audio is not copied; the manifest points at the corpus's FLAC (22,050 Hz) by a relative
-path and the set's loader resamples it to 16 kHz.
+Sentences (:data:`SPEAKERS`): of s1, every :data:`STEP`-th id, in sorted order and starting with
+the first, of the 196 sentences of the built-in real corpus
+(``face_model/real_faces/grid-s1/manifest.csv``): 40; of s26 and s31, every sentence of their
+built-in real corpora (``face_model/real_faces/grid-s26``, ``grid-s31``): 10 each. s26 is the
+speech set's development speaker of sentences and s31 a test speaker, as they are for the real
+faces (``../shared/grid-more/README.md``). Their audio is not copied; the manifest points at each
+corpus's FLAC (22,050 Hz) by a relative path and the set's loader resamples it to 16 kHz.
 
 Labels (``label_source`` :data:`analysis.speech_set.GRID_WORDS`), for each sentence:
 
-* the word boundaries are GRID's own (``grid/<id>.align``, GRID's word alignment copied
+* the word boundaries are GRID's own (``<folder>/<id>.align``, GRID's word alignment copied
   unchanged, times in 1/25000 s, read by :func:`face_model.transcripts.read_align`); ``sil``,
   ``sp`` and gaps are ``sil``; the final silence is cut where the audio ends (GRID's last line
   ends at 2.98 s, the corpus's audio at 89/30 = 2.967 s);
@@ -26,12 +31,14 @@ Labels (``label_source`` :data:`analysis.speech_set.GRID_WORDS`), for each sente
 An ``.align`` whose entries end more than :data:`COVER_TOLERANCE_S` before the audio does, or
 with a word running past the end of the audio, is refused naming the file.
 
-Written: ``grid/<id>.align`` (from ``--align-dir``, default: the copies already in the set),
-``grid/<id>.csv``, ``grid/NOTICE.md`` and the manifest's ``grid-s1`` rows (replaced; the other
-rows are kept as they are). ``--check`` writes nothing: it regenerates every file in memory and
-exits 1 naming each that differs. ``--measure`` prints the labels' quality figures (the
-README's): /p b m/ segments against the real lips' closed level, and viseme agreement per
-30 fps frame with the built-in corpus's pocketsphinx-aligned phones.
+Written: each speaker's ``<folder>/<id>.align`` (s1's from ``--align-dir``, s26's and s31's from
+``--more-dir``'s ``<s26|s31>/align/`` (GRID's own layout, e.g. ``../shared/grid-more``); default:
+the copies already in the set), ``<folder>/<id>.csv``, ``<folder>/NOTICE.md`` and the manifest's
+rows of the three speakers (replaced; the other rows are kept as they are). ``--check`` writes
+nothing: it regenerates every file in memory and exits 1 naming each that differs. ``--measure``
+prints the labels' quality figures for s1 (the README's): /p b m/ segments against the real
+lips' closed level, and viseme agreement per 30 fps frame with the built-in corpus's
+pocketsphinx-aligned phones.
 """
 from __future__ import annotations
 
@@ -60,40 +67,80 @@ from face_model.transcripts import read_align  # noqa: E402
 from groundwork.audio import read_wav  # noqa: E402
 from groundwork.errors import CorpusError  # noqa: E402
 
-BUILTIN = REPO / "face_model" / "real_faces" / "grid-s1"
-STEP = 5  # every 5th sentence of the built-in corpus, in sorted id order
+from dataclasses import dataclass  # noqa: E402
+
+REAL_FACES = REPO / "face_model" / "real_faces"
+BUILTIN = REAL_FACES / "grid-s1"
+STEP = 5  # every 5th sentence of the built-in corpus of s1, in sorted id order
 SUBDIR = "grid"
 SPEAKER = "grid-s1"  # the built-in real corpus's speaker id
 COVER_TOLERANCE_S = 0.04  # one GRID video frame (25 fps): how far short of the audio it may end
 FPS = 30
-LICENCE = ("GRID corpus (Cooke, Barker, Cunningham & Shao 2006), CC BY 4.0 "
-           f"({SUBDIR}/NOTICE.md)")
-NOTICE = f"""# GRID speaker s1: word alignments and derived phone labels
+SOURCE = ('the GRID corpus, M. Cooke, J. Barker, S. Cunningham, X. Shao (2006), "An audio-visual\n'
+          'corpus for speech perception and automatic speech recognition", *JASA* 120(5):2421–2424;\n'
+          'released on Zenodo (record 3625687) under the Creative Commons Attribution 4.0 licence\n'
+          '(https://creativecommons.org/licenses/by/4.0/).')
 
-The `.align` files here are the GRID corpus's own word alignments of 40 sentences of speaker s1
-(every {STEP}th sentence of the built-in real corpus `face_model/real_faces/grid-s1`), copied
-unchanged: one `start end word` per line, times in 1/25000 s, `sil` and `sp` silence.
+
+@dataclass(frozen=True)
+class GridSpeaker:
+    """One GRID speaker of the set: its speaker id, built-in corpus, folder in the set, every
+    ``step``-th sentence of the corpus (sorted ids), its part and a line on who it is."""
+    speaker: str
+    corpus: Path
+    subdir: str
+    step: int
+    part: str
+    who: str
+
+    @property
+    def short(self) -> str:
+        return self.speaker.split("-", 1)[1]  # s1, s26, s31
+
+    @property
+    def licence(self) -> str:
+        return ("GRID corpus (Cooke, Barker, Cunningham & Shao 2006), CC BY 4.0 "
+                f"({self.subdir}/NOTICE.md)")
+
+
+SPEAKERS = (
+    GridSpeaker(SPEAKER, BUILTIN, SUBDIR, STEP, "test", "the real speaker"),
+    GridSpeaker("grid-s26", REAL_FACES / "grid-s26", "grid-s26", 1, "dev",
+                "a man; the development speaker of sentences, never trained on"),
+    GridSpeaker("grid-s31", REAL_FACES / "grid-s31", "grid-s31", 1, "test",
+                "a woman; a test speaker, never trained on"),
+)
+LICENCE = SPEAKERS[0].licence
+
+
+def notice(sp: GridSpeaker, n: int) -> str:
+    """The ``NOTICE.md`` beside a speaker's labels (``n`` sentences)."""
+    which = (f"every {sp.step}th sentence of the built-in real corpus "
+             f"`face_model/real_faces/{sp.corpus.name}`" if sp.step > 1 else
+             f"every sentence of the built-in real corpus `face_model/real_faces/{sp.corpus.name}`")
+    return f"""# GRID speaker {sp.short}: word alignments and derived phone labels
+
+The `.align` files here are the GRID corpus's own word alignments of {n} sentences of speaker
+{sp.short} ({sp.who}; {which}), copied unchanged: one `start end word` per line, times in 1/25000 s,
+`sil` and `sp` silence. In the real-speech set they are the `{sp.part}` part.
 
 The `.csv` files are **derived (modified) labels** made from them by
 `tools/grid_speech_labels.py`: GRID's word boundaries kept, `sil` and `sp` written `sil`, the
 final silence cut where the audio ends, and each word divided into its phones (the project's 44
 classes) with the relative durations espeak-ng gives the word spoken alone, scaled into GRID's
 word span. The audio they label is the built-in corpus's FLAC
-(`face_model/real_faces/grid-s1/audio/<id>.flac`: GRID's audio track resampled to 22,050 Hz;
-see `face_model/real_faces/grid-s1/NOTICE.md`).
+(`face_model/real_faces/{sp.corpus.name}/audio/<id>.flac`: GRID's audio track resampled to 22,050 Hz;
+see `face_model/real_faces/{sp.corpus.name}/NOTICE.md`).
 
-Source: the GRID corpus, M. Cooke, J. Barker, S. Cunningham, X. Shao (2006), "An audio-visual
-corpus for speech perception and automatic speech recognition", *JASA* 120(5):2421–2424;
-released on Zenodo (record 3625687) under the Creative Commons Attribution 4.0 licence
-(https://creativecommons.org/licenses/by/4.0/).
+Source: {SOURCE}
 """
 
 
-def subset_ids(corpus_dir=BUILTIN) -> list[str]:
-    """The sentences labelled: every :data:`STEP`-th id of the corpus, sorted, from the first."""
+def subset_ids(corpus_dir=BUILTIN, step: int = STEP) -> list[str]:
+    """The sentences labelled: every ``step``-th id of the corpus, sorted, from the first."""
     with open(Path(corpus_dir) / "manifest.csv", newline="", encoding="utf-8") as f:
         ids = sorted(row["utt_id"] for row in csv.DictReader(f))
-    return ids[::STEP]
+    return ids[::step]
 
 
 def sentence_labels(align_path, duration_s: float, phones: dict) -> list[PhoneSegment]:
@@ -133,27 +180,30 @@ def _csv_bytes(segs) -> bytes:
         return write_labels(Path(tmp) / "x.csv", segs).read_bytes()
 
 
-def manifest_rows(set_dir, ids, aligns: dict) -> list[dict]:
-    """The manifest rows of the GRID sentences (``aligns``: id → .align path)."""
+def manifest_rows(set_dir, ids, aligns: dict, sp: GridSpeaker = SPEAKERS[0]) -> list[dict]:
+    """The manifest rows of one speaker's GRID sentences (``aligns``: id → .align path)."""
     rows = []
     for utt in ids:
-        wav = os.path.relpath(BUILTIN / "audio" / f"{utt}.flac", set_dir)
-        rows.append({"id": f"grid_s1_{utt}", "wav": Path(wav).as_posix(),
-                     "labels": f"{SUBDIR}/{utt}.csv", "speaker": SPEAKER,
+        wav = os.path.relpath(sp.corpus / "audio" / f"{utt}.flac", set_dir)
+        rows.append({"id": f"grid_{sp.short}_{utt}", "wav": Path(wav).as_posix(),
+                     "labels": f"{sp.subdir}/{utt}.csv", "speaker": sp.speaker,
                      "label_source": GRID_WORDS,
-                     "label_origin": f"{SUBDIR}/{utt}.align", "part": "test",
-                     "transcript": read_align(aligns[utt]).text, "licence": LICENCE})
+                     "label_origin": f"{sp.subdir}/{utt}.align", "part": sp.part,
+                     "transcript": read_align(aligns[utt]).text, "licence": sp.licence})
     return rows
 
 
-def _manifest_bytes(set_dir: Path, grid_rows: list[dict]) -> bytes:
+def _manifest_bytes(set_dir: Path, grid_rows: dict) -> bytes:
+    """The manifest with each speaker's rows (``grid_rows``: speaker → rows) in place of its
+    old ones (at the first old row's place, else at the end), every other row as it was."""
     with open(set_dir / MANIFEST, newline="", encoding="utf-8") as f:
         reader = csv.DictReader(f)
         columns = reader.fieldnames
         rows = list(reader)
-    ours = [i for i, r in enumerate(rows) if r["speaker"] == SPEAKER]
-    at = ours[0] if ours else len(rows)  # in place of the old rows, else at the end
-    rows = rows[:at] + grid_rows + [r for r in rows[at:] if r["speaker"] != SPEAKER]
+    for speaker, new in grid_rows.items():
+        ours = [i for i, r in enumerate(rows) if r["speaker"] == speaker]
+        at = ours[0] if ours else len(rows)
+        rows = rows[:at] + new + [r for r in rows[at:] if r["speaker"] != speaker]
     buf = io.StringIO()
     w = csv.DictWriter(buf, columns, lineterminator="\n")
     w.writeheader()
@@ -161,28 +211,41 @@ def _manifest_bytes(set_dir: Path, grid_rows: list[dict]) -> bytes:
     return buf.getvalue().encode("utf-8")
 
 
-def build(set_dir=SET_DIR, align_dir=None) -> dict[str, bytes]:
-    """Every file the tool owns, ``{path relative to the set: contents}``, made in memory."""
+def build(set_dir=SET_DIR, align_dir=None, more_dir=None) -> dict[str, bytes]:
+    """Every file the tool owns, ``{path relative to the set: contents}``, made in memory.
+    ``align_dir``: s1's ``.align`` files; ``more_dir``: a folder with ``<s26|s31>/align/``
+    (default: the copies in the set, for each)."""
     set_dir = Path(set_dir)
-    align_dir = Path(align_dir) if align_dir else set_dir / SUBDIR
-    ids = subset_ids()
-    aligns = {u: align_dir / f"{u}.align" for u in ids}
-    phones = word_phones(w for u in ids for w in read_align(aligns[u]).text.split())
-    files = {}
-    for utt in ids:
-        files[f"{SUBDIR}/{utt}.align"] = aligns[utt].read_bytes()
-        segs = sentence_labels(aligns[utt], _duration(BUILTIN / "audio" / f"{utt}.flac"), phones)
-        files[f"{SUBDIR}/{utt}.csv"] = _csv_bytes(segs)
-    files[f"{SUBDIR}/NOTICE.md"] = NOTICE.encode("utf-8")
-    files[MANIFEST] = _manifest_bytes(set_dir, manifest_rows(set_dir, ids, aligns))
+    files, grid_rows, plan = {}, {}, []
+    for sp in SPEAKERS:
+        if sp.speaker == SPEAKER:
+            src = Path(align_dir) if align_dir else set_dir / sp.subdir
+        else:
+            src = Path(more_dir) / sp.short / "align" if more_dir else set_dir / sp.subdir
+        ids = subset_ids(sp.corpus, sp.step)
+        plan.append((sp, ids, {u: src / f"{u}.align" for u in ids}))
+    phones = word_phones(w for _, ids, aligns in plan for u in ids
+                         for w in read_align(aligns[u]).text.split())
+    for sp, ids, aligns in plan:
+        for utt in ids:
+            files[f"{sp.subdir}/{utt}.align"] = aligns[utt].read_bytes()
+            segs = sentence_labels(aligns[utt], _duration(sp.corpus / "audio" / f"{utt}.flac"),
+                                   phones)
+            files[f"{sp.subdir}/{utt}.csv"] = _csv_bytes(segs)
+        files[f"{sp.subdir}/NOTICE.md"] = notice(sp, len(ids)).encode("utf-8")
+        grid_rows[sp.speaker] = manifest_rows(set_dir, ids, aligns, sp)
+    files[MANIFEST] = _manifest_bytes(set_dir, grid_rows)
     return files
 
 
 def differences(set_dir=SET_DIR, files=None) -> list[str]:
     """The files (relative to the set) that differ from ``files`` (default: :func:`build`),
-    and any file in ``grid/`` the tool would not write."""
+    and any file in a speaker's folder the tool would not write."""
     files = build(set_dir) if files is None else files
-    return file_differences(set_dir, SUBDIR, files)
+    out = []
+    for sp in SPEAKERS:
+        out += [d for d in file_differences(set_dir, sp.subdir, files) if d not in out]
+    return out
 
 
 # -- quality of the labels --------------------------------------------------------------------
@@ -218,7 +281,7 @@ def measure(set_dir=SET_DIR) -> dict:
     set_dir = Path(set_dir)
     acc = {k: [] for k in ("grid_bil", "ps_bil", "grid_bil_c", "ps_bil_c", "grid_vow", "ps_vow",
                            "vis_all", "vis_speech", "ph_all", "ph_speech")}
-    ids, levels, spans = subset_ids(), [], []
+    ids, levels, spans = subset_ids(), [], []  # s1's sentences
     for utt in ids:
         duration = _duration(BUILTIN / "audio" / f"{utt}.flac")
         ours = read_labels(set_dir / SUBDIR / f"{utt}.csv", duration)
@@ -265,14 +328,29 @@ def main(argv=None) -> int:
     p.add_argument("--set-dir", type=Path, default=SET_DIR)
     p.add_argument("--align-dir", type=Path, default=None,
                    help="folder of GRID s1 .align files (default: the copies in the set)")
+    p.add_argument("--more-dir", type=Path, default=None,
+                   help="folder with GRID's s26/align and s31/align (e.g. ../shared/grid-more; "
+                        "default: the copies in the set)")
     p.add_argument("--check", action="store_true", help="compare with the shipped files")
     p.add_argument("--measure", action="store_true", help="print the labels' quality figures")
     args = p.parse_args(argv)
     if args.measure:
         print_measure(measure(args.set_dir))
         return 0
-    files = build(args.set_dir, args.align_dir)
-    return write_or_check(args.set_dir, SUBDIR, files, check=args.check)
+    try:
+        files = build(args.set_dir, args.align_dir, args.more_dir)
+    except (CorpusError, FileNotFoundError) as exc:
+        print(f"grid_speech_labels: {exc}", file=sys.stderr)
+        return 2
+    if args.check:
+        differ = differences(args.set_dir, files)
+        for rel in differ:
+            print(f"{args.set_dir / rel}: differs from what the tool makes", file=sys.stderr)
+        print(f"{len(files)} files checked, {len(differ)} differ")
+        return 1 if differ else 0
+    for sp in SPEAKERS:
+        (args.set_dir / sp.subdir).mkdir(exist_ok=True)
+    return write_or_check(args.set_dir, SUBDIR, files, check=False)
 
 
 if __name__ == "__main__":

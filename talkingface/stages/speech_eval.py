@@ -18,7 +18,7 @@ files named after it: ``FILE``, ``<stem>_per_file.csv``, ``<stem>.json``, ``<ste
                     model re-run on the resampled audio, every model with ``all_rates``;
                     the other models, recognisers and peers at the native rate)
     rates_per_file.csv  per model × recording at 16 kHz and 8 kHz
-    per_speaker.csv per system × speaker of the test part, native rate
+    per_speaker.csv per system × speaker of the test part, native rate and 16 kHz
     comparisons.csv the default model − each recogniser (streaming viseme accuracy at the
                     targets' look-ahead) and − each peer (viseme accuracy, closure, r) on the
                     same unseen test recordings, with paired speaker-level intervals
@@ -242,7 +242,7 @@ def _score(models, mappings, rates_of, items, files, key, default_model, set_dir
     summary_all = summarise(per_file, key)
     native = [r for r in per_file if r["input_rate"] == NATIVE]
     summary = [r for r in summary_all if r["input_rate"] == NATIVE]
-    speakers = speaker_rows(native, key)
+    speakers = speaker_rows(native, key) + speaker_rows(per_file, key, input_rate="16000")
     comparisons = _comparisons(native, default_model, others, key)
     write_csv(files["results"], summary)
     write_csv(files["per_file"], native)

@@ -1,7 +1,7 @@
-"""The GRID s1 part of the real-speech set: its shipped files are what the tool makes, its items
-load as 16 kHz audio (from the built-in corpus's 22,050 Hz FLAC) with labels covering it, its
-labels keep GRID's word boundaries, and only labels made without a recogniser count as
-independent."""
+"""The GRID parts of the real-speech set (s1 and s31 test, s26 development): its shipped files
+are what the tool makes, its items load as 16 kHz audio (from the built-in corpora's 22,050 Hz
+FLAC) with labels covering it, its labels keep GRID's word boundaries, and only labels made
+without a recogniser count as independent."""
 from __future__ import annotations
 
 import sys
@@ -33,6 +33,38 @@ def test_the_shipped_grid_files_are_what_the_tool_makes(built):
     assert tool.differences(files=built) == []
     assert len(tool.subset_ids()) == 40 == sum(k.startswith("grid/") and k.endswith(".csv")
                                               for k in built)
+    for sub in ("grid-s26", "grid-s31"):
+        assert sum(k.startswith(f"{sub}/") and k.endswith(".csv") for k in built) == 10
+        assert f"{sub}/NOTICE.md" in built and b"CC BY 4.0" not in built[f"{sub}/NOTICE.md"]
+        assert b"Creative Commons Attribution 4.0" in built[f"{sub}/NOTICE.md"]
+
+
+def test_s26_is_development_and_s31_test_with_their_own_faces_audio(grid_items):
+    by = {}
+    for it in grid_items:
+        by.setdefault(it.speaker, set()).add(it.part)
+    assert by == {"grid-s1": {"test"}, "grid-s26": {"dev"}, "grid-s31": {"test"}}
+    for it in grid_items:
+        assert it.wav.parent.parent.name == it.speaker  # face_model/real_faces/<speaker>/audio
+        assert it.id == f"grid_{it.speaker.split('-')[1]}_{it.wav.stem}"
+
+
+def test_an_extra_file_in_a_new_speakers_folder_is_named(built, tmp_path):
+    import shutil
+    set_dir = tmp_path / "set"
+    shutil.copytree(tool.SET_DIR, set_dir, ignore=shutil.ignore_patterns("fsdd", "*.wav"))
+    (set_dir / "grid-s31" / "stray.csv").write_text("x")
+    assert tool.differences(set_dir, files=built) == ["grid-s31/stray.csv (not made by the tool)"]
+
+
+def test_a_missing_word_alignment_is_one_line_naming_it(tmp_path, capsys):
+    import shutil
+    set_dir = tmp_path / "set"
+    shutil.copytree(tool.SET_DIR, set_dir, ignore=shutil.ignore_patterns("fsdd", "*.wav"))
+    (set_dir / "grid-s26" / "bgbsza.align").unlink()
+    assert tool.main(["--set-dir", str(set_dir), "--check"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "grid-s26/bgbsza.align" in err[0]
 
 
 def test_a_changed_file_is_named_and_the_check_fails(built, monkeypatch, capsys):
@@ -46,9 +78,9 @@ def test_a_changed_file_is_named_and_the_check_fails(built, monkeypatch, capsys)
 
 
 def test_every_grid_item_is_16k_audio_as_long_as_its_labels(grid_items):
-    assert len(grid_items) == 40
+    assert len(grid_items) == 60
     for it in grid_items:
-        assert it.sr == 16000 and it.audio.ndim == 1 and it.part == "test"
+        assert it.sr == 16000 and it.audio.ndim == 1
         assert it.phones[0].start_s == 0
         assert abs(it.phones[-1].end_s - it.duration_s) < 1e-3, it.id
         assert it.wav.suffix == ".flac" and it.wav.is_file()
@@ -76,8 +108,9 @@ def test_only_labels_made_without_a_recogniser_are_independent():
                                                       FSDD_WORDS)), it.id
     assert {it.id for it in items if it.independent
             and it.label_source not in (GRID_WORDS, FSDD_WORDS)} == {"slt_a0009", "praatio_bobby"}
-    assert sum(it.label_source == GRID_WORDS for it in items) == 40
-    assert {it.speaker for it in items if it.label_source == GRID_WORDS} == {"grid-s1"}
+    assert sum(it.label_source == GRID_WORDS for it in items) == 60
+    assert {it.speaker for it in items if it.label_source == GRID_WORDS} == {"grid-s1", "grid-s26",
+                                                                             "grid-s31"}
 
 
 def test_a_word_alignment_that_stops_short_of_the_audio_is_refused(tmp_path):

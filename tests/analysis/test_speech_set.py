@@ -47,9 +47,14 @@ def test_every_speaker_id_follows_the_scheme(rows):
 
 
 def test_the_grid_rows_carry_the_real_corpus_speaker_id(rows):
-    corpus = {r["speaker"] for r in read_corpus_manifest(REAL_CORPUS, ("utt_id", "speaker"))}
     grid = {r["speaker"] for r in rows if r["label_source"] == GRID_WORDS}
-    assert len(corpus) == 1 and grid == corpus == {"grid-s1"}
+    assert grid == {"grid-s1", "grid-s26", "grid-s31"}
+    for speaker in grid:  # each row's speaker is the id of the corpus its audio comes from
+        root = REAL_CORPUS.parents[1] / speaker / "manifest.csv"
+        corpus = {r["speaker"] for r in read_corpus_manifest(root, ("utt_id", "speaker"))}
+        assert corpus == {speaker}
+        assert all(f"real_faces/{speaker}/audio/" in r["wav"]
+                   for r in rows if r["speaker"] == speaker)
 
 
 def test_the_dev_part_is_independently_labelled_and_its_speakers_are_not_in_test(rows):
@@ -58,7 +63,7 @@ def test_the_dev_part_is_independently_labelled_and_its_speakers_are_not_in_test
     assert dev and test and len(dev) + len(test) == len(rows)
     assert all(r["label_source"] in INDEPENDENT_SOURCES for r in dev)
     assert {r["speaker"] for r in dev} & {r["speaker"] for r in test} == set()
-    assert {r["speaker"] for r in dev} == {"fsdd-jackson", "fsdd-lucas"}
+    assert {r["speaker"] for r in dev} == {"fsdd-jackson", "fsdd-lucas", "grid-s26"}
     # the pocketsphinx test recordings are one (conservative) speaker, reported in test
     ps = {r["part"] for r in rows if r["speaker"] == "pocketsphinx-test"}
     assert ps == {"test"}

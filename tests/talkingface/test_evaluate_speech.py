@@ -136,7 +136,11 @@ def test_the_stage_scores_the_runs_model_on_every_real_recording(run_dir, mixed_
     assert rates[1]["rate_note"].startswith("3 recordings scored as recorded")
     # the per-speaker table sums to the pooled counts
     table = [r for r in _rows(out / "per_speaker.csv") if r["model"] == "gated_mlp_utterance"]
-    assert sum(int(r["files"]) for r in table) == rows[("gated_mlp_utterance", "test")]["files"]
+    for rate in ("native", "16000"):  # each rate's rows, every test recording once
+        assert sum(int(r["files"]) for r in table if r["input_rate"] == rate) == rows[
+            ("gated_mlp_utterance", "test")]["files"]
+    assert {r["input_rate"] for r in table} == {"native", "16000"}
+    assert {r["kind"] for r in table} == {"sentences"}
     # comparisons pair the default model with the recognisers (streaming) and the peers
     comp = _rows(out / "comparisons.csv")
     has_stream = model["viseme_acc_stream_100ms"] == model["viseme_acc_stream_100ms"]

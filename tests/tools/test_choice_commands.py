@@ -5,6 +5,7 @@ sweep chose otherwise), and the committed hama constants are the development swe
 from __future__ import annotations
 
 import csv
+import math
 import sys
 from pathlib import Path
 
@@ -193,7 +194,8 @@ def test_a_figure_the_development_part_cannot_measure_is_left_out_for_every_chil
         ("voices-b", "unseen-dev", 0.40, "nan", 0.20, 0.30),  # 0.30
         ("voices-c", "unseen-dev", 0.90, "nan", "nan", 0.90)])  # incomplete: no score
     result = voice_tool.choose(voice_tool.read_results(run))
-    assert result["figures"] == ["viseme_acc", "labiodental_contact_frac", "r_reference"]
+    assert result["figures"] == {"unseen-dev": ["viseme_acc", "labiodental_contact_frac",
+                                                "r_reference"]}
     scores = {r["child"]: r["score"] for r in result["rows"]}
     assert result["pick"] == "a" and scores["a"] == pytest.approx(0.4)
     assert scores["b"] == pytest.approx(0.3) and scores["c"] is None
@@ -251,3 +253,26 @@ def test_the_threshold_halves_and_wrong_transcripts_follow_the_sorted_ids(tmp_pa
     assert jobs[5]["transcripts"]["other"] == "w2 x y z"  # 7 places further, wrapping in its half
     assert jobs[10]["transcripts"]["other"] == "w17 x y z"
     assert [j["id"] for j in threshold_tool.jobs(grid, every=5)] == ["c00", "c05", "c10", "c15"]
+
+
+def test_the_voice_chooser_weighs_sentences_and_digits_equally(tmp_path, capsys):
+    """Child a leads the pooled rows (digits are most of them), b the mean of the two kinds."""
+    run = _results(tmp_path, [
+        ("voices-a", "unseen-dev", 0.75, 0.35, 0.65, 0.55),
+        ("voices-a", "unseen-dev-digits", 0.80, "nan", 0.70, 0.60),     # 0.70
+        ("voices-a", "unseen-dev-sentences", 0.40, 0.30, 0.20, 0.30),  # 0.30
+        ("voices-b", "unseen-dev", 0.60, 0.50, 0.50, 0.50),
+        ("voices-b", "unseen-dev-digits", 0.60, "nan", 0.50, 0.40),     # 0.50
+        ("voices-b", "unseen-dev-sentences", 0.70, 0.80, 0.60, 0.50)])  # 0.65
+    result = voice_tool.choose(voice_tool.read_results(run))
+    assert result["kinds"] == ["unseen-dev-sentences", "unseen-dev-digits"]
+    assert result["pick"] == "b"
+    rows = {r["child"]: r for r in result["rows"]}
+    assert rows["b"]["audio"] == pytest.approx(0.575) and rows["a"]["audio"] == pytest.approx(0.5)
+    assert rows["b"]["sentences:bilabial_closed_frac"] == 0.8
+    assert math.isnan(rows["b"]["digits:bilabial_closed_frac"])
+    assert voice_tool.main([str(run), "--voices", str(_voices(run, "b"))]) == 0
+    out = capsys.readouterr().out
+    assert "mean of the kinds, equally weighed" in out
+    assert ("digits (unseen-dev-digits): mean of viseme_acc, labiodental_contact_frac, "
+            "r_reference; bilabial_closed_frac: not measured") in out
