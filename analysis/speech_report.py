@@ -375,7 +375,8 @@ def _per_speaker(rep, speech_dir: Path, default: str) -> None:
         body = []
         for r in sorted(mine, key=lambda r: (r.get("kind") != "sentences", r["speaker"])):
             cells = [r["speaker"], r.get("kind", ""), "yes" if r["seen"] == "True" else "",
-                     r["files"], f"{_num(r.get('viseme_acc'))} ({_num(r.get('chance_viseme_acc'))})",
+                     r["files"],
+                     f"{_num(r.get('viseme_acc'))} ({_num(r.get('chance_viseme_acc'))})",
                      _num(r.get(key)),
                      f"{_num(r.get('bilabial_closed_frac'))} "
                      f"({_num(r.get('chance_bilabial_closed_frac'))})",

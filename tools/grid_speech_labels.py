@@ -77,8 +77,8 @@ SPEAKER = "grid-s1"  # the built-in real corpus's speaker id
 COVER_TOLERANCE_S = 0.04  # one GRID video frame (25 fps): how far short of the audio it may end
 FPS = 30
 SOURCE = ('the GRID corpus, M. Cooke, J. Barker, S. Cunningham, X. Shao (2006), "An audio-visual\n'
-          'corpus for speech perception and automatic speech recognition", *JASA* 120(5):2421–2424;\n'
-          'released on Zenodo (record 3625687) under the Creative Commons Attribution 4.0 licence\n'
+          'corpus for speech perception and automatic speech recognition", *JASA*\n'
+          '120(5):2421–2424; released on Zenodo (record 3625687) under the Creative Commons Attribution 4.0 licence\n'
           '(https://creativecommons.org/licenses/by/4.0/).')
 
 
@@ -129,8 +129,8 @@ The `.csv` files are **derived (modified) labels** made from them by
 final silence cut where the audio ends, and each word divided into its phones (the project's 44
 classes) with the relative durations espeak-ng gives the word spoken alone, scaled into GRID's
 word span. The audio they label is the built-in corpus's FLAC
-(`face_model/real_faces/{sp.corpus.name}/audio/<id>.flac`: GRID's audio track resampled to 22,050 Hz;
-see `face_model/real_faces/{sp.corpus.name}/NOTICE.md`).
+(`face_model/real_faces/{sp.corpus.name}/audio/<id>.flac`: GRID's audio track resampled to
+22,050 Hz; see `face_model/real_faces/{sp.corpus.name}/NOTICE.md`).
 
 Source: {SOURCE}
 """

@@ -38,13 +38,16 @@ def _write(folder: Path, rows: list[tuple]) -> Path:
 @pytest.fixture
 def speech_dir(tmp_path):
     return _write(tmp_path / "speech_eval", [
-        (DEFAULT, "a", False, "sentences", "native", 0.70), (PS, "a", False, "sentences", "native", 0.60),
-        (DEFAULT, "b", False, "sentences", "native", 0.50), (PS, "b", False, "sentences", "native", 0.70),
-        (DEFAULT, "c", False, "sentences", "native", 0.65), (PS, "c", False, "sentences", "native", 0.65),
-        (DEFAULT, "s", True, "sentences", "native", 0.90), (PS, "s", False, "sentences", "native", 0.10),
-        (DEFAULT, "d", False, "digits", "native", 0.90), (PS, "d", False, "digits", "native", 0.10),
-        (DEFAULT, "a", False, "sentences", "16000", 0.10), (PS, "a", False, "sentences", "16000", 0.60),
-        (DEFAULT, "b", False, "sentences", "16000", 0.80), (PS, "b", False, "sentences", "16000", 0.70),
+        (model, spk, seen, kind, rate, v)
+        for spk, seen, kind, rate, mine, ps in (
+            ("a", False, "sentences", "native", 0.70, 0.60),
+            ("b", False, "sentences", "native", 0.50, 0.70),
+            ("c", False, "sentences", "native", 0.65, 0.65),
+            ("s", True, "sentences", "native", 0.90, 0.10),
+            ("d", False, "digits", "native", 0.90, 0.10),
+            ("a", False, "sentences", "16000", 0.10, 0.60),
+            ("b", False, "sentences", "16000", 0.80, 0.70))
+        for model, v in ((DEFAULT, mine), (PS, ps))
     ])
 
 
