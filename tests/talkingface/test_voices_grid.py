@@ -31,7 +31,7 @@ def test_the_project_grid_holds_the_issue_configurations():
                               "fitted-one-voice", "fitted-causal-labels",
                               "real-face-hama-labels", "real-face-mfcc",
                               "real-face-causal-labels", "real-and-drawn-hama-labels"]
-    assert model == "fitted-causal-labels"  # tools/choose_voice_model.py runs/<name> --check
+    assert model == "one-voice-recogniser"  # tools/choose_voice_model.py runs/<name> --check
     assert [children[n].voices.real_face for n in list(children)[-5:]] == \
         ["none", "alone", "alone", "alone", "added"]
     # the fitted articulation's children: the paper's single voice, the fitted faces
@@ -47,7 +47,8 @@ def test_the_project_grid_holds_the_issue_configurations():
     full = children["many-cmvn-warp-augment"].mapping
     assert full.cmvn == "meanvar" and full.vtlp_range == (0.9, 1.1) and full.augment.copies >= 1
     default = children[model].mapping
-    assert (default.gate_front_end, default.mlp_input) == ("recogniser", "phones")
+    assert (default.gate_front_end, default.mlp_input, default.recogniser) == (
+        "recogniser", "mfcc", "pocketsphinx")  # pocketsphinx's phones gate, the MLPs read MFCC
     assert children["many-phones"].synth == children["many-augment-phones"].synth
     assert children["many-phones-labels"].mapping.phone_training == "labels"
     hama = children["one-voice-hama-labels"].mapping
@@ -55,7 +56,7 @@ def test_the_project_grid_holds_the_issue_configurations():
         ("hama", "recogniser", "phones", "labels")
     assert children["one-voice-phones"].mapping.recogniser == "pocketsphinx"
     causal = children["one-voice-causal-labels"].mapping
-    assert causal == children[model].mapping.__class__(**{
+    assert causal == hama.__class__(**{
         **hama.__dict__, "recogniser": "causal"})  # the hama child with our front end
     assert children["many-causal-labels"].synth == children["many-phones-labels"].synth
     for name in ("one-voice", "one-voice-recogniser", "one-voice-phones",
