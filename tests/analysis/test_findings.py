@@ -131,14 +131,24 @@ def test_the_speech_finding_compares_streaming_with_streaming_at_the_targets_loo
 
 def test_the_real_face_finding_says_what_drew_the_defaults_faces(tmp_path):
     """A default trained on faces drawn with a fitted articulation is not said to be trained
-    on "faces only" (the shipped default is one: grid-s1); the hand table's default is."""
+    on "faces only"; the hand table's default is. The shipped default says what drew it as its
+    recorded config does (configs/voices.yaml's model under the paper's config); a model re-saved
+    with the fitted articulation in its config is the fitted case."""
     from analysis.findings import drawn_with
+    from mapping.checkpoint import AudioMapping
     from talkingface.stages.models import SHIPPED_DIR
     from tests.analysis.test_real_face_report import _summary
+    from tests.talkingface.bad_input_ship import tool
 
-    shipped = SHIPPED_DIR / "gated_mlp_utterance.tfmap"
-    assert drawn_with(shipped) == "grid-s1"
+    default_synth = tool().expected()[1].synth
+    assert drawn_with(SHIPPED_DIR / "gated_mlp_utterance.tfmap") == default_synth.articulation
     assert drawn_with(tmp_path / "none.tfmap") == drawn_with(None) == "table"
+    mapping = AudioMapping.load(SHIPPED_DIR / "gated_mlp_utterance.tfmap")
+    mapping.metadata["config"]["synth"]["articulation"] = "grid-s1"
+    (tmp_path / "fitted").mkdir()
+    shipped = tmp_path / "fitted" / "gated_mlp_utterance.tfmap"
+    mapping.save(shipped)
+    assert drawn_with(shipped) == "grid-s1"
     (tmp_path / "t").mkdir()
     (tmp_path / "f").mkdir()
     table, _ = _real_face_report(tmp_path / "t", _summary(synthetic_r=0.654))

@@ -79,7 +79,8 @@ def _run_with_model(runs: Path, name: str, *, voices: bool) -> Path:
         child = run / "voices" / "own"
         child.mkdir(parents=True)
         for f in (tfmap, tfmap.with_name(f"{tfmap.stem}.front.npz")):
-            shutil.copyfile(f, child / f.name)
+            if f.is_file():  # a default read through pocketsphinx keeps no front end file
+                shutil.copyfile(f, child / f.name)
         (run / "voices" / "done.json").write_text(json.dumps(
             {"model": "own", "models": {"own": {"tfmap": f"own/{tfmap.name}"}}}))
     return run
